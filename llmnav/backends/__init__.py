@@ -1,0 +1,1 @@
+"""Model backends: one file a backend, found through the `llmnav.backends` entry-point group."""

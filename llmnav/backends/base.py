@@ -1,0 +1,162 @@
+"""The one interface every model backend implements, and the registry that finds them.
+
+A backend is one class with one real method, `chat`. Backends are named by a spec string
+`NAME[:ARG]` (e.g. `ollama:llama3.1`, `openai:gpt-4o@http://127.0.0.1:8080/v1`, `replay:runs/x/run.jsonl`)
+and registered through the `llmnav.backends` entry-point group, so a third party adds one with `pip install`.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from typing import Any, ClassVar, Literal
+
+from llmnav.errors import BackendSpecError
+
+Role = Literal["system", "user", "assistant"]
+
+
+@dataclass(frozen=True)
+class Image:
+    """A JPEG image, base64-encoded, as sent to multimodal models."""
+
+    jpeg_b64: str
+
+    @property
+    def sha256(self) -> str:
+        """Content hash: run logs store each image once, as a file named by it."""
+        return hashlib.sha256(self.jpeg_b64.encode("ascii")).hexdigest()
+
+    @property
+    def jpeg_bytes(self) -> bytes:
+        """The raw JPEG bytes."""
+        return base64.b64decode(self.jpeg_b64)
+
+
+@dataclass(frozen=True)
+class Message:
+    """One chat message: a role, its text and optional images."""
+
+    role: Role
+    text: str
+    images: tuple[Image, ...] = ()
+
+    def to_log(self) -> dict[str, Any]:
+        """Log form: images by hash, never inline (they are written beside the log)."""
+        out: dict[str, Any] = {"role": self.role, "text": self.text}
+        if self.images:
+            out["images"] = [img.sha256 for img in self.images]
+        return out
+
+
+@dataclass(frozen=True)
+class ChatRequest:
+    """What a planner asks of a model."""
+
+    messages: tuple[Message, ...]
+    json_schema: dict[str, Any] | None = None  # the answer's JSON Schema (constrained decoding where supported)
+    temperature: float = 0.0
+    max_tokens: int = 512
+    seed: int | None = None
+
+    def to_log(self) -> dict[str, Any]:
+        """Log form of the request (the replay backend compares this)."""
+        return {
+            "messages": [m.to_log() for m in self.messages],
+            "json_schema": self.json_schema,
+            "temperature": self.temperature,
+            "max_tokens": self.max_tokens,
+            "seed": self.seed,
+        }
+
+
+@dataclass
+class ChatResult:
+    """A model's reply and what it cost."""
+
+    text: str
+    latency_s: float  # [s] wall time of the call, retries included
+    model: str
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+    meta: dict[str, Any] = field(default_factory=dict)  # provider details (finish reason, attempts, ...)
+
+    def to_log(self) -> dict[str, Any]:
+        """Log form of the reply."""
+        return {
+            "text": self.text,
+            "latency_s": round(self.latency_s, 4),
+            "model": self.model,
+            "prompt_tokens": self.prompt_tokens,
+            "completion_tokens": self.completion_tokens,
+            "meta": self.meta,
+        }
+
+
+@dataclass(frozen=True)
+class BackendStatus:
+    """What `llmnav backends` shows for one backend."""
+
+    ready: bool
+    detail: str  # e.g. "server reachable at http://127.0.0.1:11434", "GEMINI_API_KEY not set"
+
+
+class Backend(ABC):
+    """A chat model. Subclasses set `name`, parse their spec argument in `__init__` and implement `chat`."""
+
+    name: ClassVar[str]
+    default_arg: ClassVar[str | None] = None
+    description: ClassVar[str] = ""
+    multimodal: ClassVar[bool] = False  # whether images in messages reach the model
+    deterministic: ClassVar[bool] = False  # same request -> same reply (replay, local at temperature 0)
+
+    def __init__(self, arg: str | None = None, **options: Any) -> None:
+        self.arg = arg if arg else self.default_arg
+        self.options = options
+
+    @abstractmethod
+    def chat(self, request: ChatRequest) -> ChatResult:
+        """Send one request; raise `ModelError` after the last failed attempt."""
+
+    @classmethod
+    def status(cls, arg: str | None = None) -> BackendStatus:
+        """Whether this backend could run now (cheap: no generation)."""
+        return BackendStatus(True, "")
+
+    @property
+    def spec(self) -> str:
+        """The spec string that recreates this backend (never contains secrets)."""
+        return f"{self.name}:{self.arg}" if self.arg else self.name
+
+    def close(self) -> None:
+        """Release connections or model memory."""
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.spec}>"
+
+
+def registry() -> dict[str, type[Backend]]:
+    """All backends registered under the `llmnav.backends` entry-point group, by name."""
+    found: dict[str, type[Backend]] = {}
+    for ep in entry_points(group="llmnav.backends"):
+        found[ep.name] = ep.load()
+    return found
+
+
+def parse_spec(spec: str) -> tuple[str, str | None]:
+    """Split `NAME[:ARG]` into name and argument."""
+    name, _, arg = spec.strip().partition(":")
+    return name.lower(), (arg or None)
+
+
+def get_backend(spec: str, **options: Any) -> Backend:
+    """Instantiate the backend a spec string names."""
+    name, arg = parse_spec(spec)
+    backends = registry()
+    if name not in backends:
+        known = ", ".join(sorted(backends))
+        raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {known})")
+    return backends[name](arg, **options)

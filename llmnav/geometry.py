@@ -1,0 +1,37 @@
+"""Planar poses and angle helpers shared by the simulator, planners and metrics."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """Wrap an angle to [-pi, pi)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """A planar pose in the world frame: x, y [m] and yaw [rad], counter-clockwise from +x."""
+
+    x: float
+    y: float
+    yaw: float
+
+    def distance_to(self, x: float, y: float) -> float:
+        """Euclidean distance [m] from this pose's position to a point."""
+        return math.hypot(x - self.x, y - self.y)
+
+    def bearing_to(self, x: float, y: float) -> float:
+        """Signed angle [rad] from the heading to the direction of a point (positive = to the left)."""
+        return wrap_angle(math.atan2(y - self.y, x - self.x) - self.yaw)
+
+    def as_list(self) -> list[float]:
+        """[x, y, yaw] rounded for logs (mm and mrad precision is plenty for replay comparisons)."""
+        return [round(self.x, 4), round(self.y, 4), round(self.yaw, 4)]
+
+    @classmethod
+    def from_list(cls, values: list[float] | tuple[float, ...]) -> Pose2D:
+        """Inverse of `as_list`."""
+        return cls(float(values[0]), float(values[1]), float(values[2]))

@@ -1,0 +1,1 @@
+"""Turning run logs into the sources' tables, statistics and plots."""

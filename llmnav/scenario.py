@@ -1,0 +1,392 @@
+"""Scenario files: the world, its labelled objects, tasks and start poses, validated with pydantic.
+
+A scenario is a YAML file in `scenarios/` (or any path). Every error is reported as one line naming the
+file, the path inside it and the problem, raised as `ScenarioError` (exit code 2 in the CLI).
+Units: metres, degrees in files (yaw_deg), radians in code.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from functools import lru_cache
+from pathlib import Path
+from typing import Annotated, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from llmnav.errors import ScenarioError
+from llmnav.geometry import Pose2D
+from llmnav.resources import resource_dir
+
+RGBA = tuple[float, float, float, float]
+Vec2 = tuple[float, float]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Shape(_Strict):
+    """A box or cylinder footprint standing on the floor (or lifted by `z`)."""
+
+    shape: Literal["box", "cylinder"] = "box"
+    center: Vec2  # [m] world frame
+    size: Vec2 | None = None  # [m] box footprint (x, y) before yaw
+    radius: float | None = Field(default=None, gt=0)  # [m] cylinder
+    height: float = Field(default=1.0, gt=0)  # [m]
+    z: float = Field(default=0.0, ge=0)  # [m] bottom elevation (wall plates, signs)
+    yaw_deg: float = 0.0  # [deg]
+    color: RGBA = (0.6, 0.6, 0.6, 1.0)
+    solid: bool = True  # False: visible to the camera, but the robot and LiDAR pass through it
+
+    @model_validator(mode="after")
+    def _dims(self) -> Shape:
+        if self.shape == "box" and self.size is None:
+            raise ValueError("a box needs 'size: [sx, sy]'")
+        if self.shape == "cylinder" and self.radius is None:
+            raise ValueError("a cylinder needs 'radius'")
+        if self.size is not None and min(self.size) <= 0:
+            raise ValueError("size must be positive")
+        return self
+
+    @property
+    def yaw(self) -> float:
+        """Yaw [rad]."""
+        return math.radians(self.yaw_deg)
+
+    def half_extents(self) -> Vec2:
+        """Axis-aligned half extents [m] of the footprint's bounding box (yaw taken into account)."""
+        if self.shape == "cylinder":
+            assert self.radius is not None
+            return (self.radius, self.radius)
+        assert self.size is not None
+        c, s = abs(math.cos(self.yaw)), abs(math.sin(self.yaw))
+        sx, sy = self.size[0] / 2, self.size[1] / 2
+        return (c * sx + s * sy, s * sx + c * sy)
+
+    def contains(self, x: float, y: float, inflate: float = 0.0) -> bool:
+        """Whether a point lies inside the footprint grown by `inflate` [m]."""
+        dx, dy = x - self.center[0], y - self.center[1]
+        if self.shape == "cylinder":
+            assert self.radius is not None
+            return math.hypot(dx, dy) <= self.radius + inflate
+        assert self.size is not None
+        c, s = math.cos(-self.yaw), math.sin(-self.yaw)
+        lx, ly = c * dx - s * dy, s * dx + c * dy
+        return abs(lx) <= self.size[0] / 2 + inflate and abs(ly) <= self.size[1] / 2 + inflate
+
+    def distance_to(self, x: float, y: float) -> float:
+        """Distance [m] from a point to the footprint boundary (0 inside)."""
+        dx, dy = x - self.center[0], y - self.center[1]
+        if self.shape == "cylinder":
+            assert self.radius is not None
+            return max(0.0, math.hypot(dx, dy) - self.radius)
+        assert self.size is not None
+        c, s = math.cos(-self.yaw), math.sin(-self.yaw)
+        lx, ly = abs(c * dx - s * dy) - self.size[0] / 2, abs(s * dx + c * dy) - self.size[1] / 2
+        return math.hypot(max(lx, 0.0), max(ly, 0.0))
+
+
+class Obstacle(Shape):
+    """A static, unlabelled obstacle or wall."""
+
+    id: str | None = None
+
+
+class LabelledObject(Shape):
+    """An object that tasks and detections name."""
+
+    id: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]+$")]
+    label: str
+    aliases: list[str] = []
+    # Where a robot should stand to "reach" it, when that differs from the centre (a room plate on a wall).
+    goal: Vec2 | None = None
+    sign: Literal["left", "right", "stop"] | None = None  # traffic-sign class for the FSM detector
+
+    @property
+    def goal_point(self) -> Vec2:
+        """The point distances to this object are measured to [m]."""
+        return self.goal if self.goal is not None else self.center
+
+    def names(self) -> list[str]:
+        """Label, aliases and id, lower-cased, for name matching."""
+        return [n.lower() for n in (self.label, *self.aliases, self.id)]
+
+
+class Target(_Strict):
+    """An acceptable target of a task: a labelled object id or a free point."""
+
+    object: str | None = None
+    point: Vec2 | None = None
+
+    @model_validator(mode="after")
+    def _one(self) -> Target:
+        if (self.object is None) == (self.point is None):
+            raise ValueError("a target is either 'object: ID' or 'point: [x, y]'")
+        return self
+
+
+class StartPose(_Strict):
+    """A start pose: x, y [m], yaw [deg]."""
+
+    x: float
+    y: float
+    yaw_deg: float = 0.0
+
+    def pose(self) -> Pose2D:
+        """As a Pose2D (radians)."""
+        return Pose2D(self.x, self.y, math.radians(self.yaw_deg))
+
+
+class Task(_Strict):
+    """A task: its exact text, acceptable targets, kind, difficulty and start poses."""
+
+    id: str
+    text: str
+    kind: Literal["target", "explore", "rotate"] = "target"
+    difficulty: Literal["easy", "medium", "hard"] = "medium"
+    targets: list[Target] = []
+    start_poses: list[StartPose] = []
+
+    @model_validator(mode="after")
+    def _targets(self) -> Task:
+        if self.kind == "target" and not self.targets:
+            raise ValueError("a 'target' task needs at least one target")
+        return self
+
+
+class Corridor(_Strict):
+    """An axis-aligned corridor rectangle, the free space the waypoint planner may use."""
+
+    id: str
+    x: Vec2  # [m] (min, max)
+    y: Vec2  # [m] (min, max)
+
+    @model_validator(mode="after")
+    def _order(self) -> Corridor:
+        if self.x[0] >= self.x[1] or self.y[0] >= self.y[1]:
+            raise ValueError("corridor ranges must be (min, max) with min < max")
+        return self
+
+    def contains(self, x: float, y: float, margin: float = 0.0) -> bool:
+        """Whether (x, y) lies inside the rectangle shrunk by `margin` [m]."""
+        return (self.x[0] + margin <= x <= self.x[1] - margin) and (self.y[0] + margin <= y <= self.y[1] - margin)
+
+
+class LidarConfig(_Strict):
+    """2D LiDAR defaults."""
+
+    fov_deg: float = Field(default=360.0, gt=0, le=360)
+    rays: int = Field(default=360, ge=8, le=4096)
+    range_m: float = Field(default=10.0, gt=0)
+    min_range_m: float = Field(default=0.05, ge=0)
+    mount_height_m: float = Field(default=0.25, gt=0)
+    noise_std_m: float = Field(default=0.0, ge=0)
+
+
+class CameraConfig(_Strict):
+    """RGB camera defaults (at most 640x480, as the stepwise source sends)."""
+
+    width: int = Field(default=640, ge=16, le=640)
+    height: int = Field(default=480, ge=16, le=480)
+    fov_deg: float = Field(default=60.0, gt=10, lt=170)  # vertical field of view
+    mount_height_m: float = Field(default=1.0, gt=0)
+    far_m: float = Field(default=25.0, gt=1)
+    jpeg_quality: int = Field(default=80, ge=10, le=100)
+
+
+class DetectorConfig(_Strict):
+    """Detections from the segmentation mask."""
+
+    min_pixels: int = Field(default=30, ge=1)
+    max_distance_m: float = Field(default=12.0, gt=0)
+    distance_noise_std_m: float = Field(default=0.0, ge=0)
+    dropout: float = Field(default=0.0, ge=0, le=1)
+
+
+class SensorConfig(_Strict):
+    """Sensor defaults of a scenario."""
+
+    lidar: LidarConfig = LidarConfig()
+    camera: CameraConfig = CameraConfig()
+    detector: DetectorConfig = DetectorConfig()
+
+
+class WaypointRules(_Strict):
+    """The waypoint planner's rules for this environment (source B)."""
+
+    margin_m: float = 0.5
+    spacing_m: float = 0.7
+    target_tolerance_m: float = 0.05
+    max_waypoints: int = Field(default=6, ge=1)
+
+
+class Bounds(_Strict):
+    """The world's axis-aligned extent [m]."""
+
+    x: Vec2
+    y: Vec2
+
+    def contains(self, x: float, y: float) -> bool:
+        """Whether a point lies inside."""
+        return self.x[0] <= x <= self.x[1] and self.y[0] <= y <= self.y[1]
+
+
+class Scenario(_Strict):
+    """A complete scenario: the world, labelled objects, tasks and defaults."""
+
+    name: str
+    description: str = ""
+    robot: Literal["pr2", "burger"] = "pr2"
+    bounds: Bounds
+    floor_color: RGBA = (0.55, 0.55, 0.5, 1.0)
+    wall_height: float = Field(default=2.5, gt=0)
+    walls: list[Obstacle] = []
+    obstacles: list[Obstacle] = []
+    objects: list[LabelledObject] = []
+    corridors: list[Corridor] = []
+    tasks: list[Task] = []
+    default_start: StartPose = StartPose(x=0.0, y=0.0)
+    sensors: SensorConfig = SensorConfig()
+    waypoint_rules: WaypointRules = WaypointRules()
+
+    @field_validator("objects")
+    @classmethod
+    def _unique_ids(cls, objects: list[LabelledObject]) -> list[LabelledObject]:
+        seen: set[str] = set()
+        for obj in objects:
+            if obj.id in seen:
+                raise ValueError(f"duplicate object id '{obj.id}'")
+            seen.add(obj.id)
+        return objects
+
+    # --- look-ups -------------------------------------------------------------------------------
+    def object(self, object_id: str) -> LabelledObject:
+        """The labelled object with this id (KeyError if absent)."""
+        for obj in self.objects:
+            if obj.id == object_id:
+                return obj
+        raise KeyError(object_id)
+
+    def task(self, task_id: str) -> Task:
+        """The task with this id (KeyError if absent)."""
+        for task in self.tasks:
+            if task.id.lower() == task_id.lower():
+                return task
+        raise KeyError(task_id)
+
+    def solid_shapes(self) -> list[Shape]:
+        """Everything the robot can collide with: walls, obstacles and solid labelled objects."""
+        return [*self.walls, *self.obstacles, *(o for o in self.objects if o.solid)]
+
+    def target_points(self, task: Task) -> list[Vec2]:
+        """The goal points of a task's acceptable targets."""
+        return [self.object(t.object).goal_point if t.object else t.point for t in task.targets]  # type: ignore[misc]
+
+    def start_poses(self, task: Task | None) -> list[StartPose]:
+        """A task's start poses, or the scenario default."""
+        return list(task.start_poses) if task is not None and task.start_poses else [self.default_start]
+
+
+# --- loading ------------------------------------------------------------------------------------
+
+
+def _loc(loc: tuple[int | str, ...]) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def _check_consistency(sc: Scenario) -> list[tuple[str, str]]:
+    """Cross-field checks pydantic cannot express; returns (path, problem) pairs."""
+    problems: list[tuple[str, str]] = []
+    ids = {o.id for o in sc.objects}
+    for i, obj in enumerate(sc.objects):
+        if not sc.bounds.contains(*obj.center):
+            problems.append((f"objects[{i}].center", f"object '{obj.id}' at {list(obj.center)} is outside bounds"))
+    for i, obs in enumerate(sc.obstacles):
+        if not sc.bounds.contains(*obs.center):
+            problems.append((f"obstacles[{i}].center", f"obstacle at {list(obs.center)} is outside bounds"))
+    # A start pose must leave the robot's footprint clear of everything solid.
+    from llmnav.sim.robot_specs import ROBOT_SPECS  # local: keep scenario loading free of pybullet
+
+    radius = ROBOT_SPECS[sc.robot].radius_m
+    solids = sc.solid_shapes()
+    for ti, task in enumerate(sc.tasks):
+        for tj, target in enumerate(task.targets):
+            if target.object is not None and target.object not in ids:
+                problems.append((f"tasks[{ti}].targets[{tj}].object", f"unknown target id '{target.object}'"))
+        for si, start in enumerate(task.start_poses):
+            where = f"tasks[{ti}].start_poses[{si}]"
+            if not sc.bounds.contains(start.x, start.y):
+                problems.append((where, f"start pose ({start.x}, {start.y}) is outside bounds"))
+            elif any(s.contains(start.x, start.y, inflate=radius) for s in solids):
+                problems.append((where, f"start pose ({start.x}, {start.y}) overlaps an obstacle"))
+    start = sc.default_start
+    if any(s.contains(start.x, start.y, inflate=radius) for s in solids):
+        problems.append(("default_start", f"start pose ({start.x}, {start.y}) overlaps an obstacle"))
+    return problems
+
+
+def parse_scenario(data: object, source: str) -> Scenario:
+    """Validate already-loaded YAML data; `source` names the file in error messages."""
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{source}: (top level): expected a mapping, got {type(data).__name__}")
+    try:
+        scenario = Scenario.model_validate(data)
+    except ValidationError as err:
+        first = err.errors()[0]
+        msg = first["msg"].removeprefix("Value error, ")
+        more = f" (+{err.error_count() - 1} more)" if err.error_count() > 1 else ""
+        raise ScenarioError(f"{source}: {_loc(tuple(first['loc']))}: {msg}{more}") from None
+    problems = _check_consistency(scenario)
+    if problems:
+        path, msg = problems[0]
+        more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise ScenarioError(f"{source}: {path}: {msg}{more}")
+    return scenario
+
+
+def scenario_dir() -> Path:
+    """The folder holding the bundled scenario files."""
+    return resource_dir("scenarios")
+
+
+def list_scenarios() -> list[str]:
+    """Names of the bundled scenarios."""
+    return sorted(p.stem for p in scenario_dir().glob("*.yaml"))
+
+
+def resolve_scenario_path(name_or_path: str | Path) -> Path:
+    """A bundled scenario name, or a path to a YAML file."""
+    text = str(name_or_path)
+    if re.fullmatch(r"[A-Za-z0-9_-]+", text) and (scenario_dir() / f"{text}.yaml").exists():
+        return scenario_dir() / f"{text}.yaml"
+    path = Path(text)
+    if path.is_file():
+        return path
+    known = ", ".join(list_scenarios())
+    raise ScenarioError(f"{text}: no such scenario file or bundled scenario (bundled: {known})")
+
+
+@lru_cache(maxsize=32)
+def _load_cached(path: str, mtime: float) -> Scenario:
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else "(file)"
+        problem = getattr(err, "problem", None) or "invalid YAML"
+        raise ScenarioError(f"{path}: {where}: {problem}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ScenarioError(f"{path}: cannot read: {err}") from None
+    return parse_scenario(data, path)
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load and validate a scenario by bundled name or path (cached by path and mtime)."""
+    path = resolve_scenario_path(name_or_path)
+    return _load_cached(str(path), path.stat().st_mtime)
