@@ -110,6 +110,10 @@ class Planner(ABC):
     name: ClassVar[str]
     needs_backend: ClassVar[bool] = True
 
+    def requires_backend(self, options: DriveOptions) -> bool:
+        """Whether this episode needs a model (the runner creates no backend otherwise)."""
+        return self.needs_backend
+
     @abstractmethod
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Drive one episode to its end; log every event through `ctx.log`; never print."""
