@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,12 +84,15 @@ class RunLog:
             raise BadInputError(f"cannot write run folder {self.run_dir}: {err.strerror or err}") from None
         self._t0 = time.perf_counter()
         self._images: set[str] = set()
+        self._lock = threading.Lock()  # a model worker thread may log while the control loop does
         self.sim_time: float | None = None
         self._write({"type": "config", **config})
 
     def _write(self, record: dict[str, Any]) -> None:
-        self._file.write(dumps(record) + "\n")
-        self._file.flush()  # survives SIGKILL: the line is in the kernel's page cache
+        line = dumps(record) + "\n"
+        with self._lock:
+            self._file.write(line)
+            self._file.flush()  # survives SIGKILL: the line is in the kernel's page cache
 
     def event(self, type_: str, **fields: Any) -> None:
         """Append one event (flushed at once)."""

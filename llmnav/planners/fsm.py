@@ -1,0 +1,477 @@
+"""Finite-state machine with asynchronous LLM assist (source C: sign-following in a maze).
+
+A deterministic 50 Hz FSM (SEARCH, APPROACH, ACT_LEFT, ACT_RIGHT, ACT_STOP) drives toward traffic signs
+seen by the detector. Its baseline command is v = sat(k_v (d - d_goal)), w = sat(k_w e_theta) with
+first-order rate limits. With `--assist llm` a model proposes {"linear_x", "angular_z"} from a state JSON
+published only in APPROACH; a proposal is used only if well-formed, fresh (t_recv - t_stamp <= TTL) and
+within the kinematic bounds, then projected onto the admissible box and fused,
+v = (1 - alpha) v_base + alpha * proj(v_llm), and held until a newer one arrives or it expires.
+With `--assist ema` the baseline is smoothed instead: v_t = (1 - beta) v_{t-1} + beta v_base.
+
+The loop never waits for the model. Two timing modes:
+- virtual (default): simulation time is the only clock. The model is called between ticks while the
+  simulation is frozen, and its measured latency is charged to simulation time before the answer can be
+  used, so the run is deterministic for a deterministic backend (replay returns the recorded latency).
+- realtime (`--realtime`): ticks are paced to the wall clock and the model runs in a worker thread;
+  answers are used at the tick after they arrive.
+Tick latency is the controller's own work (tick start -> command published); physics stepping and the
+detector (a separate perception node at `perception_hz`) are the world, not the controller.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from llmnav.backends.base import ChatRequest, ChatResult, Message
+from llmnav.errors import LlmnavError
+from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+
+if TYPE_CHECKING:
+    from llmnav.sim.sensors import Detection
+
+State = Literal["SEARCH", "APPROACH", "ACT_LEFT", "ACT_RIGHT", "ACT_STOP"]
+Verdict = Literal["accepted", "stale", "bounds", "parse", "error"]
+
+
+@dataclass(frozen=True)
+class FsmConfig:
+    """Controller constants (source C's structure; values tuned for the burger in `maze_arena`)."""
+
+    tick_hz: float = 50.0  # [Hz] control rate
+    perception_hz: float = 10.0  # [Hz] detector rate
+    publish_hz: float = 5.0  # [Hz] state-JSON rate in APPROACH (at most one request in flight)
+    d_goal: float = 0.45  # [m] distance to a sign at which the FSM acts on it
+    k_v: float = 0.3  # [1/s] linear gain
+    v_min: float = 0.0  # [m/s]
+    v_max: float = 0.06  # [m/s] the source's top setpoint
+    k_w: float = 1.5  # [1/s] angular gain on the bearing error
+    w_max: float = 0.8  # [rad/s]
+    accel_max: float = 0.1  # [m/s^2] first-order rate limit on v
+    ang_accel_max: float = 2.0  # [rad/s^2] rate limit on w
+    search_w: float = 0.4  # [rad/s] rotation while searching for a sign
+    turn_w: float = 0.6  # [rad/s] rotation while acting on a left/right sign
+    turn_angle: float = math.pi / 2  # [rad]
+    lost_after_s: float = 1.0  # [s] sign unseen this long in APPROACH -> SEARCH
+    search_timeout_s: float = 30.0  # [s] SEARCH without any sign -> failure
+    pose_sample_s: float = 0.25  # [s] trajectory sampling
+    cmd_sample_s: float = 0.1  # [s] command-profile sampling for the log and the PNG
+
+
+@dataclass
+class Suggestion:
+    """A model answer on its way to the controller."""
+
+    stamp: float  # [s] sim time of the state it answers
+    ready_at: float  # [s] sim time from which it may be used
+    text: str | None  # raw answer (None when the call failed)
+    latency_s: float
+    error: str | None = None
+
+
+@dataclass
+class HeldSuggestion:
+    """An accepted suggestion, sample-and-hold until newer or expired."""
+
+    stamp: float
+    v: float
+    w: float
+
+
+@dataclass
+class FsmStats:
+    """Counters behind the FSM table of `llmnav score`."""
+
+    tick_latency_ms: list[float] = field(default_factory=list)
+    model_latency_ms: list[float] = field(default_factory=list)
+    suggestions: int = 0
+    rejected: dict[str, int] = field(default_factory=lambda: {"stale": 0, "bounds": 0, "parse": 0, "error": 0})
+    accepted: int = 0
+    ticks_using: int = 0
+    missed_deadlines: int = 0
+
+
+def saturate(value: float, low: float, high: float) -> float:
+    """Clip to [low, high]."""
+    return min(max(value, low), high)
+
+
+def rate_limit(target: float, previous: float, max_rate: float, dt: float) -> float:
+    """First-order rate limit: move from `previous` toward `target` by at most max_rate * dt."""
+    step = max_rate * dt
+    return previous + saturate(target - previous, -step, step)
+
+
+def check_suggestion(
+    text: str | None, stamp: float, t_recv: float, ttl_s: float, cfg: FsmConfig
+) -> tuple[Verdict, tuple[float, float] | None, str]:
+    """Judge a model answer: (verdict, (v, w) if usable, detail). Order: parse, freshness, bounds."""
+    from llmnav.guard.parse import parse_answer
+    from llmnav.guard.schemas import VelocitySuggestion
+
+    if text is None:
+        return "error", None, "model call failed"
+    result = parse_answer(text, VelocitySuggestion)
+    if result.value is None:
+        return "parse", None, result.error or result.outcome
+    if t_recv - stamp > ttl_s:
+        return "stale", None, f"{(t_recv - stamp) * 1000:.0f} ms old > TTL {ttl_s * 1000:.0f} ms"
+    v, w = float(result.value.linear_x), float(result.value.angular_z)
+    if not (math.isfinite(v) and math.isfinite(w)) or abs(v) > cfg.v_max or abs(w) > cfg.w_max:
+        return "bounds", None, f"({v:.3g}, {w:.3g}) outside |v| <= {cfg.v_max}, |w| <= {cfg.w_max}"
+    return "accepted", (v, w), ""
+
+
+def project(v: float, w: float, cfg: FsmConfig) -> tuple[float, float]:
+    """Projection onto the admissible box [v_min, v_max] x [-w_max, w_max]."""
+    return saturate(v, cfg.v_min, cfg.v_max), saturate(w, -cfg.w_max, cfg.w_max)
+
+
+class _Worker:
+    """Realtime mode: runs model calls in a thread; the controller only polls."""
+
+    def __init__(self, call: Any) -> None:
+        self._call = call
+        self._requests: queue.Queue[tuple[float, ChatRequest] | None] = queue.Queue(maxsize=1)
+        self.results: queue.Queue[tuple[float, ChatResult | None, str | None, float]] = queue.Queue()
+        self._thread = threading.Thread(target=self._run, name="llmnav-fsm-llm", daemon=True)
+        self._thread.start()
+
+    def submit(self, stamp: float, request: ChatRequest) -> None:
+        self._requests.put_nowait((stamp, request))
+
+    def _run(self) -> None:
+        while True:
+            item = self._requests.get()
+            if item is None:
+                return
+            stamp, request = item
+            started = time.perf_counter()
+            try:
+                self.results.put((stamp, self._call(request), None, time.perf_counter() - started))
+            except LlmnavError as err:
+                self.results.put((stamp, None, str(err), time.perf_counter() - started))
+
+    def close(self) -> None:
+        try:
+            self._requests.put_nowait(None)
+        except queue.Full:
+            pass
+        self._thread.join(timeout=0.1)  # a call still running is abandoned (daemon thread)
+
+
+class FsmPlanner(Planner):
+    """Source C's sign-following FSM, optionally assisted by a model (see module docstring)."""
+
+    name = "fsm"
+    needs_backend = True
+
+    def __init__(self, config: FsmConfig | None = None) -> None:
+        self.cfg = config or FsmConfig()
+
+    def requires_backend(self, options: DriveOptions) -> bool:
+        """Only `--assist llm` talks to a model."""
+        return options.assist == "llm"
+
+    # --- the episode --------------------------------------------------------------------------
+    def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
+        """Tick the FSM until the stop sign, a collision or the tick budget."""
+        cfg, opts, world, log = self.cfg, ctx.options, ctx.world, ctx.log
+        dt = 1.0 / cfg.tick_hz
+        use_llm = opts.assist == "llm" and ctx.backend is not None
+        ttl_s = opts.ttl_ms / 1000.0
+        stats = FsmStats()
+        system_prompt = self._system_prompt() if use_llm else ""
+        worker = _Worker(lambda req: self._call(ctx, req)) if use_llm and opts.realtime else None
+
+        state: State = "SEARCH"
+        consumed: set[str] = set()
+        target_id: str | None = None
+        last_seen = 0.0
+        state_since = 0.0
+        turn_start_yaw = 0.0
+        turned = 0.0
+        detections: list[Detection] = []
+        base_v = base_w = out_v = out_w = 0.0
+        held: HeldSuggestion | None = None
+        raw_v: float | None = None
+        raw_w: float | None = None
+        pending: Suggestion | None = None
+        in_flight = False
+        last_publish = -math.inf
+        next_pose = next_cmd = next_detect = 0.0
+        start_pose = world.robot.pose()
+        log.event("pose", pose=start_pose.as_list())
+        outcome: EpisodeOutcome | None = None
+        wall_start = time.perf_counter()
+        tick = 0
+
+        try:
+            for tick in range(opts.max_ticks):
+                now = world.sim_time
+                log.sim_time = now
+                # Perception node (outside the controller's budget).
+                if now >= next_detect - 1e-9:
+                    detections = [d for d in world.detector.detect() if d.sign is not None]
+                    next_detect = now + 1.0 / cfg.perception_hz
+                if opts.realtime:
+                    self._pace(wall_start, tick, dt, stats)
+
+                tick_start = time.perf_counter()
+                # --- deliver model answers that are due ------------------------------------------
+                if use_llm:
+                    delivered = self._due(pending, now, worker)
+                    if delivered is not None:
+                        pending, in_flight = None, False
+                        stats.suggestions += 1
+                        stats.model_latency_ms.append(delivered.latency_s * 1000.0)
+                        verdict, value, detail = check_suggestion(
+                            delivered.text, delivered.stamp, now, ttl_s, cfg
+                        )
+                        if value is not None:
+                            stats.accepted += 1
+                            held = HeldSuggestion(delivered.stamp, *value)
+                        else:
+                            stats.rejected[verdict] += 1
+                        log.event(
+                            "planner", kind="suggestion", stamp=round(delivered.stamp, 4),
+                            t_recv=round(now, 4), latency_ms=round(delivered.latency_s * 1000, 2),
+                            raw=(delivered.text or "")[:300], verdict=verdict, detail=detail,
+                        )
+                    if held is not None and now - held.stamp > ttl_s:
+                        held = None  # expired: the baseline applies at once
+
+                # --- FSM ------------------------------------------------------------------------
+                visible = {d.object_id: d for d in detections if d.object_id not in consumed}
+                previous_state = state
+                if state == "SEARCH":
+                    if visible:
+                        target_id = min(visible.values(), key=lambda d: d.distance_m).object_id
+                        state, last_seen = "APPROACH", now
+                    elif now - state_since > cfg.search_timeout_s:
+                        outcome = EpisodeOutcome("failed", "no sign found while searching", tick)
+                        break
+                if state == "APPROACH":
+                    seen = visible.get(target_id or "")
+                    if seen is not None:
+                        last_seen = now
+                        if seen.distance_m <= cfg.d_goal:
+                            state = {"left": "ACT_LEFT", "right": "ACT_RIGHT"}.get(seen.sign or "", "ACT_STOP")  # type: ignore[assignment]
+                    elif now - last_seen > cfg.lost_after_s:
+                        state = "SEARCH"
+                if state != previous_state:
+                    state_since = now
+                    turn_start_yaw, turned = world.robot.odom().yaw, 0.0
+                    if previous_state == "APPROACH" and state != "SEARCH":
+                        consumed.add(target_id or "")
+                    if state != "APPROACH":
+                        held, pending, in_flight = None, None, in_flight and worker is not None
+                    log.event("planner", kind="fsm_state", previous=previous_state, state=state,
+                              sign=target_id, pose=world.robot.pose().as_list())
+
+                # --- baseline command -------------------------------------------------------------
+                target_v, target_w = 0.0, 0.0
+                if state == "SEARCH":
+                    target_w = cfg.search_w
+                elif state == "APPROACH" and target_id in visible:
+                    seen = visible[target_id]
+                    target_v = saturate(cfg.k_v * (seen.distance_m - cfg.d_goal), cfg.v_min, cfg.v_max)
+                    target_w = saturate(cfg.k_w * math.radians(seen.bearing_deg), -cfg.w_max, cfg.w_max)
+                elif state in ("ACT_LEFT", "ACT_RIGHT"):
+                    yaw = world.robot.odom().yaw
+                    turned += abs(math.remainder(yaw - turn_start_yaw, math.tau))
+                    turn_start_yaw = yaw
+                    if turned >= cfg.turn_angle:
+                        state, state_since = "SEARCH", now
+                        log.event("planner", kind="fsm_state", previous=previous_state, state=state,
+                                  sign=target_id, pose=world.robot.pose().as_list())
+                    else:
+                        target_w = cfg.turn_w if state == "ACT_LEFT" else -cfg.turn_w
+                base_v = rate_limit(target_v, base_v, cfg.accel_max, dt)
+                base_w = rate_limit(target_w, base_w, cfg.ang_accel_max, dt)
+
+                # --- fusion / smoothing -------------------------------------------------------------
+                raw_v = raw_w = None
+                if state == "ACT_STOP":
+                    cmd_v = cmd_w = 0.0
+                elif opts.assist == "ema":
+                    cmd_v = (1 - opts.beta) * out_v + opts.beta * base_v
+                    cmd_w = (1 - opts.beta) * out_w + opts.beta * base_w
+                elif held is not None and state == "APPROACH":
+                    raw_v, raw_w = held.v, held.w
+                    proj_v, proj_w = project(held.v, held.w, cfg)
+                    cmd_v = (1 - opts.alpha) * base_v + opts.alpha * proj_v
+                    cmd_w = (1 - opts.alpha) * base_w + opts.alpha * proj_w
+                    stats.ticks_using += 1
+                else:
+                    cmd_v, cmd_w = base_v, base_w
+                out_v, out_w = cmd_v, cmd_w
+                stats.tick_latency_ms.append((time.perf_counter() - tick_start) * 1000.0)  # published
+
+                # --- publish the state JSON (APPROACH only, one request in flight) ------------------
+                if (
+                    use_llm and state == "APPROACH" and not in_flight and target_id in visible
+                    and now - last_publish >= 1.0 / cfg.publish_hz - 1e-9
+                ):
+                    seen = visible[target_id]
+                    request = self._request(system_prompt, now, state, seen, base_v, base_w, dt, opts)
+                    last_publish, in_flight = now, True
+                    if worker is not None:
+                        worker.submit(now, request)
+                    else:
+                        pending = self._call_virtual(ctx, request, now)
+
+                # --- world -------------------------------------------------------------------------
+                if now >= next_cmd - 1e-9:
+                    log.event("planner", kind="cmd", state=state, base=[round(base_v, 4), round(base_w, 4)],
+                              raw=None if raw_v is None else [round(raw_v, 4), round(raw_w or 0.0, 4)],
+                              fused=[round(cmd_v, 4), round(cmd_w, 4)])
+                    next_cmd = now + cfg.cmd_sample_s
+                if state == "ACT_STOP":
+                    outcome = EpisodeOutcome("completed", "stopped at the stop sign", tick + 1)
+                    break
+                result = world.motion.velocity_tick(cmd_v, cmd_w, dt)
+                if now >= next_pose - 1e-9:
+                    log.event("pose", pose=world.robot.pose().as_list())
+                    next_pose = now + cfg.pose_sample_s
+                if result.collided:
+                    outcome = EpisodeOutcome("failed", f"collided with {result.collision_with or 'an obstacle'}", tick + 1)
+                    break
+                if tick % 25 == 0:
+                    ctx.view.on_step(StepInfo(step=tick, action=f"{state} v={cmd_v:.3f} w={cmd_w:.2f}"))
+        finally:
+            if worker is not None:
+                worker.close()
+
+        if outcome is None:
+            outcome = EpisodeOutcome("failed", f"tick budget exhausted ({opts.max_ticks} ticks)", opts.max_ticks)
+        final = world.robot.pose()
+        log.event("pose", pose=final.as_list())
+        outcome.metrics = self._metrics(ctx, stats, final, start_pose)
+        self._plot_profile(ctx)
+        return outcome
+
+    # --- helpers ----------------------------------------------------------------------------
+    def _pace(self, wall_start: float, tick: int, dt: float, stats: FsmStats) -> None:
+        """Realtime: sleep until this tick's slot; count a missed deadline when already past it."""
+        slot = wall_start + tick * dt
+        lag = time.perf_counter() - slot
+        if lag < 0:
+            time.sleep(-lag)
+        elif lag > dt:
+            stats.missed_deadlines += 1
+
+    @staticmethod
+    def _due(pending: Suggestion | None, now: float, worker: _Worker | None) -> Suggestion | None:
+        if worker is not None:
+            try:
+                stamp, result, error, latency = worker.results.get_nowait()
+            except queue.Empty:
+                return None
+            return Suggestion(stamp, now, result.text if result else None, latency, error)
+        if pending is not None and now >= pending.ready_at - 1e-9:
+            return pending
+        return None
+
+    def _system_prompt(self) -> str:
+        from llmnav.prompting import render
+
+        cfg = self.cfg
+        return render(
+            "fsm_velocity", v_min=cfg.v_min, v_max=cfg.v_max, w_max=cfg.w_max, d_goal=cfg.d_goal
+        )
+
+    def _request(
+        self, system_prompt: str, now: float, state: State, seen: Detection, base_v: float, base_w: float,
+        dt: float, opts: DriveOptions,
+    ) -> ChatRequest:
+        from llmnav.guard.schemas import VelocitySuggestion
+
+        state_json = {
+            "stamp": round(now, 3),
+            "phase": state,
+            "class": seen.sign,
+            "distance": round(seen.distance_m, 3),
+            "offset": round(seen.offset, 3),
+            "base_v": round(base_v, 4),
+            "base_w": round(base_w, 4),
+            "deadline_ms": round(dt * 1000.0),
+        }
+        return ChatRequest(
+            messages=(Message("system", system_prompt), Message("user", json.dumps(state_json))),
+            json_schema=VelocitySuggestion.model_json_schema(),
+            temperature=opts.temperature,
+            max_tokens=min(opts.max_tokens, 64),
+            seed=opts.seed,
+        )
+
+    @staticmethod
+    def _call(ctx: EpisodeContext, request: ChatRequest) -> ChatResult:
+        from llmnav.observe import call_model
+
+        return call_model(ctx, request, purpose="suggestion", step=None)
+
+    def _call_virtual(self, ctx: EpisodeContext, request: ChatRequest, now: float) -> Suggestion:
+        """Call between ticks with the simulation frozen; charge the latency to simulation time."""
+        started = time.perf_counter()
+        try:
+            result = self._call(ctx, request)
+        except LlmnavError as err:
+            latency = time.perf_counter() - started
+            return Suggestion(now, now + latency, None, latency, str(err))
+        return Suggestion(now, now + result.latency_s, result.text, result.latency_s)
+
+    def _metrics(self, ctx: EpisodeContext, stats: FsmStats, final: Any, start: Any) -> dict[str, Any]:
+        from llmnav.runlog import read_run
+
+        target = ctx.scenario.target_points(ctx.task)[0] if ctx.task.targets else None
+        e_pos = final.distance_to(*target) if target is not None else None
+        poses = read_run(ctx.log.run_dir).poses()
+        real = float(sum(math.dist(a[:2], b[:2]) for a, b in zip(poses, poses[1:], strict=False)))
+        optimal = _shortest_length(ctx, start, target) if target is not None else None
+        ticks = max(len(stats.tick_latency_ms), 1)
+        lat = np.asarray(stats.tick_latency_ms or [0.0])
+        model = np.asarray(stats.model_latency_ms) if stats.model_latency_ms else None
+        return {
+            "assist": ctx.options.assist,
+            "e_pos_m": e_pos,
+            "eta": (optimal / real) if optimal and real > 0 else None,
+            "optimal_length_m": optimal,
+            "real_length_m": real,
+            "ticks": len(stats.tick_latency_ms),
+            "missed_deadlines": stats.missed_deadlines,
+            "tick_latency_ms": {
+                "mean": float(lat.mean()), "p50": float(np.percentile(lat, 50)),
+                "p99": float(np.percentile(lat, 99)), "max": float(lat.max()),
+            },
+            "model_latency_ms": None if model is None else {
+                "mean": float(model.mean()), "p50": float(np.percentile(model, 50)), "max": float(model.max()),
+            },
+            "suggestions": stats.suggestions,
+            "accepted": stats.accepted,
+            "rejected": dict(stats.rejected),
+            "r_acc": stats.accepted / stats.suggestions if stats.suggestions else None,
+            "r_use": stats.ticks_using / ticks,
+        }
+
+    @staticmethod
+    def _plot_profile(ctx: EpisodeContext) -> None:
+        from llmnav.reporting.velocity import plot_velocity_profile
+
+        plot_velocity_profile(ctx.log.run_dir, ctx.log.run_dir / "velocity_profile.png")
+
+
+def _shortest_length(ctx: EpisodeContext, start: Any, target: tuple[float, float]) -> float | None:
+    """L_opt for the trajectory efficiency: the A* length from the start to the target point."""
+    try:
+        from llmnav.baselines.oracle import shortest_path_length
+    except ImportError:
+        return None
+    return shortest_path_length(ctx.scenario, (start.x, start.y), target)

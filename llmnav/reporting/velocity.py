@@ -1,0 +1,37 @@
+"""Velocity-profile figure of an FSM run: baseline, raw model suggestion and fused command over time."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def plot_velocity_profile(run_dir: Path, out: Path) -> Path | None:
+    """Draw linear and angular velocity from the run's `cmd` records; None when there are none."""
+    from llmnav.runlog import read_run
+
+    records = [e for e in read_run(run_dir).of_type("planner") if e.get("kind") == "cmd"]
+    if not records:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = [float(e.get("t_sim", 0.0)) for e in records]
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    for axis, index, unit in ((axes[0], 0, "linear v [m/s]"), (axes[1], 1, "angular ω [rad/s]")):
+        axis.plot(t, [e["base"][index] for e in records], label="baseline (FSM)", color="tab:blue")
+        raw_t = [ti for ti, e in zip(t, records, strict=True) if e.get("raw") is not None]
+        raw = [e["raw"][index] for e in records if e.get("raw") is not None]
+        if raw:
+            axis.plot(raw_t, raw, ".", ms=3, label="raw model suggestion", color="tab:orange")
+        axis.plot(t, [e["fused"][index] for e in records], label="published (fused)", color="tab:green", lw=1.2)
+        axis.set_ylabel(unit)
+        axis.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[1].set_xlabel("simulation time [s]")
+    fig.suptitle("FSM command profile")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
