@@ -1,0 +1,312 @@
+"""Episode metrics: the stepwise source's score, success, path length and the per-run summary.
+
+Every number in `summary.json` comes from `summarize_run`, which reads only the run log (the event
+vocabulary of `llmnav.runlog`) and the scenario. The runner calls it when an episode ends; `llmnav score`
+calls it on runs that were cut short. Definitions (see docs/metrics.md):
+
+- score S = distance_score(d) * heading_score(alpha) at the final pose, for the best acceptable target
+  (the one with the largest S);
+- distance_score(d) = 1 if d <= 2.5 m else 1.5 ** -(d - 2.5);
+- heading_score(alpha) = (pi - alpha) / pi, alpha in [0, pi] the angle between heading and the direction
+  to the target;
+- success = the episode completed (the model said COMPLETE or the planner reached its own end) with
+  d <= 2.5 m; rotate tasks: completed with a total rotation of at least 360 deg minus 10 deg (score 1 when
+  the rotation holds, else 0); explore tasks: score N.A. (None), success = completed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from llmnav.geometry import Pose2D, wrap_angle
+
+if TYPE_CHECKING:
+    from llmnav.planners.base import EpisodeOutcome
+    from llmnav.runlog import RunRecord
+    from llmnav.scenario import Scenario
+
+SUCCESS_RADIUS_M = 2.5  # [m] d at or below which distance_score is 1 and a completed run succeeds
+DISTANCE_DECAY_BASE = 1.5  # distance_score = base ** -(d - radius) beyond the radius
+ROTATION_TOLERANCE_RAD = math.radians(10.0)  # [rad] slack on the 360 deg task
+FULL_TURN_RAD = 2.0 * math.pi  # [rad]
+GUARD_JSON_OUTCOMES = frozenset({"parse", "schema", "bounds"})
+GUARD_VETO_OUTCOME = "veto"
+# The options that define an experimental condition (what `score` groups by and `ablate` varies).
+CONDITION_KEYS: tuple[str, ...] = (
+    "planner",
+    "backend",
+    "sensing",
+    "lidar_sectors",
+    "prompt",
+    "history",
+    "self_check",
+    "assist",
+)
+
+Point = tuple[float, float]
+
+
+def distance_score(distance_m: float) -> float:
+    """1 within 2.5 m of the target, then decaying by a factor 1.5 per extra metre."""
+    if distance_m <= SUCCESS_RADIUS_M:
+        return 1.0
+    return float(DISTANCE_DECAY_BASE ** -(distance_m - SUCCESS_RADIUS_M))
+
+
+def heading_score(alpha_rad: float) -> float:
+    """(pi - alpha) / pi for alpha in [0, pi]: 1 facing the target, 0 facing away."""
+    alpha = min(abs(alpha_rad), math.pi)
+    return (math.pi - alpha) / math.pi
+
+
+@dataclass(frozen=True)
+class TargetScore:
+    """The score of a pose with respect to one target point."""
+
+    score: float
+    distance_m: float  # [m]
+    heading_error_rad: float  # [rad] in [0, pi]
+    index: int  # which acceptable target
+
+
+def score_pose(pose: Pose2D, target: Point, index: int = 0) -> TargetScore:
+    """S = distance_score * heading_score of a pose against one target point."""
+    distance = pose.distance_to(*target)
+    # At the target itself the direction is undefined: count that as facing it.
+    alpha = abs(pose.bearing_to(*target)) if distance > 1e-9 else 0.0
+    return TargetScore(distance_score(distance) * heading_score(alpha), distance, alpha, index)
+
+
+def best_target(pose: Pose2D, targets: Sequence[Point]) -> TargetScore | None:
+    """The acceptable target with the largest S (ties: the nearer one); None without targets."""
+    scored = [score_pose(pose, t, i) for i, t in enumerate(targets)]
+    if not scored:
+        return None
+    return max(scored, key=lambda s: (s.score, -s.distance_m))
+
+
+def path_length(poses: Iterable[Sequence[float]]) -> float:
+    """Sum of the distances [m] between consecutive trajectory samples."""
+    total = 0.0
+    previous: Sequence[float] | None = None
+    for pose in poses:
+        if previous is not None:
+            total += math.hypot(pose[0] - previous[0], pose[1] - previous[1])
+        previous = pose
+    return total
+
+
+def total_rotation(poses: Iterable[Sequence[float]]) -> float:
+    """The largest net turn [rad] reached in one direction along the trajectory.
+
+    Yaw is unwrapped sample to sample, so samples must be closer than pi apart in yaw (motion logs
+    samples while turning). Net, not absolute: turning 180 deg left then back right is no full turn.
+    """
+    cumulative = 0.0
+    largest = 0.0
+    previous: float | None = None
+    for pose in poses:
+        yaw = float(pose[2])
+        if previous is not None:
+            cumulative += wrap_angle(yaw - previous)
+            largest = max(largest, abs(cumulative))
+        previous = yaw
+    return largest
+
+
+def rotation_done(rotation_rad: float) -> bool:
+    """Whether a net rotation counts as the full 360 deg turn (within the tolerance)."""
+    return rotation_rad >= FULL_TURN_RAD - ROTATION_TOLERANCE_RAD
+
+
+# --- reading the configuration line ------------------------------------------------------------
+
+
+def _as_pose(value: Any) -> Pose2D | None:
+    """A pose from the forms logs use: [x, y, yaw], {x, y, yaw} or {x, y, yaw_deg}."""
+    try:
+        if isinstance(value, dict):
+            yaw = value["yaw"] if "yaw" in value else math.radians(float(value.get("yaw_deg", 0.0)))
+            return Pose2D(float(value["x"]), float(value["y"]), float(yaw))
+        if isinstance(value, (list, tuple)) and len(value) >= 2:
+            return Pose2D(float(value[0]), float(value[1]), float(value[2]) if len(value) > 2 else 0.0)
+    except (KeyError, TypeError, ValueError):
+        return None
+    return None
+
+
+def _target_point(target: Any, scenario: Scenario | None) -> Point | None:
+    """One logged target ({object}, {point}, [x, y] or {x, y}) as a goal point."""
+    if isinstance(target, (list, tuple)) and len(target) >= 2:
+        return (float(target[0]), float(target[1]))
+    if not isinstance(target, dict):
+        return None
+    if target.get("point") is not None:
+        return (float(target["point"][0]), float(target["point"][1]))
+    if "x" in target and "y" in target:
+        return (float(target["x"]), float(target["y"]))
+    if target.get("object") is not None and scenario is not None:
+        try:
+            return scenario.object(str(target["object"])).goal_point
+        except KeyError:
+            return None
+    return None
+
+
+def _task_info(config: dict[str, Any], scenario: Scenario | None) -> tuple[dict[str, Any], list[Point]]:
+    """The task as logged (falling back to the scenario's task of that id) and its target points."""
+    logged = config.get("task")
+    task: dict[str, Any] = dict(logged) if isinstance(logged, dict) else {"text": logged}
+    known = None
+    if scenario is not None and task.get("id"):
+        try:
+            known = scenario.task(str(task["id"]))
+        except KeyError:
+            known = None
+    if known is not None:
+        task.setdefault("text", known.text)
+        task.setdefault("kind", known.kind)
+        task.setdefault("difficulty", known.difficulty)
+        if not task.get("targets"):
+            task["targets"] = [t.model_dump() for t in known.targets]
+    points = [p for p in (_target_point(t, scenario) for t in task.get("targets") or []) if p is not None]
+    task.setdefault("kind", "target" if points else "explore")
+    return task, points
+
+
+def condition_of(config: dict[str, Any]) -> dict[str, Any]:
+    """The condition of a run: its planner, backend and the options an ablation varies."""
+    options = config.get("options") or {}
+    condition: dict[str, Any] = {}
+    for key in CONDITION_KEYS:
+        if key == "backend":
+            value = config.get("backend", options.get("backend"))
+        elif key == "planner":
+            value = config.get("planner", options.get("planner"))
+        else:
+            value = options.get(key)
+        if isinstance(value, (list, tuple)):  # sensing: ("lidar", "image") -> "lidar+image", as on the CLI
+            value = "+".join(str(v) for v in value)
+        condition[key] = value
+    return condition
+
+
+def _mean(values: Sequence[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def _last_time(events: Sequence[dict[str, Any]], key: str) -> float | None:
+    for event in reversed(events):
+        value = event.get(key)
+        if isinstance(value, (int, float)):
+            return float(value)
+    return None
+
+
+def _rounded(value: float | None, digits: int = 4) -> float | None:
+    return None if value is None else round(value, digits)
+
+
+# --- the summary -------------------------------------------------------------------------------
+
+
+def summarize_run(
+    record: RunRecord, scenario: Scenario | None, outcome: EpisodeOutcome | None = None
+) -> dict[str, Any]:
+    """Every metric of one episode, from its run log (complete or cut short) and its scenario.
+
+    `outcome` is the planner's return value when the runner calls this at the end of an episode;
+    otherwise the `end` event is used, and a run without one counts as aborted ("cut short").
+    `scenario` may be None when it cannot be loaded: targets logged as points still score.
+    """
+    config = record.config
+    events = record.events
+    task, targets = _task_info(config, scenario)
+    end_events = record.of_type("end")
+    end = end_events[-1] if end_events else None
+
+    result: str
+    if outcome is not None:
+        result, reason, planner_metrics = outcome.outcome, outcome.reason, dict(outcome.metrics)
+        iterations: int | None = outcome.iterations
+    elif end is not None:
+        result = str(end.get("outcome", "aborted"))
+        reason = str(end.get("reason", ""))
+        planner_metrics = dict(end.get("metrics") or {})
+        iterations = end.get("iterations") if isinstance(end.get("iterations"), int) else None
+    else:
+        result, reason, planner_metrics, iterations = "aborted", "cut short: no end event", {}, None
+
+    actions = record.of_type("action")
+    if iterations is None:  # one reasoning-action cycle per distinct step
+        iterations = len({a.get("step", i) for i, a in enumerate(actions)})
+
+    latencies = [
+        float(call["reply"]["latency_s"])
+        for call in record.of_type("llm_call")
+        if isinstance(call.get("reply"), dict) and isinstance(call["reply"].get("latency_s"), (int, float))
+    ]
+    guards = [str(g.get("outcome")) for g in record.of_type("guard")]
+
+    poses = record.poses()
+    final = _as_pose(poses[-1]) if poses else None
+    if final is None and actions:
+        final = _as_pose(actions[-1].get("pose_after"))
+    if final is None:
+        final = _as_pose(config.get("start_pose"))
+
+    completed = result == "completed"
+    kind = task.get("kind")
+    rotation = total_rotation(poses)
+    best = best_target(final, targets) if final is not None and kind == "target" else None
+    score: float | None
+    if kind == "rotate":
+        score = 1.0 if rotation_done(rotation) else 0.0
+        success = completed and rotation_done(rotation)
+    elif kind == "explore":
+        score, success = None, completed
+    elif best is not None:
+        score = best.score
+        success = completed and best.distance_m <= SUCCESS_RADIUS_M
+    else:  # a target task whose targets cannot be resolved: nothing to score against
+        score, success = None, False
+
+    collisions = sum(1 for a in actions if a.get("collided"))
+    if isinstance(planner_metrics.get("collisions"), int):
+        collisions = max(collisions, planner_metrics["collisions"])
+
+    return {
+        "outcome": result,
+        "reason": reason,
+        "cut_short": end is None and outcome is None,
+        "scenario": config.get("scenario"),
+        "task_id": task.get("id"),
+        "task_text": task.get("text"),
+        "task_kind": kind,
+        "difficulty": task.get("difficulty"),
+        "planner": config.get("planner", (config.get("options") or {}).get("planner")),
+        "backend": config.get("backend"),
+        "start_pose_index": config.get("start_pose_index"),
+        "seed": config.get("seed"),
+        "condition": condition_of(config),
+        "iterations": iterations,
+        "latency_s_mean": _rounded(_mean(latencies)),
+        "llm_calls": len(record.of_type("llm_call")),
+        "json_errors": sum(1 for g in guards if g in GUARD_JSON_OUTCOMES),
+        "safety_vetoes": sum(1 for g in guards if g == GUARD_VETO_OUTCOME),
+        "final_pose": final.as_list() if final is not None else None,
+        "distance_m": _rounded(best.distance_m) if best is not None else None,
+        "heading_error_rad": _rounded(best.heading_error_rad) if best is not None else None,
+        "target_index": best.index if best is not None else None,
+        "score": _rounded(score),
+        "success": bool(success),
+        "path_length_m": round(path_length(poses), 4),
+        "rotation_total_rad": round(rotation, 4),
+        "collisions": collisions,
+        "sim_time_s": _rounded(_last_time(events, "t_sim")),
+        "wall_time_s": _rounded(_last_time(events, "t_wall")),
+        "planner_metrics": planner_metrics,
+    }
