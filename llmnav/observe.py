@@ -1,0 +1,149 @@
+"""What an LLM planner sees and how it talks to the model, shared by every LLM planner.
+
+`observe` reads the robot's sensors according to `--sensing` (lidar, image, detections), logs one
+`observation` event (the image stored beside the log, referenced by hash) and returns an `Observation`
+whose `message` is the user turn for the model. The LiDAR is always scanned, even when the model is not
+shown it: the safety veto works on the scan, never on what the model was told.
+
+`call_model` is the one road to a backend: it logs an `llm_call` event with the request and the reply (or
+the error) so that every planner's calls look the same in logs and replay identically.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from llmnav.backends.base import ChatRequest, ChatResult, Image, Message
+from llmnav.errors import LlmnavError
+
+if TYPE_CHECKING:
+    from llmnav.geometry import Pose2D
+    from llmnav.planners.base import DriveOptions, EpisodeContext
+    from llmnav.runlog import RunLog
+    from llmnav.sim.sensors import Detection, LidarScan
+    from llmnav.sim.world import World
+
+
+@dataclass
+class Observation:
+    """One reading of the sensors at a decision point."""
+
+    step: int
+    pose: Pose2D  # ground truth (logged, never shown to the stepwise model)
+    odom: Pose2D
+    scan: LidarScan  # always taken: the veto needs it
+    front_m: float | None  # [m] straight-ahead distance of the LiDAR summary
+    lidar_text: str | None  # sector summary shown to the model (None when lidar is not sensed)
+    image: Image | None = None
+    detections: list[Detection] = field(default_factory=list)
+    detections_text: str | None = None
+
+    def text(self) -> str:
+        """The observation as model-facing text (the image travels beside it)."""
+        parts: list[str] = []
+        if self.lidar_text is not None:
+            parts.append(f"LiDAR:\n{self.lidar_text}")
+        if self.detections_text is not None:
+            parts.append(f"Detected objects:\n{self.detections_text}")
+        if self.image is not None:
+            parts.append("Camera: the attached image is the current front camera view.")
+        return "\n\n".join(parts) if parts else "No sensor data."
+
+    def message(self, preface: str = "") -> Message:
+        """The user turn carrying this observation, optionally after a preface (the task)."""
+        body = self.text()
+        text = f"{preface}\n\n{body}" if preface else body
+        return Message("user", text, (self.image,) if self.image is not None else ())
+
+
+def lidar_text(scan: LidarScan, options: DriveOptions) -> tuple[float | None, str]:
+    """Front distance [m] and the sector text, per `--lidar-sectors` and `--lidar-fov`."""
+    from llmnav import perception
+
+    summary = perception.summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
+    front = summary.front_m
+    return (front if front is not None and math.isfinite(front) else front), summary.text()
+
+
+def detections_text(detections: list[Detection]) -> str:
+    """Detections as text, one object a line."""
+    from llmnav import perception
+
+    return perception.describe_detections(detections)
+
+
+def observe(world: World, options: DriveOptions, log: RunLog, step: int) -> Observation:
+    """Read the sensors `options.sensing` asks for, log the `observation` event, return it."""
+    sensing = set(options.sensing)
+    scan = world.lidar.scan()
+    front, sectors = lidar_text(scan, options)
+    frame = None
+    image = None
+    if "image" in sensing:
+        frame = world.camera.capture()
+        image = frame.image()
+    detections: list[Detection] = []
+    det_text = None
+    if "detections" in sensing:
+        detections = world.detector.detect()
+        det_text = detections_text(detections)
+    obs = Observation(
+        step=step,
+        pose=world.robot.pose(),
+        odom=world.robot.odom(),
+        scan=scan,
+        front_m=front,
+        lidar_text=sectors if "lidar" in sensing else None,
+        image=image,
+        detections=detections,
+        detections_text=det_text,
+    )
+    log.event(
+        "observation",
+        step=step,
+        pose=obs.pose.as_list(),
+        odom=obs.odom.as_list(),
+        lidar_front_m=None if front is None else round(front, 4),
+        lidar_text=sectors,
+        detections=[_detection_log(d) for d in detections],
+        image=log.image(image) if image is not None else None,
+    )
+    return obs
+
+
+def _detection_log(det: Detection) -> dict[str, Any]:
+    return {
+        "object_id": det.object_id,
+        "label": det.label,
+        "bearing_deg": round(det.bearing_deg, 2),
+        "distance_m": round(det.distance_m, 3),
+        "pixel_fraction": round(det.pixel_fraction, 4),
+        "offset": round(det.offset, 3),
+    }
+
+
+def call_model(ctx: EpisodeContext, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
+    """Send a request through `ctx.backend`, logging an `llm_call` event with the reply or the error.
+
+    A backend failure (ModelError, ReplayDivergenceError, ...) is logged with its one-line message and
+    re-raised, so the runner ends the episode "aborted" with that reason.
+    """
+    if ctx.backend is None:
+        raise LlmnavError(f"planner '{ctx.options.planner}' called a model but no backend is configured")
+    for message in request.messages:  # store every image the request refers to (cheap when already stored)
+        for img in message.images:
+            ctx.log.image(img)
+    try:
+        result = ctx.backend.chat(request)
+    except LlmnavError as err:
+        ctx.log.event("llm_call", step=step, purpose=purpose, request=request.to_log(), error=_one_line(err))
+        raise
+    ctx.log.event("llm_call", step=step, purpose=purpose, request=request.to_log(), reply=result.to_log())
+    return result
+
+
+def _one_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__

@@ -1,0 +1,118 @@
+"""What the user sees during `llmnav drive`: a rich live table per step, or one progress line (`--quiet`).
+
+Both are `View`s (llmnav.planners.base) and context managers; `--json` uses `NullView` and prints nothing
+until the end. `print_result` shows the outcome, score, path length and run folder.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from llmnav.planners.base import StepInfo
+
+if TYPE_CHECKING:
+    from llmnav.runner import EpisodeSpec
+
+MAX_ROWS = 12  # rows kept on screen; older steps scroll away
+REASONING_CHARS = 70
+
+
+def _fmt(value: float | None, unit: str, digits: int = 2) -> str:
+    return "–" if value is None else f"{value:.{digits}f} {unit}"
+
+
+def _first_line(text: str, limit: int = REASONING_CHARS) -> str:
+    line = " ".join(text.split())
+    return line if len(line) <= limit else line[: limit - 1] + "…"
+
+
+class LiveView:
+    """A live table: step, action, one line of reasoning, front distance, latency, vetoes, JSON retries."""
+
+    def __init__(self, console: Console, spec: EpisodeSpec) -> None:
+        self.console = console
+        task = spec.task_id or spec.task_text or ""
+        self.title = f"{spec.options.planner} · {spec.scenario} · {task}"
+        self.rows: list[StepInfo] = []
+        self._live = Live(self._render(), console=console, refresh_per_second=8, transient=False)
+
+    def _render(self) -> Group:
+        table = Table(title=self.title, title_justify="left", expand=False, show_lines=False)
+        table.add_column("step", justify="right")
+        table.add_column("action")
+        table.add_column("reasoning", overflow="ellipsis", max_width=REASONING_CHARS)
+        table.add_column("front", justify="right")
+        table.add_column("latency", justify="right")
+        table.add_column("vetoes", justify="right")
+        table.add_column("JSON retries", justify="right")
+        for info in self.rows[-MAX_ROWS:]:
+            table.add_row(
+                str(info.step),
+                info.action,
+                _first_line(info.reasoning),
+                _fmt(info.front_m, "m"),
+                _fmt(info.latency_s, "s"),
+                str(info.vetoes) if info.vetoes else "",
+                str(info.json_retries) if info.json_retries else "",
+            )
+        return Group(table)
+
+    def on_step(self, info: StepInfo) -> None:
+        """Add a row and redraw."""
+        self.rows.append(info)
+        self._live.update(self._render())
+
+    def __enter__(self) -> LiveView:
+        self._live.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._live.stop()
+
+
+class ProgressView:
+    """One line, rewritten each step (`--quiet`)."""
+
+    def __init__(self, console: Console, max_iterations: int) -> None:
+        self.max_iterations = max_iterations
+        self._live = Live(Text("starting…"), console=console, refresh_per_second=4, transient=True)
+
+    def on_step(self, info: StepInfo) -> None:
+        """Replace the line."""
+        line = f"step {info.step}/{self.max_iterations}  {info.action}  front {_fmt(info.front_m, 'm')}"
+        if info.latency_s is not None:
+            line += f"  model {info.latency_s:.1f} s"
+        self._live.update(Text(line))
+
+    def __enter__(self) -> ProgressView:
+        self._live.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._live.stop()
+
+
+def print_result(console: Console, summary: dict[str, Any]) -> None:
+    """The end of a drive: outcome and reason, score, path length, run folder, plot."""
+    outcome = str(summary.get("outcome"))
+    colour = {"completed": "green", "failed": "yellow"}.get(outcome, "red")
+    reason = summary.get("reason") or ""
+    console.print(f"[bold {colour}]{outcome}[/]" + (f" — {reason}" if reason else ""), highlight=False)
+    score = summary.get("score")
+    parts = [
+        f"score {score:.2f}" if isinstance(score, (int, float)) else "score N.A.",
+        f"success {'yes' if summary.get('success') else 'no'}",
+        f"path {summary.get('path_length_m', 0.0):.2f} m",
+        f"iterations {summary.get('iterations')}",
+    ]
+    if summary.get("distance_m") is not None:
+        parts.append(f"distance to target {summary['distance_m']:.2f} m")
+    console.print("  ".join(parts), highlight=False)
+    console.print(f"run folder: {summary.get('run_dir')}", highlight=False, soft_wrap=True)
+    if summary.get("trajectory"):
+        console.print(f"trajectory: {summary['trajectory']}", highlight=False, soft_wrap=True)

@@ -1,0 +1,97 @@
+"""The trajectory figure of one run: the top view, the driven path, numbered steps and the oracle path.
+
+Start in green, end in red, each executed action's end pose numbered by its step, the oracle's shortest
+path dashed (skipped when the oracle cannot plan one). Drawn from the run log alone plus the scenario.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from llmnav.errors import LlmnavError
+
+if TYPE_CHECKING:
+    from llmnav.runlog import RunRecord
+    from llmnav.scenario import Scenario, Task
+
+FIG_WIDTH_IN = 8.0  # [in]
+DPI = 120
+
+
+def _oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tuple[float, float]] | None:
+    """The oracle's path from the start pose, or None when there is no baseline or no target path."""
+    if task.kind != "target":
+        return None
+    try:
+        from llmnav.baselines.oracle import oracle_path
+        from llmnav.geometry import Pose2D
+
+        path = oracle_path(scenario, task, Pose2D.from_list(start))
+    except (ImportError, LlmnavError):
+        return None
+    points = getattr(path, "points", path)
+    return [(float(p[0]), float(p[1])) for p in points] if points else None
+
+
+def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Path) -> Path:
+    """Draw a run record onto the scenario's top view and save it as PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from llmnav.reporting.topview import draw_scenario
+
+    poses = record.poses()
+    (x0, x1), (y0, y1) = scenario.bounds.x, scenario.bounds.y
+    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN, FIG_WIDTH_IN * (y1 - y0) / max(x1 - x0, 1e-6) + 0.6))
+    try:
+        draw_scenario(ax, scenario)
+        start = record.config.get("start_pose") or (poses[0] if poses else None)
+        if start is not None:
+            oracle = _oracle_points(scenario, task, start)
+            if oracle:
+                ax.plot(*zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=4)
+        if poses:
+            xs, ys = [p[0] for p in poses], [p[1] for p in poses]
+            ax.plot(xs, ys, "-", color="tab:blue", lw=2.0, label="robot path", zorder=5)
+            ax.plot(xs[0], ys[0], "o", color="green", ms=9, label="start", zorder=6)
+            ax.plot(xs[-1], ys[-1], "o", color="red", ms=9, label="end", zorder=6)
+        _number_steps(ax, record.of_type("action"))
+        outcome = (record.of_type("end") or [{}])[-1].get("outcome", "cut short")
+        ax.set_title(
+            f"{scenario.name} · {task.id}: {task.text} · {record.config.get('planner')} · {outcome}",
+            fontsize=9,
+        )
+        ax.legend(loc="upper right", fontsize=7, framealpha=0.8)
+        out_path = Path(out_path)
+        fig.savefig(out_path, dpi=DPI, bbox_inches="tight")
+    finally:
+        plt.close(fig)
+    return out_path
+
+
+def _number_steps(ax: Any, actions: list[dict[str, Any]]) -> None:
+    """Label each step's end pose with the step number (the last action of a step wins)."""
+    ends: dict[Any, list[float]] = {}
+    for action in actions:
+        if action.get("pose_after") is not None:
+            ends[action.get("step")] = action["pose_after"]
+    for step, pose in ends.items():
+        ax.annotate(
+            str(step),
+            (pose[0], pose[1]),
+            xytext=(3, 3),
+            textcoords="offset points",
+            fontsize=7,
+            color="tab:blue",
+            zorder=7,
+        )
+
+
+def plot_run(run_dir: Path, scenario: Scenario, task: Task, out_path: Path) -> Path:
+    """Read a run folder and draw its trajectory figure."""
+    from llmnav.runlog import read_run
+
+    return plot_record(read_run(run_dir), scenario, task, out_path)

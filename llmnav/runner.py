@@ -1,0 +1,241 @@
+"""The episode runner: one scenario + task + start pose + planner + backend + options → one run folder.
+
+`run_episode` builds the world, resolves the task, opens the run folder and its `RunLog` (first line: the
+full configuration), creates the backend when the planner needs one, runs the planner, logs the `end`
+event, and writes `summary.json` and `trajectory.png`. Whatever happens inside the planner, the log ends
+with an `end` event: a bug ends the episode "aborted" and is re-raised after the log is closed; an
+`LlmnavError` (model failure, replay divergence) just ends it "aborted" with its one-line message.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel, ConfigDict
+
+from llmnav.errors import LlmnavError
+from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, NullView, View
+from llmnav.scenario import resolve_scenario_path
+
+if TYPE_CHECKING:
+    from llmnav.backends.base import Backend
+    from llmnav.geometry import Pose2D
+    from llmnav.planners.base import Planner
+    from llmnav.runlog import RunLog
+    from llmnav.scenario import Scenario, Task
+
+TRAJECTORY_FILE = "trajectory.png"
+
+
+class EpisodeSpec(BaseModel):
+    """Everything that defines one episode."""
+
+    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+
+    scenario: str  # bundled name or path; "" lets the task pick it (see llmnav.tasks)
+    task_id: str | None = None
+    task_text: str | None = None  # several legs joined by llmnav.tasks.SEQUENCE_JOIN form a sequence
+    start_pose: int = 1  # 1-based index into the task's start poses
+    options: DriveOptions = DriveOptions()
+    backend: str = "local"
+    out_dir: Path
+    quiet: bool = True
+
+
+def _package_version(name: str) -> str | None:
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return None
+
+
+def _file_hash(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+def _prompt_hashes(planner: Planner, options: DriveOptions) -> dict[str, str]:
+    """Hashes of the prompt templates a planner uses (planners list them via an optional `templates`)."""
+    templates = getattr(planner, "templates", None)
+    if templates is None:
+        return {}
+    from llmnav import prompting
+
+    return {name: prompting.template_hash(name) for name in templates(options)}
+
+
+def task_record(task: Task) -> dict[str, Any]:
+    """The task as the config line records it."""
+    return {
+        "id": task.id,
+        "text": task.text,
+        "kind": task.kind,
+        "difficulty": task.difficulty,
+        "targets": [t.model_dump(mode="json", exclude_none=True) for t in task.targets],
+    }
+
+
+def build_config(
+    spec: EpisodeSpec,
+    scenario: Scenario,
+    scenario_path: Path,
+    task: Task,
+    start: Pose2D,
+    planner: Planner,
+    backend: Backend | None,
+) -> dict[str, Any]:
+    """The run's first log line: enough to reproduce the episode and to group it in tables."""
+    import llmnav
+
+    return {
+        "versions": {
+            "llmnav": llmnav.__version__,
+            "python": platform.python_version(),
+            "pybullet": _package_version("pybullet"),
+            "numpy": _package_version("numpy"),
+        },
+        "scenario": scenario.name,
+        "scenario_file": str(scenario_path),
+        "scenario_hash": _file_hash(scenario_path),
+        "task": task_record(task),
+        "start_pose_index": spec.start_pose,
+        "start_pose": start.as_list(),
+        "planner": spec.options.planner,
+        "backend": backend.spec if backend is not None else None,
+        "options": spec.options.model_dump(mode="json"),
+        "seed": spec.options.seed,
+        "prompt_hashes": _prompt_hashes(planner, spec.options),
+    }
+
+
+def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
+    """LiDAR and camera configs: the scenario's defaults, the camera at the requested resolution."""
+    camera = scenario.sensors.camera.model_copy(
+        update={"width": options.image_width, "height": options.image_height}
+    )
+    return {"lidar": scenario.sensors.lidar, "camera": camera}
+
+
+def _summarize(log: RunLog, scenario: Scenario, outcome: EpisodeOutcome) -> dict[str, Any]:
+    from llmnav.metrics import summarize_run
+    from llmnav.runlog import read_run
+
+    summary = summarize_run(read_run(log.run_dir), scenario, outcome)
+    summary["run_dir"] = str(log.run_dir)
+    return summary
+
+
+def _reason(err: BaseException) -> str:
+    """An error's one-line message (its class name when it has none)."""
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+def run_episode(
+    spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None
+) -> dict[str, Any]:
+    """Run one episode and return its summary (also written to `summary.json`)."""
+    from llmnav.planners.base import get_planner
+    from llmnav.runlog import RunLog
+    from llmnav.sim.world import World
+    from llmnav.tasks import SEQUENCE_JOIN, resolve_task
+
+    texts = spec.task_text.split(SEQUENCE_JOIN) if spec.task_text else None
+    resolved = resolve_task(spec.scenario or None, texts, spec.task_id, spec.start_pose)
+    scenario, task = resolved.scenario, resolved.task
+    start = resolved.start.pose()
+    planner = get_planner(spec.options.planner)
+
+    # Backend before the run folder: a missing key or engine is bad input and leaves nothing behind.
+    backend = backend_obj
+    owns_backend = False
+    if backend is None and planner.requires_backend(spec.options):
+        from llmnav.backends.base import get_backend
+
+        backend = get_backend(spec.backend)
+        owns_backend = True
+    try:
+        with World(scenario, seed=spec.options.seed, **_world_configs(scenario, spec.options)) as world:
+            world.reset(start, seed=spec.options.seed)
+            for x, y in spec.options.obstacles:
+                world.add_obstacle(x, y)
+            config = build_config(
+                spec,
+                scenario,
+                resolve_scenario_path(spec.scenario or scenario.name),
+                task,
+                start,
+                planner,
+                backend,
+            )
+            with RunLog(spec.out_dir, config) as log:
+                return _run_logged(planner, world, scenario, task, backend, log, spec, view or NullView())
+    finally:
+        if owns_backend and backend is not None:
+            backend.close()
+
+
+def _run_logged(
+    planner: Planner,
+    world: Any,
+    scenario: Scenario,
+    task: Task,
+    backend: Backend | None,
+    log: RunLog,
+    spec: EpisodeSpec,
+    view: View,
+) -> dict[str, Any]:
+    """Run the planner inside an open log; always end the log, summary and plot."""
+
+    def on_pose(pose: Pose2D, t_sim: float) -> None:
+        log.sim_time = t_sim
+        log.event("pose", pose=pose.as_list())
+
+    world.motion.on_pose = on_pose
+    log.sim_time = world.sim_time
+    log.event("pose", pose=world.robot.pose().as_list())
+    ctx = EpisodeContext(scenario, task, world, backend, log, spec.options, view)
+    crash: BaseException | None = None
+    try:
+        outcome = planner.run(ctx)
+    except LlmnavError as err:
+        outcome = EpisodeOutcome("aborted", _reason(err))
+    except BaseException as err:  # a bug or Ctrl-C: keep the log valid, then let it propagate
+        crash = err
+        reason = (
+            "interrupted"
+            if isinstance(err, KeyboardInterrupt)
+            else f"crash: {type(err).__name__}: {_reason(err)}"
+        )
+        outcome = EpisodeOutcome("aborted", reason)
+    finally:
+        world.motion.on_pose = None
+    log.sim_time = world.sim_time
+    log.event("pose", pose=world.robot.pose().as_list())
+    log.event(
+        "end",
+        outcome=outcome.outcome,
+        reason=outcome.reason,
+        iterations=outcome.iterations,
+        metrics=outcome.metrics,
+    )
+    summary = _summarize(log, scenario, outcome)
+    log.write_summary(summary)
+    try:
+        from llmnav.reporting.trajectory import plot_run
+
+        plot_run(log.run_dir, scenario, task, log.run_dir / TRAJECTORY_FILE)
+        summary["trajectory"] = str(log.run_dir / TRAJECTORY_FILE)
+    except LlmnavError:
+        summary["trajectory"] = None
+    if crash is not None:
+        raise crash
+    return summary
+
+
+def exit_code(summary: dict[str, Any]) -> int:
+    """0 when the episode completed, 1 when it failed or aborted."""
+    return 0 if summary.get("outcome") == "completed" else 1
