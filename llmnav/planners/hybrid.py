@@ -1,0 +1,352 @@
+"""Hybrid planner: the model picks one numbered option; A* and the motion layer carry it out.
+
+Beyond the three sources. A small local model writes absurd free-form actions but can choose among a few
+well-described options under a grammar (SPEC E), so each decision offers:
+- go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
+  the waypoint source), otherwise only objects the detector has seen, each with distance, bearing and
+  whether its name matches the task;
+- explore a frontier cluster of the robot's own LiDAR map (bearing, distance, size);
+- rotate 360° to scan;
+- finish.
+The answer's schema restricts `option` to the listed numbers, and it still passes the guard. The chosen
+option runs through A* on the static occupancy grid and `Motion.go_to`; every straight leg is checked by
+the safety veto first, and a leg interrupted by a newly detected landmark ends the option early so the
+model decides again with the new information.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+from llmnav.backends.base import ChatRequest, Message
+from llmnav.geometry import Pose2D
+from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, StepInfo
+
+if TYPE_CHECKING:
+    from llmnav.baselines.grid import LidarMap, OccupancyGrid
+    from llmnav.observe import Observation
+    from llmnav.sim.motion import MotionResult
+
+OptionKind = Literal["landmark", "frontier", "scan", "complete"]
+
+
+@dataclass(frozen=True)
+class HybridConfig:
+    """Numbers of the hybrid planner."""
+
+    approach_min_m: float = 0.8  # [m] closest stand-off to an object without a goal point
+    approach_max_m: float = 1.8  # [m] farthest stand-off (inside the score's 2.5 m full-credit radius)
+    leg_max_m: float = 1.5  # [m] longest straight leg between veto checks and detector looks
+    max_landmarks: int = 5  # options offered per decision
+    max_frontiers: int = 3
+    frontier_min_cells: int = 12  # smaller frontier clusters are noise
+    veto_margin_m: float = 0.05  # [m] lateral margin of the veto's swept corridor
+    obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
+    max_corrections: int = 2
+
+
+@dataclass
+class Option:
+    """One numbered choice and how to carry it out."""
+
+    number: int
+    kind: OptionKind
+    text: str
+    goal: tuple[float, float] | None = None  # [m] where to drive
+    face: tuple[float, float] | None = None  # [m] what to face on arrival
+    landmark_id: str | None = None
+
+
+@dataclass
+class Memory:
+    """What the planner knows across decisions."""
+
+    landmarks: dict[str, tuple[float, float]] = field(default_factory=dict)  # id -> estimated position [m]
+    visited: set[str] = field(default_factory=set)
+    last_result: str = "This is the first decision."
+
+
+class HybridPlanner(Planner):
+    """See the module docstring."""
+
+    name = "hybrid"
+    needs_backend = True
+
+    def __init__(self, config: HybridConfig | None = None) -> None:
+        self.cfg = config or HybridConfig()
+
+    def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
+        """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
+        from llmnav.baselines.grid import LidarMap, build_grid
+        from llmnav.observe import observe
+
+        world, scenario = ctx.world, ctx.scenario
+        grid = build_grid(scenario)
+        lidar_map = LidarMap(grid.geometry)
+        memory = Memory()
+        if scenario.corridors:  # a published map: every labelled object is known up front
+            memory.landmarks = {o.id: o.goal_point for o in scenario.objects}
+        world.motion.on_pose = lambda pose, t: ctx.log.event("pose", pose=pose.as_list())
+        ctx.log.event("pose", pose=world.robot.pose().as_list())
+        json_errors = vetoes = 0
+
+        for step in range(1, ctx.options.max_iterations + 1):
+            ctx.log.sim_time = world.sim_time
+            obs = observe(world, ctx.options, ctx.log, step)
+            lidar_map.integrate(obs.pose, obs.scan)
+            self._remember(memory, obs)
+            options = self._options(ctx, grid, lidar_map, memory, obs.pose)
+            choice, errors = self._choose(ctx, obs, options, memory, step)
+            json_errors += errors
+            if choice is None:
+                return EpisodeOutcome("aborted", "no valid choice from the model after corrections", step)
+            option = options[choice - 1]
+            ctx.view.on_step(StepInfo(step, option.text, front_m=obs.front_m, json_retries=errors, vetoes=vetoes))
+            if option.kind == "complete":
+                ctx.log.event("action", step=step, command="COMPLETE", parameters=0, option=option.text,
+                              pose_before=obs.pose.as_list(), pose_after=obs.pose.as_list(), collided=False)
+                return EpisodeOutcome("completed", "the model chose to finish", step,
+                                      {"json_errors": json_errors, "vetoes": vetoes})
+            result_text, vetoed, collided = self._execute(ctx, grid, option, memory, step)
+            vetoes += vetoed
+            memory.last_result = result_text
+            if collided:
+                return EpisodeOutcome("failed", result_text, step, {"json_errors": json_errors, "vetoes": vetoes})
+        return EpisodeOutcome("failed", f"no finish within {ctx.options.max_iterations} decisions",
+                              ctx.options.max_iterations, {"json_errors": json_errors, "vetoes": vetoes})
+
+    # --- perception memory ----------------------------------------------------------------------
+    @staticmethod
+    def _remember(memory: Memory, obs: Observation) -> None:
+        """Add the observation's detections to the landmark memory."""
+        for det in obs.detections:
+            memory.landmarks[det.object_id] = _estimate(obs.pose, det.bearing_deg, det.distance_m)
+
+    # --- the menu -------------------------------------------------------------------------------
+    def _options(
+        self, ctx: EpisodeContext, grid: OccupancyGrid, lidar_map: LidarMap, memory: Memory, pose: Pose2D
+    ) -> list[Option]:
+        from llmnav.tasks import named_objects
+
+        wanted = {o.id for o in named_objects(ctx.scenario, ctx.task.text)}
+        options: list[Option] = []
+        ranked = sorted(
+            memory.landmarks.items(),
+            key=lambda item: (item[0] not in wanted, pose.distance_to(*item[1])),
+        )
+        for object_id, position in ranked[: self.cfg.max_landmarks]:
+            obj = ctx.scenario.object(object_id)
+            goal = self._approach(grid, obj.goal if obj.goal is not None else None, position, pose)
+            if goal is None:
+                continue
+            notes = []
+            if object_id in wanted:
+                notes.append("its name matches the task")
+            if object_id in memory.visited:
+                notes.append("already visited")
+            options.append(Option(
+                0, "landmark",
+                f"Go to the {obj.label} ({_where(pose, position)})" + (f" — {'; '.join(notes)}" if notes else ""),
+                goal=goal, face=position, landmark_id=object_id,
+            ))
+        for centre, size in self._frontiers(grid, lidar_map, pose)[: self.cfg.max_frontiers]:
+            options.append(Option(0, "frontier", f"Explore unmapped space ({_where(pose, centre)}, {size} cells)",
+                                  goal=centre))
+        options.append(Option(0, "scan", "Turn a full circle in place to look around"))
+        options.append(Option(0, "complete", "Finish: the task is done"))
+        for number, option in enumerate(options, start=1):
+            option.number = number
+        return options
+
+    def _approach(
+        self, grid: OccupancyGrid, goal: tuple[float, float] | None, position: tuple[float, float], pose: Pose2D
+    ) -> tuple[float, float] | None:
+        """Where to stand: the object's goal point if free, else the free cell in the stand-off ring nearest the robot."""
+        import numpy as np
+
+        if goal is not None and grid.is_free(*goal):
+            return goal
+        xs, ys = grid.geometry.centres()
+        ring = np.hypot(xs - position[0], ys - position[1])
+        ok = (~grid.blocked) & (ring >= self.cfg.approach_min_m) & (ring <= self.cfg.approach_max_m)
+        if not ok.any():
+            return None
+        cost = np.where(ok, np.hypot(xs - pose.x, ys - pose.y), np.inf)
+        row, col = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        return grid.geometry.cell_to_world(int(row), int(col))
+
+    def _frontiers(self, grid: OccupancyGrid, lidar_map: LidarMap, pose: Pose2D) -> list[tuple[tuple[float, float], int]]:
+        """Frontier clusters (known-free cells next to unknown ones), as reachable target points and sizes."""
+        import numpy as np
+        from scipy import ndimage
+
+        free = lidar_map.free & ~grid.blocked
+        unknown = lidar_map.unknown
+        frontier = free & ndimage.binary_dilation(unknown, structure=np.ones((3, 3), bool))
+        labels, count = ndimage.label(frontier, structure=np.ones((3, 3), bool))
+        out: list[tuple[tuple[float, float], int]] = []
+        for index in range(1, count + 1):
+            rows, cols = np.nonzero(labels == index)
+            if rows.size < self.cfg.frontier_min_cells:
+                continue
+            # The cluster cell nearest its centroid is free and lies on the frontier itself.
+            centre_r, centre_c = rows.mean(), cols.mean()
+            best = int(np.argmin((rows - centre_r) ** 2 + (cols - centre_c) ** 2))
+            out.append((grid.geometry.cell_to_world(int(rows[best]), int(cols[best])), int(rows.size)))
+        out.sort(key=lambda item: pose.distance_to(*item[0]))
+        return out
+
+    # --- asking the model ---------------------------------------------------------------------
+    def _choose(
+        self, ctx: EpisodeContext, obs: Observation, options: list[Option], memory: Memory, step: int
+    ) -> tuple[int | None, int]:
+        """The model's option number through the guard (bounded corrections); (None, errors) on failure."""
+        from llmnav.guard.parse import correction_message, parse_answer
+        from llmnav.guard.schemas import hybrid_choice_model, response_schema
+        from llmnav.observe import call_model
+        from llmnav.prompting import render
+
+        model = hybrid_choice_model(tuple(o.number for o in options))
+        schema = response_schema(model)
+        menu = "\n".join(f"{o.number}. {o.text}" for o in options)
+        system = render("hybrid_system", robot=ctx.world.robot.spec.name)
+        user = render(
+            "hybrid_user", task=ctx.task.text, pose=_pose_text(obs.pose), last_result=memory.last_result,
+            observation=obs.text(), options=menu,
+        )
+        images = (obs.image,) if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal else ()
+        messages: list[Message] = [Message("system", system), Message("user", user, images)]
+        errors = 0
+        for attempt in range(self.cfg.max_corrections + 1):
+            request = ChatRequest(tuple(messages), schema, ctx.options.temperature, min(ctx.options.max_tokens, 256),
+                                  ctx.options.seed)
+            reply = call_model(ctx, request, purpose="choice" if attempt == 0 else "correction", step=step)
+            result = parse_answer(reply.text, model)
+            ctx.log.event("guard", step=step, attempt=attempt, outcome=result.outcome, error=result.error)
+            if result.value is not None:
+                return int(result.value.option), errors
+            errors += 1
+            messages += [Message("assistant", reply.text), Message("user", correction_message(result, schema))]
+        return None, errors
+
+    # --- carrying an option out ------------------------------------------------------------------
+    def _execute(
+        self, ctx: EpisodeContext, grid: OccupancyGrid, option: Option, memory: Memory, step: int
+    ) -> tuple[str, int, bool]:
+        """Run one option; returns (what happened, vetoes, collided)."""
+        world = ctx.world
+        before = world.robot.pose()
+        if option.kind == "scan":
+            new = False
+            for _ in range(4):
+                result = world.motion.rotate(math.pi / 2)
+                new |= self._look(ctx, memory)
+                if result.collided:
+                    break
+            self._log_action(ctx, step, "SCAN", 360.0, before, result)
+            seen = "; new objects came into view" if new else "; nothing new came into view"
+            return "Turned a full circle" + seen + ".", 0, result.collided
+        assert option.goal is not None
+        legs = self._plan(grid, before, option.goal)
+        if legs is None:
+            return f"No collision-free path to: {option.text}.", 0, False
+        for x, y in legs:
+            pose = world.robot.pose()
+            turn = math.remainder(math.atan2(y - pose.y, x - pose.x) - pose.yaw, math.tau)
+            if abs(turn) > 0.087:
+                world.motion.rotate(turn)
+            length = world.robot.pose().distance_to(x, y)
+            verdict = self._veto(ctx, length)
+            if verdict is not None:
+                ctx.log.event("guard", step=step, attempt=0, outcome="veto", error=verdict)
+                self._log_action(ctx, step, "GOTO", length, before, None, vetoed=True)
+                return f"Stopped: the safety check blocked the path ({verdict}).", 1, False
+            result = world.motion.go_to(x, y, obstacle_stop_m=self.cfg.obstacle_stop_m)
+            if result.collided:
+                self._log_action(ctx, step, "GOTO", length, before, result)
+                return f"Collided with {result.collision_with or 'an obstacle'}.", 0, True
+            if self._look(ctx, memory) and option.kind == "frontier":
+                self._log_action(ctx, step, "GOTO", length, before, result)
+                return "Stopped exploring early: a new object came into view.", 0, False
+        if option.face is not None:
+            pose = world.robot.pose()
+            turn = math.remainder(math.atan2(option.face[1] - pose.y, option.face[0] - pose.x) - pose.yaw, math.tau)
+            world.motion.rotate(turn)
+        if option.landmark_id is not None:
+            memory.visited.add(option.landmark_id)
+        after = world.robot.pose()
+        ctx.log.event("action", step=step, command="GOTO", parameters=round(before.distance_to(after.x, after.y), 3),
+                      option=option.text, pose_before=before.as_list(), pose_after=after.as_list(), collided=False)
+        return f"Done: {option.text.split(' (')[0]}; now at {_pose_text(after)}.", 0, False
+
+    def _plan(self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]) -> list[tuple[float, float]] | None:
+        """A* legs from the robot to the goal, no longer than `leg_max_m` each."""
+        from llmnav.baselines.astar import plan_path
+
+        path = plan_path(grid, (start.x, start.y), goal)
+        if path is None:
+            return None
+        legs: list[tuple[float, float]] = []
+        previous = (start.x, start.y)
+        for point in path[1:]:
+            span = math.dist(previous, point)
+            pieces = max(1, math.ceil(span / self.cfg.leg_max_m))
+            for k in range(1, pieces + 1):
+                legs.append((previous[0] + (point[0] - previous[0]) * k / pieces,
+                             previous[1] + (point[1] - previous[1]) * k / pieces))
+            previous = point
+        return legs
+
+    def _veto(self, ctx: EpisodeContext, length: float) -> str | None:
+        """The safety veto on a straight leg ahead; the reason when blocked."""
+        from llmnav.guard.veto import check_motion
+
+        verdict = check_motion(length, ctx.world.lidar.scan(), robot_width_m=ctx.world.robot.spec.width_m,
+                               margin_m=self.cfg.veto_margin_m)
+        return None if verdict.allowed else (verdict.reason or "blocked")
+
+    def _look(self, ctx: EpisodeContext, memory: Memory) -> bool:
+        """Run the detector; True when a landmark the planner did not know comes into view."""
+        pose = ctx.world.robot.pose()
+        new = False
+        for det in ctx.world.detector.detect():
+            if det.object_id not in memory.landmarks:
+                memory.landmarks[det.object_id] = _estimate(pose, det.bearing_deg, det.distance_m)
+                new = True
+        return new
+
+    @staticmethod
+    def _log_action(
+        ctx: EpisodeContext, step: int, command: str, parameter: float, before: Pose2D,
+        result: MotionResult | None, *, vetoed: bool = False,
+    ) -> None:
+        after = ctx.world.robot.pose()
+        fields: dict[str, Any] = {
+            "step": step, "command": command, "parameters": round(parameter, 3), "pose_before": before.as_list(),
+            "pose_after": after.as_list(), "collided": bool(result and result.collided),
+            "collision_with": result.collision_with if result else None,
+        }
+        if vetoed:
+            fields["vetoed"] = True
+        ctx.log.event("action", **fields)
+
+
+def _estimate(pose: Pose2D, bearing_deg: float, distance_m: float) -> tuple[float, float]:
+    """World position [m] of something seen at a bearing and distance from a pose."""
+    heading = pose.yaw + math.radians(bearing_deg)
+    return (pose.x + distance_m * math.cos(heading), pose.y + distance_m * math.sin(heading))
+
+
+def _where(pose: Pose2D, point: tuple[float, float]) -> str:
+    """'3.2 m away, 40° to your left' from the robot's point of view."""
+    bearing = math.degrees(pose.bearing_to(*point))
+    side = "ahead" if abs(bearing) < 10 else (f"{abs(bearing):.0f}° to your left" if bearing > 0
+                                               else f"{abs(bearing):.0f}° to your right")
+    return f"{pose.distance_to(*point):.1f} m away, {side}"
+
+
+def _pose_text(pose: Pose2D) -> str:
+    return f"x={pose.x:.1f} m, y={pose.y:.1f} m, heading {math.degrees(pose.yaw):.0f}°"
+
