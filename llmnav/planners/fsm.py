@@ -92,7 +92,9 @@ class FsmStats:
     tick_latency_ms: list[float] = field(default_factory=list)
     model_latency_ms: list[float] = field(default_factory=list)
     suggestions: int = 0
-    rejected: dict[str, int] = field(default_factory=lambda: {"stale": 0, "bounds": 0, "parse": 0, "error": 0})
+    rejected: dict[str, int] = field(
+        default_factory=lambda: {"stale": 0, "bounds": 0, "parse": 0, "error": 0}
+    )
     accepted: int = 0
     ticks_using: int = 0
     missed_deadlines: int = 0
@@ -241,9 +243,14 @@ class FsmPlanner(Planner):
                         else:
                             stats.rejected[verdict] += 1
                         log.event(
-                            "planner", kind="suggestion", stamp=round(delivered.stamp, 4),
-                            t_recv=round(now, 4), latency_ms=round(delivered.latency_s * 1000, 2),
-                            raw=(delivered.text or "")[:300], verdict=verdict, detail=detail,
+                            "planner",
+                            kind="suggestion",
+                            stamp=round(delivered.stamp, 4),
+                            t_recv=round(now, 4),
+                            latency_ms=round(delivered.latency_s * 1000, 2),
+                            raw=(delivered.text or "")[:300],
+                            verdict=verdict,
+                            detail=detail,
                         )
                     if held is not None and now - held.stamp > ttl_s:
                         held = None  # expired: the baseline applies at once
@@ -263,7 +270,9 @@ class FsmPlanner(Planner):
                     if seen is not None:
                         last_seen = now
                         if seen.distance_m <= cfg.d_goal:
-                            state = {"left": "ACT_LEFT", "right": "ACT_RIGHT"}.get(seen.sign or "", "ACT_STOP")  # type: ignore[assignment]
+                            state = {"left": "ACT_LEFT", "right": "ACT_RIGHT"}.get(
+                                seen.sign or "", "ACT_STOP"
+                            )  # type: ignore[assignment]
                     elif now - last_seen > cfg.lost_after_s:
                         state = "SEARCH"
                 if state != previous_state:
@@ -273,8 +282,14 @@ class FsmPlanner(Planner):
                         consumed.add(target_id or "")
                     if state != "APPROACH":
                         held, pending, in_flight = None, None, in_flight and worker is not None
-                    log.event("planner", kind="fsm_state", previous=previous_state, state=state,
-                              sign=target_id, pose=world.robot.pose().as_list())
+                    log.event(
+                        "planner",
+                        kind="fsm_state",
+                        previous=previous_state,
+                        state=state,
+                        sign=target_id,
+                        pose=world.robot.pose().as_list(),
+                    )
 
                 # --- baseline command -------------------------------------------------------------
                 target_v, target_w = 0.0, 0.0
@@ -290,8 +305,14 @@ class FsmPlanner(Planner):
                     turn_start_yaw = yaw
                     if turned >= cfg.turn_angle:
                         state, state_since = "SEARCH", now
-                        log.event("planner", kind="fsm_state", previous=previous_state, state=state,
-                                  sign=target_id, pose=world.robot.pose().as_list())
+                        log.event(
+                            "planner",
+                            kind="fsm_state",
+                            previous=previous_state,
+                            state=state,
+                            sign=target_id,
+                            pose=world.robot.pose().as_list(),
+                        )
                     else:
                         target_w = cfg.turn_w if state == "ACT_LEFT" else -cfg.turn_w
                 base_v = rate_limit(target_v, base_v, cfg.accel_max, dt)
@@ -317,7 +338,10 @@ class FsmPlanner(Planner):
 
                 # --- publish the state JSON (APPROACH only, one request in flight) ------------------
                 if (
-                    use_llm and state == "APPROACH" and not in_flight and target_id in visible
+                    use_llm
+                    and state == "APPROACH"
+                    and not in_flight
+                    and target_id in visible
                     and now - last_publish >= 1.0 / cfg.publish_hz - 1e-9
                 ):
                     seen = visible[target_id]
@@ -330,9 +354,14 @@ class FsmPlanner(Planner):
 
                 # --- world -------------------------------------------------------------------------
                 if now >= next_cmd - 1e-9:
-                    log.event("planner", kind="cmd", state=state, base=[round(base_v, 4), round(base_w, 4)],
-                              raw=None if raw_v is None else [round(raw_v, 4), round(raw_w or 0.0, 4)],
-                              fused=[round(cmd_v, 4), round(cmd_w, 4)])
+                    log.event(
+                        "planner",
+                        kind="cmd",
+                        state=state,
+                        base=[round(base_v, 4), round(base_w, 4)],
+                        raw=None if raw_v is None else [round(raw_v, 4), round(raw_w or 0.0, 4)],
+                        fused=[round(cmd_v, 4), round(cmd_w, 4)],
+                    )
                     next_cmd = now + cfg.cmd_sample_s
                 if state == "ACT_STOP":
                     outcome = EpisodeOutcome("completed", "stopped at the stop sign", tick + 1)
@@ -342,7 +371,9 @@ class FsmPlanner(Planner):
                     log.event("pose", pose=world.robot.pose().as_list())
                     next_pose = now + cfg.pose_sample_s
                 if result.collided:
-                    outcome = EpisodeOutcome("failed", f"collided with {result.collision_with or 'an obstacle'}", tick + 1)
+                    outcome = EpisodeOutcome(
+                        "failed", f"collided with {result.collision_with or 'an obstacle'}", tick + 1
+                    )
                     break
                 if tick % 25 == 0:
                     ctx.view.on_step(StepInfo(step=tick, action=f"{state} v={cmd_v:.3f} w={cmd_w:.2f}"))
@@ -351,7 +382,9 @@ class FsmPlanner(Planner):
                 worker.close()
 
         if outcome is None:
-            outcome = EpisodeOutcome("failed", f"tick budget exhausted ({opts.max_ticks} ticks)", opts.max_ticks)
+            outcome = EpisodeOutcome(
+                "failed", f"tick budget exhausted ({opts.max_ticks} ticks)", opts.max_ticks
+            )
         final = world.robot.pose()
         log.event("pose", pose=final.as_list())
         outcome.metrics = self._metrics(ctx, stats, final, start_pose)
@@ -384,13 +417,18 @@ class FsmPlanner(Planner):
         from llmnav.prompting import render
 
         cfg = self.cfg
-        return render(
-            "fsm_velocity", v_min=cfg.v_min, v_max=cfg.v_max, w_max=cfg.w_max, d_goal=cfg.d_goal
-        )
+        return render("fsm_velocity", v_min=cfg.v_min, v_max=cfg.v_max, w_max=cfg.w_max, d_goal=cfg.d_goal)
 
     def _request(
-        self, system_prompt: str, now: float, state: State, seen: Detection, base_v: float, base_w: float,
-        dt: float, opts: DriveOptions,
+        self,
+        system_prompt: str,
+        now: float,
+        state: State,
+        seen: Detection,
+        base_v: float,
+        base_w: float,
+        dt: float,
+        opts: DriveOptions,
     ) -> ChatRequest:
         from llmnav.guard.schemas import VelocitySuggestion
 
@@ -448,11 +486,17 @@ class FsmPlanner(Planner):
             "ticks": len(stats.tick_latency_ms),
             "missed_deadlines": stats.missed_deadlines,
             "tick_latency_ms": {
-                "mean": float(lat.mean()), "p50": float(np.percentile(lat, 50)),
-                "p99": float(np.percentile(lat, 99)), "max": float(lat.max()),
+                "mean": float(lat.mean()),
+                "p50": float(np.percentile(lat, 50)),
+                "p99": float(np.percentile(lat, 99)),
+                "max": float(lat.max()),
             },
-            "model_latency_ms": None if model is None else {
-                "mean": float(model.mean()), "p50": float(np.percentile(model, 50)), "max": float(model.max()),
+            "model_latency_ms": None
+            if model is None
+            else {
+                "mean": float(model.mean()),
+                "p50": float(np.percentile(model, 50)),
+                "max": float(model.max()),
             },
             "suggestions": stats.suggestions,
             "accepted": stats.accepted,

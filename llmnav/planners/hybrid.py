@@ -103,19 +103,39 @@ class HybridPlanner(Planner):
             if choice is None:
                 return EpisodeOutcome("aborted", "no valid choice from the model after corrections", step)
             option = options[choice - 1]
-            ctx.view.on_step(StepInfo(step, option.text, front_m=obs.front_m, json_retries=errors, vetoes=vetoes))
+            ctx.view.on_step(
+                StepInfo(step, option.text, front_m=obs.front_m, json_retries=errors, vetoes=vetoes)
+            )
             if option.kind == "complete":
-                ctx.log.event("action", step=step, command="COMPLETE", parameters=0, option=option.text,
-                              pose_before=obs.pose.as_list(), pose_after=obs.pose.as_list(), collided=False)
-                return EpisodeOutcome("completed", "the model chose to finish", step,
-                                      {"json_errors": json_errors, "vetoes": vetoes})
+                ctx.log.event(
+                    "action",
+                    step=step,
+                    command="COMPLETE",
+                    parameters=0,
+                    option=option.text,
+                    pose_before=obs.pose.as_list(),
+                    pose_after=obs.pose.as_list(),
+                    collided=False,
+                )
+                return EpisodeOutcome(
+                    "completed",
+                    "the model chose to finish",
+                    step,
+                    {"json_errors": json_errors, "vetoes": vetoes},
+                )
             result_text, vetoed, collided = self._execute(ctx, grid, option, memory, step)
             vetoes += vetoed
             memory.last_result = result_text
             if collided:
-                return EpisodeOutcome("failed", result_text, step, {"json_errors": json_errors, "vetoes": vetoes})
-        return EpisodeOutcome("failed", f"no finish within {ctx.options.max_iterations} decisions",
-                              ctx.options.max_iterations, {"json_errors": json_errors, "vetoes": vetoes})
+                return EpisodeOutcome(
+                    "failed", result_text, step, {"json_errors": json_errors, "vetoes": vetoes}
+                )
+        return EpisodeOutcome(
+            "failed",
+            f"no finish within {ctx.options.max_iterations} decisions",
+            ctx.options.max_iterations,
+            {"json_errors": json_errors, "vetoes": vetoes},
+        )
 
     # --- perception memory ----------------------------------------------------------------------
     @staticmethod
@@ -146,14 +166,26 @@ class HybridPlanner(Planner):
                 notes.append("its name matches the task")
             if object_id in memory.visited:
                 notes.append("already visited")
-            options.append(Option(
-                0, "landmark",
-                f"Go to the {obj.label} ({_where(pose, position)})" + (f" — {'; '.join(notes)}" if notes else ""),
-                goal=goal, face=position, landmark_id=object_id,
-            ))
+            options.append(
+                Option(
+                    0,
+                    "landmark",
+                    f"Go to the {obj.label} ({_where(pose, position)})"
+                    + (f" — {'; '.join(notes)}" if notes else ""),
+                    goal=goal,
+                    face=position,
+                    landmark_id=object_id,
+                )
+            )
         for centre, size in self._frontiers(grid, lidar_map, pose)[: self.cfg.max_frontiers]:
-            options.append(Option(0, "frontier", f"Explore unmapped space ({_where(pose, centre)}, {size} cells)",
-                                  goal=centre))
+            options.append(
+                Option(
+                    0,
+                    "frontier",
+                    f"Explore unmapped space ({_where(pose, centre)}, {size} cells)",
+                    goal=centre,
+                )
+            )
         options.append(Option(0, "scan", "Turn a full circle in place to look around"))
         options.append(Option(0, "complete", "Finish: the task is done"))
         for number, option in enumerate(options, start=1):
@@ -161,9 +193,13 @@ class HybridPlanner(Planner):
         return options
 
     def _approach(
-        self, grid: OccupancyGrid, goal: tuple[float, float] | None, position: tuple[float, float], pose: Pose2D
+        self,
+        grid: OccupancyGrid,
+        goal: tuple[float, float] | None,
+        position: tuple[float, float],
+        pose: Pose2D,
     ) -> tuple[float, float] | None:
-        """Where to stand: the object's goal point if free, else the free cell in the stand-off ring nearest the robot."""
+        """Where to stand: the goal point if free, else the free stand-off cell nearest the robot."""
         import numpy as np
 
         if goal is not None and grid.is_free(*goal):
@@ -177,7 +213,9 @@ class HybridPlanner(Planner):
         row, col = np.unravel_index(int(np.argmin(cost)), cost.shape)
         return grid.geometry.cell_to_world(int(row), int(col))
 
-    def _frontiers(self, grid: OccupancyGrid, lidar_map: LidarMap, pose: Pose2D) -> list[tuple[tuple[float, float], int]]:
+    def _frontiers(
+        self, grid: OccupancyGrid, lidar_map: LidarMap, pose: Pose2D
+    ) -> list[tuple[tuple[float, float], int]]:
         """Frontier clusters (known-free cells next to unknown ones), as reachable target points and sizes."""
         import numpy as np
         from scipy import ndimage
@@ -213,22 +251,38 @@ class HybridPlanner(Planner):
         menu = "\n".join(f"{o.number}. {o.text}" for o in options)
         system = render("hybrid_system", robot=ctx.world.robot.spec.name)
         user = render(
-            "hybrid_user", task=ctx.task.text, pose=_pose_text(obs.pose), last_result=memory.last_result,
-            observation=obs.text(), options=menu,
+            "hybrid_user",
+            task=ctx.task.text,
+            pose=_pose_text(obs.pose),
+            last_result=memory.last_result,
+            observation=obs.text(),
+            options=menu,
         )
-        images = (obs.image,) if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal else ()
+        images = (
+            (obs.image,)
+            if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal
+            else ()
+        )
         messages: list[Message] = [Message("system", system), Message("user", user, images)]
         errors = 0
         for attempt in range(self.cfg.max_corrections + 1):
-            request = ChatRequest(tuple(messages), schema, ctx.options.temperature, min(ctx.options.max_tokens, 256),
-                                  ctx.options.seed)
+            request = ChatRequest(
+                tuple(messages),
+                schema,
+                ctx.options.temperature,
+                min(ctx.options.max_tokens, 256),
+                ctx.options.seed,
+            )
             reply = call_model(ctx, request, purpose="choice" if attempt == 0 else "correction", step=step)
             result = parse_answer(reply.text, model)
             ctx.log.event("guard", step=step, attempt=attempt, outcome=result.outcome, error=result.error)
             if result.value is not None:
                 return int(result.value.option), errors
             errors += 1
-            messages += [Message("assistant", reply.text), Message("user", correction_message(result, schema))]
+            messages += [
+                Message("assistant", reply.text),
+                Message("user", correction_message(result, schema)),
+            ]
         return None, errors
 
     # --- carrying an option out ------------------------------------------------------------------
@@ -272,16 +326,28 @@ class HybridPlanner(Planner):
                 return "Stopped exploring early: a new object came into view.", 0, False
         if option.face is not None:
             pose = world.robot.pose()
-            turn = math.remainder(math.atan2(option.face[1] - pose.y, option.face[0] - pose.x) - pose.yaw, math.tau)
+            turn = math.remainder(
+                math.atan2(option.face[1] - pose.y, option.face[0] - pose.x) - pose.yaw, math.tau
+            )
             world.motion.rotate(turn)
         if option.landmark_id is not None:
             memory.visited.add(option.landmark_id)
         after = world.robot.pose()
-        ctx.log.event("action", step=step, command="GOTO", parameters=round(before.distance_to(after.x, after.y), 3),
-                      option=option.text, pose_before=before.as_list(), pose_after=after.as_list(), collided=False)
+        ctx.log.event(
+            "action",
+            step=step,
+            command="GOTO",
+            parameters=round(before.distance_to(after.x, after.y), 3),
+            option=option.text,
+            pose_before=before.as_list(),
+            pose_after=after.as_list(),
+            collided=False,
+        )
         return f"Done: {option.text.split(' (')[0]}; now at {_pose_text(after)}.", 0, False
 
-    def _plan(self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]) -> list[tuple[float, float]] | None:
+    def _plan(
+        self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]
+    ) -> list[tuple[float, float]] | None:
         """A* legs from the robot to the goal, no longer than `leg_max_m` each."""
         from llmnav.baselines.astar import plan_path
 
@@ -294,8 +360,12 @@ class HybridPlanner(Planner):
             span = math.dist(previous, point)
             pieces = max(1, math.ceil(span / self.cfg.leg_max_m))
             for k in range(1, pieces + 1):
-                legs.append((previous[0] + (point[0] - previous[0]) * k / pieces,
-                             previous[1] + (point[1] - previous[1]) * k / pieces))
+                legs.append(
+                    (
+                        previous[0] + (point[0] - previous[0]) * k / pieces,
+                        previous[1] + (point[1] - previous[1]) * k / pieces,
+                    )
+                )
             previous = point
         return legs
 
@@ -303,8 +373,12 @@ class HybridPlanner(Planner):
         """The safety veto on a straight leg ahead; the reason when blocked."""
         from llmnav.guard.veto import check_motion
 
-        verdict = check_motion(length, ctx.world.lidar.scan(), robot_width_m=ctx.world.robot.spec.width_m,
-                               margin_m=self.cfg.veto_margin_m)
+        verdict = check_motion(
+            length,
+            ctx.world.lidar.scan(),
+            robot_width_m=ctx.world.robot.spec.width_m,
+            margin_m=self.cfg.veto_margin_m,
+        )
         return None if verdict.allowed else (verdict.reason or "blocked")
 
     def _look(self, ctx: EpisodeContext, memory: Memory) -> bool:
@@ -319,13 +393,23 @@ class HybridPlanner(Planner):
 
     @staticmethod
     def _log_action(
-        ctx: EpisodeContext, step: int, command: str, parameter: float, before: Pose2D,
-        result: MotionResult | None, *, vetoed: bool = False,
+        ctx: EpisodeContext,
+        step: int,
+        command: str,
+        parameter: float,
+        before: Pose2D,
+        result: MotionResult | None,
+        *,
+        vetoed: bool = False,
     ) -> None:
         after = ctx.world.robot.pose()
         fields: dict[str, Any] = {
-            "step": step, "command": command, "parameters": round(parameter, 3), "pose_before": before.as_list(),
-            "pose_after": after.as_list(), "collided": bool(result and result.collided),
+            "step": step,
+            "command": command,
+            "parameters": round(parameter, 3),
+            "pose_before": before.as_list(),
+            "pose_after": after.as_list(),
+            "collided": bool(result and result.collided),
             "collision_with": result.collision_with if result else None,
         }
         if vetoed:
@@ -342,11 +426,13 @@ def _estimate(pose: Pose2D, bearing_deg: float, distance_m: float) -> tuple[floa
 def _where(pose: Pose2D, point: tuple[float, float]) -> str:
     """'3.2 m away, 40° to your left' from the robot's point of view."""
     bearing = math.degrees(pose.bearing_to(*point))
-    side = "ahead" if abs(bearing) < 10 else (f"{abs(bearing):.0f}° to your left" if bearing > 0
-                                               else f"{abs(bearing):.0f}° to your right")
+    side = (
+        "ahead"
+        if abs(bearing) < 10
+        else (f"{abs(bearing):.0f}° to your left" if bearing > 0 else f"{abs(bearing):.0f}° to your right")
+    )
     return f"{pose.distance_to(*point):.1f} m away, {side}"
 
 
 def _pose_text(pose: Pose2D) -> str:
     return f"x={pose.x:.1f} m, y={pose.y:.1f} m, heading {math.degrees(pose.yaw):.0f}°"
-

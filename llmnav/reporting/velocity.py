@@ -25,7 +25,9 @@ def plot_velocity_profile(run_dir: Path, out: Path) -> Path | None:
         raw = [e["raw"][index] for e in records if e.get("raw") is not None]
         if raw:
             axis.plot(raw_t, raw, ".", ms=3, label="raw model suggestion", color="tab:orange")
-        axis.plot(t, [e["fused"][index] for e in records], label="published (fused)", color="tab:green", lw=1.2)
+        axis.plot(
+            t, [e["fused"][index] for e in records], label="published (fused)", color="tab:green", lw=1.2
+        )
         axis.set_ylabel(unit)
         axis.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8)
