@@ -1,0 +1,250 @@
+"""The robot's sensors: a 2D LiDAR, an RGB camera and a detector reading the segmentation mask.
+
+The LiDAR is one batched ray cast, the camera PyBullet's TinyRenderer.
+
+pybullet and cv2 are imported only where used, so modules that merely need `LidarScan` (the guard's
+veto) stay light. Conventions: angles relative to the heading, counter-clockwise positive; bearings
+positive to the left; image offsets negative to the left.
+"""
+
+from __future__ import annotations
+
+import base64
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from llmnav.backends.base import Image
+from llmnav.scenario import CameraConfig, DetectorConfig, LidarConfig
+
+if TYPE_CHECKING:
+    from llmnav.scenario import LabelledObject
+    from llmnav.sim.robot import Robot
+
+LIDAR_CLEARANCE = 0.01  # [m] rays start this far outside the robot's body so they never hit it
+CAMERA_NEAR = 0.05  # [m] near clipping plane
+DETECTOR_SIZE = (160, 120)  # [px] the detector's own low-resolution segmentation capture
+
+
+@dataclass
+class LidarScan:
+    """One planar scan."""
+
+    angles: np.ndarray  # [rad] relative to heading, CCW positive, ascending
+    ranges: np.ndarray  # [m] from the robot centre; np.inf where nothing lies within range
+    range_max: float  # [m]
+    range_min: float  # [m]
+
+    def min_in(self, lo_rad: float, hi_rad: float) -> float:
+        """Smallest range [m] among rays with lo <= angle <= hi (np.inf if none or all clear)."""
+        mask = (self.angles >= lo_rad) & (self.angles <= hi_rad)
+        return float(self.ranges[mask].min()) if mask.any() else math.inf
+
+
+class Lidar:
+    """A planar LiDAR at the robot's centre, cast with one `rayTestBatch` per scan."""
+
+    def __init__(
+        self, p: Any, client: int, robot: Robot, config: LidarConfig, *, mount_height_m: float | None = None
+    ) -> None:
+        self._p = p
+        self._client = client
+        self._robot = robot
+        self.config = config
+        self.mount_height_m = mount_height_m if mount_height_m is not None else config.mount_height_m  # [m]
+        fov = math.radians(config.fov_deg)
+        full_circle = config.fov_deg >= 360.0
+        self.angles = np.linspace(-fov / 2.0, fov / 2.0, config.rays, endpoint=not full_circle)  # [rad]
+        self._start = robot.spec.radius_m + LIDAR_CLEARANCE  # [m] ray origin distance from the centre
+        self._rng = np.random.default_rng(0)
+
+    def reseed(self, seed: int) -> None:
+        """Restart the noise stream."""
+        self._rng = np.random.default_rng(seed)
+
+    def scan(self) -> LidarScan:
+        """Cast all rays from the current ground-truth pose."""
+        cfg = self.config
+        pose = self._robot.pose()
+        world_angles = self.angles + pose.yaw
+        cos, sin = np.cos(world_angles), np.sin(world_angles)
+        n = len(self.angles)
+        z = np.full(n, self.mount_height_m)
+        start = self._start
+        starts = np.column_stack((pose.x + start * cos, pose.y + start * sin, z))
+        ends = np.column_stack((pose.x + cfg.range_m * cos, pose.y + cfg.range_m * sin, z))
+        hits = self._p.rayTestBatch(
+            starts.tolist(), ends.tolist(), numThreads=0, physicsClientId=self._client
+        )
+        fractions = np.fromiter((h[2] for h in hits), dtype=float, count=n)
+        hit = np.fromiter((h[0] >= 0 for h in hits), dtype=bool, count=n)
+        ranges = np.where(hit, start + fractions * (cfg.range_m - start), np.inf)
+        if cfg.noise_std_m > 0.0:
+            ranges = ranges + self._rng.normal(0.0, cfg.noise_std_m, n)  # inf stays inf
+            ranges = np.where(np.isfinite(ranges), np.clip(ranges, cfg.min_range_m, cfg.range_m), np.inf)
+        return LidarScan(
+            angles=self.angles.copy(), ranges=ranges, range_max=cfg.range_m, range_min=cfg.min_range_m
+        )
+
+
+@dataclass
+class CameraFrame:
+    """One camera image, optionally with its segmentation mask."""
+
+    rgb: np.ndarray  # HxWx3 uint8
+    segmentation: np.ndarray | None  # HxW int32 body ids (-1 = background), only when asked
+    fov_deg: float = 60.0  # [deg] vertical field of view it was taken with
+
+    def jpeg_b64(self, quality: int = 80) -> str:
+        """The image as base64 JPEG (what multimodal models receive)."""
+        import cv2
+
+        ok, buf = cv2.imencode(".jpg", self.rgb[:, :, ::-1], [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
+        if not ok:  # pragma: no cover - cv2 only fails on invalid input
+            raise RuntimeError("JPEG encoding failed")
+        return base64.b64encode(buf.tobytes()).decode("ascii")
+
+    def image(self, quality: int = 80) -> Image:
+        """As a backend `Image`."""
+        return Image(self.jpeg_b64(quality))
+
+    @property
+    def horizontal_fov_rad(self) -> float:
+        """Horizontal field of view [rad] from the vertical one and the aspect ratio."""
+        h, w = self.rgb.shape[:2]
+        return 2.0 * math.atan(math.tan(math.radians(self.fov_deg) / 2.0) * w / h)
+
+
+class Camera:
+    """A forward-looking RGB camera at the robot's camera height (TinyRenderer, never shadows)."""
+
+    def __init__(
+        self, p: Any, client: int, robot: Robot, config: CameraConfig, *, mount_height_m: float | None = None
+    ) -> None:
+        self._p = p
+        self._client = client
+        self._robot = robot
+        self.config = config
+        self.mount_height_m = mount_height_m if mount_height_m is not None else config.mount_height_m  # [m]
+
+    def capture(
+        self, *, segmentation: bool = False, width: int | None = None, height: int | None = None
+    ) -> CameraFrame:
+        """Render the view along the heading; the segmentation mask only when asked (it costs time)."""
+        p, cfg = self._p, self.config
+        width = width or cfg.width
+        height = height or cfg.height
+        pose = self._robot.pose()
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        # The eye sits just in front of the body so the robot never sees itself.
+        ahead = self._robot.spec.radius_m + 0.02  # [m]
+        eye = (pose.x + ahead * c, pose.y + ahead * s, self.mount_height_m)
+        target = (eye[0] + c, eye[1] + s, eye[2])
+        view = p.computeViewMatrix(eye, target, (0.0, 0.0, 1.0), physicsClientId=self._client)
+        proj = p.computeProjectionMatrixFOV(
+            cfg.fov_deg, width / height, CAMERA_NEAR, cfg.far_m, physicsClientId=self._client
+        )
+        flags = 0 if segmentation else p.ER_NO_SEGMENTATION_MASK
+        _w, _h, rgba, _depth, seg = p.getCameraImage(
+            width,
+            height,
+            viewMatrix=view,
+            projectionMatrix=proj,
+            shadow=0,  # always explicit: one shadowed call would make later calls shadowed too
+            renderer=p.ER_TINY_RENDERER,
+            flags=flags,
+            physicsClientId=self._client,
+        )
+        rgb = np.ascontiguousarray(np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3])
+        mask = None
+        if segmentation:
+            raw = np.asarray(seg, dtype=np.int64).reshape(height, width)
+            # Values are body + ((link + 1) << 24); our bodies are single links, so keep the low bits.
+            mask = np.where(raw >= 0, raw & ((1 << 24) - 1), -1).astype(np.int32)
+        return CameraFrame(rgb=rgb, segmentation=mask, fov_deg=cfg.fov_deg)
+
+
+@dataclass
+class Detection:
+    """One labelled object seen in the image."""
+
+    object_id: str
+    label: str
+    bearing_deg: float  # [deg] positive = left
+    distance_m: float  # [m] robot centre -> object goal point, with optional noise
+    pixel_fraction: float  # share of the image the object covers
+    offset: float  # horizontal offset of its pixel centroid in [-1, 1], negative = left
+    sign: str | None  # traffic-sign class when the object is a sign
+
+
+class Detector:
+    """Detections read off a segmentation mask: which labelled objects are visible, where and how far."""
+
+    def __init__(
+        self,
+        camera: Camera,
+        robot: Robot,
+        objects: dict[int, LabelledObject],
+        config: DetectorConfig,
+    ) -> None:
+        self._camera = camera
+        self._robot = robot
+        self._objects = objects  # body id -> labelled object (shared with the world)
+        self.config = config
+        self._rng = np.random.default_rng(0)
+
+    def reseed(self, seed: int) -> None:
+        """Restart the noise/dropout stream."""
+        self._rng = np.random.default_rng(seed)
+
+    def detect(self, frame: CameraFrame | None = None) -> list[Detection]:
+        """Detections in `frame` (captures its own 160x120 segmentation frame if none or no mask given).
+
+        `min_pixels` is meant at 160x120 and scaled to the frame's resolution.
+        """
+        if frame is None or frame.segmentation is None:
+            frame = self._camera.capture(segmentation=True, width=DETECTOR_SIZE[0], height=DETECTOR_SIZE[1])
+        seg = frame.segmentation
+        assert seg is not None
+        height, width = seg.shape
+        total = width * height
+        min_pixels = max(1, round(self.config.min_pixels * total / (DETECTOR_SIZE[0] * DETECTOR_SIZE[1])))
+        flat = seg.ravel()
+        valid = flat >= 0
+        counts = np.bincount(flat[valid], minlength=1)
+        cols = np.tile(np.arange(width), height)[valid]
+        col_sums = np.bincount(flat[valid], weights=cols, minlength=1)
+        pose = self._robot.pose()
+        out: list[Detection] = []
+        for body in sorted(self._objects):
+            if body >= len(counts) or counts[body] < min_pixels:
+                continue
+            obj = self._objects[body]
+            gx, gy = obj.goal_point
+            true_distance = pose.distance_to(gx, gy)
+            if true_distance > self.config.max_distance_m:
+                continue
+            # One draw of each per visible object, in body order, so runs with a seed repeat exactly.
+            noise = self._rng.standard_normal()
+            drop = self._rng.random()
+            if drop < self.config.dropout:
+                continue
+            centroid = col_sums[body] / counts[body] + 0.5  # [px] pixel centres
+            offset = float(min(1.0, max(-1.0, (centroid - width / 2.0) / (width / 2.0))))
+            # Bearing from the robot centre (like distance_m), not from the camera a little ahead of it.
+            bearing = math.degrees(pose.bearing_to(gx, gy))
+            distance = max(0.0, true_distance + self.config.distance_noise_std_m * float(noise))
+            out.append(
+                Detection(
+                    object_id=obj.id,
+                    label=obj.label,
+                    bearing_deg=bearing,
+                    distance_m=distance,
+                    pixel_fraction=float(counts[body]) / total,
+                    offset=offset,
+                    sign=obj.sign,
+                )
+            )
+        return out

@@ -1,0 +1,152 @@
+"""A PyBullet world built from a `Scenario`: floor, static scenery, the robot, its sensors and motion.
+
+Each `World` owns its own DIRECT physics client (several may coexist in one process) and steps at
+240 Hz. Gravity is off: every body but the robot is static, and the robot's base is driven by
+velocity, so nothing needs it. The world is deterministic: the same scenario, seed and commands give
+the same poses.
+"""
+
+from __future__ import annotations
+
+from types import TracebackType
+
+import pybullet as p
+
+from llmnav.geometry import Pose2D
+from llmnav.scenario import CameraConfig, DetectorConfig, LabelledObject, LidarConfig, Obstacle, Scenario
+from llmnav.sim.bodies import create_floor, create_shape
+from llmnav.sim.motion import Motion
+from llmnav.sim.robot import Robot
+from llmnav.sim.robot_specs import ROBOT_SPECS
+from llmnav.sim.sensors import Camera, Detector, Lidar
+
+PHYSICS_HZ = 240  # [Hz]
+ADDED_OBSTACLE_HEIGHT = 1.0  # [m]
+ADDED_OBSTACLE_COLOR = (0.8, 0.45, 0.1, 1.0)
+
+
+class World:
+    """The simulated world of one episode."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        *,
+        seed: int = 0,
+        lidar: LidarConfig | None = None,
+        camera: CameraConfig | None = None,
+        detector: DetectorConfig | None = None,
+        odom_noise: float = 0.0,
+    ) -> None:
+        self.scenario = scenario
+        self.seed = seed
+        self.dt = 1.0 / PHYSICS_HZ  # [s]
+        self.step_count = 0  # physics steps since reset (sim_time derives from it, so it never drifts)
+        self.client = int(p.connect(p.DIRECT))
+        client = self.client
+        p.setTimeStep(self.dt, physicsClientId=client)
+        p.setGravity(0.0, 0.0, 0.0, physicsClientId=client)
+        # Deterministic solver ordering across worlds and runs.
+        p.setPhysicsEngineParameter(deterministicOverlappingPairs=1, physicsClientId=client)
+
+        self.body_names: dict[int, str] = {}  # every scenery body -> a name for contact reports
+        self.object_bodies: dict[str, int] = {}  # labelled object id -> body id
+        self.labelled: dict[int, LabelledObject] = {}  # body id -> labelled object
+        self.floor = create_floor(p, client, scenario.bounds, scenario.floor_color)
+        for i, wall in enumerate(scenario.walls):
+            self._add_scenery(wall, wall.id or f"wall:{i}")
+        for i, obstacle in enumerate(scenario.obstacles):
+            self._add_scenery(obstacle, obstacle.id or f"obstacle:{i}")
+        for obj in scenario.objects:
+            body = self._add_scenery(obj, obj.id)
+            self.object_bodies[obj.id] = body
+            self.labelled[body] = obj
+        self._added = 0
+
+        spec = ROBOT_SPECS[scenario.robot]
+        self.robot = Robot(p, client, spec, dt=self.dt, body_names=self.body_names, odom_noise=odom_noise)
+        sensors = scenario.sensors
+        lidar_cfg = lidar or sensors.lidar
+        camera_cfg = camera or sensors.camera
+        # Mount heights come from the robot spec unless the scenario or caller set them explicitly.
+        lidar_h = (
+            lidar_cfg.mount_height_m
+            if "mount_height_m" in lidar_cfg.model_fields_set
+            else spec.lidar_height_m
+        )
+        camera_h = (
+            camera_cfg.mount_height_m
+            if "mount_height_m" in camera_cfg.model_fields_set
+            else spec.camera_height_m
+        )
+        self.lidar = Lidar(p, client, self.robot, lidar_cfg, mount_height_m=lidar_h)
+        self.camera = Camera(p, client, self.robot, camera_cfg, mount_height_m=camera_h)
+        self.detector = Detector(self.camera, self.robot, self.labelled, detector or sensors.detector)
+        self.motion = Motion(self)
+        self.reset(scenario.default_start.pose())
+
+    def _add_scenery(self, shape: Obstacle | LabelledObject, name: str) -> int:
+        body = create_shape(p, self.client, shape)
+        self.body_names[body] = name
+        return body
+
+    @property
+    def sim_time(self) -> float:
+        """Physics time [s] since the last reset."""
+        return self.step_count * self.dt
+
+    def reset(self, start: Pose2D, *, seed: int | None = None) -> None:
+        """Put the robot at `start`, zero time and odometry, restart every noise stream (deterministic)."""
+        if seed is not None:
+            self.seed = seed
+        self.step_count = 0
+        self.robot._reset(start, seed=self.seed * 1000 + 1)
+        self.lidar.reseed(self.seed * 1000 + 2)
+        self.detector.reseed(self.seed * 1000 + 3)
+        self.motion._reset()
+
+    def step(self, n: int = 1) -> None:
+        """Advance the physics `n` steps of 1/240 s, driving the robot with its current command."""
+        robot, client = self.robot, self.client
+        for _ in range(n):
+            robot._before_step()
+            p.stepSimulation(physicsClientId=client)
+            robot._after_step()
+            self.step_count += 1
+
+    def add_obstacle(self, x: float, y: float, size: float = 0.5) -> int:
+        """Drop a solid box of `size` [m] (square footprint, 1 m tall) at (x, y); returns its body id."""
+        self._added += 1
+        shape = Obstacle(
+            center=(x, y),
+            size=(size, size),
+            height=ADDED_OBSTACLE_HEIGHT,
+            color=ADDED_OBSTACLE_COLOR,
+            id=f"added:{self._added}",
+        )
+        return self._add_scenery(shape, f"added:{self._added}")
+
+    def object_at_body(self, body_id: int) -> str | None:
+        """The labelled object id of a body, if it is one."""
+        obj = self.labelled.get(body_id)
+        return obj.id if obj is not None else None
+
+    def close(self) -> None:
+        """Disconnect the physics client (idempotent)."""
+        if self.client >= 0:
+            p.disconnect(physicsClientId=self.client)
+            self.client = -1
+
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn pybullet down already
+            pass
