@@ -46,6 +46,7 @@ class DriveOptions(BaseModel):
     max_replans: int = Field(default=5, ge=0)
     replan_cooldown_s: float = Field(default=5.0, ge=0)
     obstacles: tuple[tuple[float, float], ...] = ()
+    preset_waypoints: tuple[tuple[float, float], ...] = ()  # `llmnav plan --execute`: a plan already made
     # fsm (source C)
     assist: Literal["none", "ema", "llm"] = "none"
     alpha: float = Field(default=0.5, ge=0, le=1)

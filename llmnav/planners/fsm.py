@@ -178,6 +178,11 @@ class FsmPlanner(Planner):
     def __init__(self, config: FsmConfig | None = None) -> None:
         self.cfg = config or FsmConfig()
 
+    @staticmethod
+    def templates(options: DriveOptions) -> list[str]:
+        """Prompt templates this planner renders (their hashes go into the run config)."""
+        return ["fsm_velocity"] if options.assist == "llm" else []
+
     def requires_backend(self, options: DriveOptions) -> bool:
         """Only `--assist llm` talks to a model."""
         return options.assist == "llm"

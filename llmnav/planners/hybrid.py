@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from llmnav.backends.base import ChatRequest, Message
 from llmnav.geometry import Pose2D
-from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, StepInfo
+from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 
 if TYPE_CHECKING:
     from llmnav.baselines.grid import LidarMap, OccupancyGrid
@@ -76,6 +76,11 @@ class HybridPlanner(Planner):
 
     def __init__(self, config: HybridConfig | None = None) -> None:
         self.cfg = config or HybridConfig()
+
+    @staticmethod
+    def templates(options: DriveOptions) -> list[str]:
+        """Prompt templates this planner renders (their hashes go into the run config)."""
+        return ["hybrid_system", "hybrid_user"]
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""

@@ -1,0 +1,111 @@
+"""`llmnav plan`: generate and validate waypoints only (source B); `--execute` drives them."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from llmnav.commands.common import cli_errors, console
+from llmnav.errors import BadInputError
+
+
+@cli_errors
+def plan(
+    task: Annotated[str, typer.Option("--task", help="Command naming a target, e.g. 'Go to room 101'.")],
+    scenario: Annotated[
+        str | None, typer.Option(help="Scenario (default: the corridor the task names).")
+    ] = None,
+    start_pose: Annotated[int, typer.Option("--start-pose", help="Start pose K (1-based).")] = 1,
+    backend: Annotated[str, typer.Option(help="Model backend spec NAME[:ARG].")] = "local",
+    max_generations: Annotated[int, typer.Option("--max-generations", help="Attempts before giving up.")] = 5,
+    seed: Annotated[int, typer.Option(help="Model seed.")] = 0,
+    plot: Annotated[Path | None, typer.Option(help="Write the plan figure here (PNG).")] = Path("plan.png"),
+    json_output: Annotated[bool, typer.Option("--json", help="Print the plan as JSON only.")] = False,
+    execute: Annotated[bool, typer.Option(help="Drive the valid plan (drive --planner waypoints).")] = False,
+    out: Annotated[Path | None, typer.Option(help="Run folder for --execute.")] = None,
+) -> None:
+    """Ask the model for waypoints to a target, validate every attempt, and show the verdicts."""
+    from llmnav.backends.base import ChatRequest, ChatResult, get_backend
+    from llmnav.baselines.grid import build_grid
+    from llmnav.planners.waypoints import generate_plan, ground_target, plan_summary
+    from llmnav.tasks import resolve_task
+
+    if max_generations < 1:
+        raise BadInputError(f"--max-generations {max_generations}: must be at least 1")
+    resolved = resolve_task(scenario, [task], None, start_pose)
+    sc = resolved.scenario
+    if not sc.corridors:
+        raise BadInputError(f"scenario '{sc.name}' publishes no corridors; waypoint planning needs them")
+    model = get_backend(backend)
+
+    def call(request: ChatRequest, purpose: str) -> ChatResult:
+        return model.chat(request)
+
+    try:
+        target = ground_target(sc, resolved.task, call)
+        start = resolved.start.pose()
+        result = generate_plan(
+            sc, target, start, call, max_generations=max_generations, grid=build_grid(sc), seed=seed
+        )
+    finally:
+        model.close()
+    if plot is not None:
+        from llmnav.reporting.planplot import plot_plan
+
+        plot_plan(sc, result, start, plot)
+    if json_output:
+        console.print(json.dumps(plan_summary(result)), markup=False, highlight=False, soft_wrap=True)
+    else:
+        _print_plan(result, sc.name, plot)
+    if result.waypoints is None:
+        raise typer.Exit(1)
+    if execute:
+        _execute(resolved, backend, result.waypoints, seed, out)
+
+
+def _print_plan(result: object, scenario: str, plot: Path | None) -> None:
+    from rich.table import Table
+
+    from llmnav.planners.waypoints import PlanResult
+
+    assert isinstance(result, PlanResult)
+    table = Table(title=f"Waypoint attempts — target {result.target_id} in {scenario}")
+    table.add_column("#", justify="right")
+    table.add_column("waypoints")
+    table.add_column("verdict")
+    for attempt in result.attempts:
+        points = " → ".join(f"({x:.2f}, {y:.2f})" for x, y in attempt.points) or "—"
+        verdict = "[green]valid[/]" if attempt.valid else "[red]" + "\n".join(attempt.problems) + "[/]"
+        table.add_row(str(attempt.number), points, verdict)
+    console.print(table)
+    console.print(
+        f"planning time {result.planning_time_s:.2f} s · WGSR {result.wgsr:.1f} %"
+        + (f" · plot {plot}" if plot else "")
+    )
+
+
+def _execute(
+    resolved: object, backend: str, waypoints: list[tuple[float, float]], seed: int, out: Path | None
+) -> None:
+    from llmnav.commands.drive import default_out_dir
+    from llmnav.planners.base import DriveOptions
+    from llmnav.reporting.live import print_result
+    from llmnav.runner import EpisodeSpec, exit_code, run_episode
+    from llmnav.tasks import ResolvedTask
+
+    assert isinstance(resolved, ResolvedTask)
+    options = DriveOptions(planner="waypoints", seed=seed, preset_waypoints=tuple(waypoints))
+    spec = EpisodeSpec(
+        scenario=resolved.scenario.name,
+        task_text=resolved.task.text,
+        start_pose=resolved.start_pose_index,
+        options=options,
+        backend=backend,
+        out_dir=out or default_out_dir("waypoints", resolved.task.text),
+    )
+    summary = run_episode(spec)
+    print_result(console, summary)
+    raise typer.Exit(exit_code(summary))

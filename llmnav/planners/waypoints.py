@@ -1,0 +1,482 @@
+"""Waypoint planner (source B): the model writes a JSON array of waypoints from the map facts.
+
+Pipeline per target: ground the command in the scenario's object list (exact name first, the model picks
+from the list otherwise) -> generate waypoints from corridor rectangles, robot pose and target pose ->
+validate every point (inside a corridor with the margin, spacing, count, final point on the target,
+segments clear of obstacles) and regenerate with the exact complaints, up to a bound -> follow them with
+the P-controller (0.4 m/s, 2.0 rad/s, 0.1 m, 0.087 rad), stopping for obstacles closer than 0.5 m within
+±15° ahead (emergency stop below 0.35 m) and replanning from the current pose, at most 5 times with a
+5 s (sim) cooldown. Unlike the published code, out-of-bounds points are never dropped silently.
+
+`generate_plan` needs no simulator: `llmnav plan` uses it directly.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from llmnav.backends.base import ChatRequest, ChatResult, Message
+from llmnav.errors import InvalidActionError
+from llmnav.geometry import Pose2D
+from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+
+if TYPE_CHECKING:
+    from llmnav.baselines.grid import OccupancyGrid
+    from llmnav.scenario import LabelledObject, Scenario, Task, WaypointRules
+
+Point = tuple[float, float]
+ModelCall = Callable[[ChatRequest, str], ChatResult]  # (request, purpose) -> reply
+
+
+@dataclass(frozen=True)
+class WaypointConfig:
+    """Execution constants of the waypoint source."""
+
+    linear_speed: float = 0.4  # [m/s]
+    angular_speed: float = 2.0  # [rad/s]
+    reach_tol_m: float = 0.1  # [m]
+    angle_tol_rad: float = 0.087  # [rad] rotate in place above it
+    critical_m: float = 0.5  # [m] obstacle stop within ±15° ahead
+    emergency_m: float = 0.35  # [m]
+    obstacle_radius_m: float = 0.35  # [m] size assumed for an obstacle seen by the LiDAR when replanning
+
+
+@dataclass
+class Attempt:
+    """One generation: the answer, its points and every complaint."""
+
+    number: int
+    latency_s: float
+    points: list[Point]
+    problems: list[str]
+
+    @property
+    def valid(self) -> bool:
+        """Whether the plan passed validation."""
+        return not self.problems
+
+
+@dataclass
+class PlanResult:
+    """The outcome of planning one target."""
+
+    target_id: str
+    target: Point
+    attempts: list[Attempt] = field(default_factory=list)
+    planning_time_s: float = 0.0  # [s] command -> valid waypoints received (wall)
+
+    @property
+    def waypoints(self) -> list[Point] | None:
+        """The valid plan, if any attempt produced one."""
+        return next((a.points for a in self.attempts if a.valid), None)
+
+    @property
+    def wgsr(self) -> float:
+        """Waypoint generation success rate [%] = valid generations / attempts x 100."""
+        return 100.0 * sum(a.valid for a in self.attempts) / len(self.attempts) if self.attempts else 0.0
+
+
+# --- validation ------------------------------------------------------------------------------
+
+
+def validate_waypoints(
+    points: list[Point],
+    start: Point,
+    target: Point,
+    scenario: Scenario,
+    grid: OccupancyGrid | None,
+    rules: WaypointRules,
+    *,
+    extra_obstacles: list[Point] | None = None,
+    obstacle_radius_m: float = 0.35,
+) -> list[str]:
+    """Every problem of a plan, each naming the point and the rule; empty when the plan is valid."""
+    problems: list[str] = []
+    margin = rules.margin_m
+    if len(points) > rules.max_waypoints:
+        problems.append(f"{len(points)} waypoints; at most {rules.max_waypoints} are allowed here")
+    previous = start
+    for index, (x, y) in enumerate(points, start=1):
+        name = f"waypoint {index} ({x:.2f}, {y:.2f})"
+        if not any(c.contains(x, y, margin) for c in scenario.corridors):
+            problems.append(f"{name} is outside every corridor with the {margin} m margin")
+        gap = math.dist(previous, (x, y))
+        if index < len(points) and gap < rules.spacing_m:
+            problems.append(
+                f"{name} is {gap:.2f} m from the previous point; keep at least {rules.spacing_m} m"
+            )
+        blocked = _segment_blocked(previous, (x, y), grid, extra_obstacles or [], obstacle_radius_m)
+        if blocked is not None:
+            problems.append(
+                f"the segment to {name} crosses an obstacle near ({blocked[0]:.2f}, {blocked[1]:.2f})"
+            )
+        previous = (x, y)
+    if points:
+        miss = math.dist(points[-1], target)
+        if miss > rules.target_tolerance_m:
+            problems.append(
+                f"the final waypoint is {miss:.2f} m from the target ({target[0]:.2f}, {target[1]:.2f}); "
+                f"it must be within {rules.target_tolerance_m} m"
+            )
+    return problems
+
+
+def _segment_blocked(
+    a: Point, b: Point, grid: OccupancyGrid | None, extra: list[Point], radius: float
+) -> Point | None:
+    """First sample of segment a-b inside an inflated obstacle (true grid or obstacles seen), if any."""
+    steps = max(1, math.ceil(math.dist(a, b) / 0.05))
+    for k in range(steps + 1):
+        x, y = a[0] + (b[0] - a[0]) * k / steps, a[1] + (b[1] - a[1]) * k / steps
+        if grid is not None and not grid.is_free(x, y) and math.dist((x, y), a) > 0.15:
+            return (x, y)
+        if any(math.dist((x, y), o) < radius for o in extra):
+            return (x, y)
+    return None
+
+
+# --- grounding and generation ------------------------------------------------------------------
+
+
+def ground_target(scenario: Scenario, task: Task, call: ModelCall, max_tries: int = 3) -> LabelledObject:
+    """The object a command refers to: exact-name match first, else the model picks from the list."""
+    from llmnav.guard.parse import correction_message, parse_answer
+    from llmnav.guard.schemas import response_schema, target_choice_model
+    from llmnav.prompting import render
+    from llmnav.tasks import named_objects
+
+    named = named_objects(scenario, task.text)
+    if task.targets and len(task.targets) == 1 and task.targets[0].object:
+        return scenario.object(task.targets[0].object)
+    if len(named) == 1:
+        return named[0]
+    candidates = named or list(scenario.objects)
+    model = target_choice_model(tuple(o.id for o in candidates))
+    schema = response_schema(model)
+    listing = "\n".join(
+        f"- {o.id}: {o.label} at ({o.goal_point[0]:.1f}, {o.goal_point[1]:.1f})" for o in candidates
+    )
+    messages = [
+        Message("system", render("ground_system")),
+        Message("user", render("ground_user", command=task.text, objects=listing)),
+    ]
+    for _ in range(max_tries):
+        reply = call(ChatRequest(tuple(messages), schema, 0.0, 64), "ground")
+        result = parse_answer(reply.text, model)
+        if result.value is not None:
+            return scenario.object(result.value.object_id)
+        messages += [Message("assistant", reply.text), Message("user", correction_message(result, schema))]
+    raise InvalidActionError(f"the model named no listed object for '{task.text}' after {max_tries} tries")
+
+
+def generate_plan(
+    scenario: Scenario,
+    target: LabelledObject,
+    start: Pose2D,
+    call: ModelCall,
+    *,
+    max_generations: int,
+    grid: OccupancyGrid | None,
+    temperature: float = 0.0,
+    seed: int | None = None,
+    seen_obstacles: list[Point] | None = None,
+    on_attempt: Callable[[Attempt], None] | None = None,
+) -> PlanResult:
+    """Ask for waypoints until a plan validates or `max_generations` attempts are spent."""
+    from llmnav.guard.parse import correction_message, parse_answer
+    from llmnav.guard.schemas import WaypointList, response_schema
+    from llmnav.prompting import render
+
+    rules = scenario.waypoint_rules
+    goal = target.goal_point
+    corridors = "\n".join(
+        f"- {c.id}: x from {c.x[0]} to {c.x[1]}, y from {c.y[0]} to {c.y[1]}" for c in scenario.corridors
+    )
+    junctions = [o for o in scenario.objects if "junction" in o.label.lower()]
+    obstacles = "; ".join(f"({x:.2f}, {y:.2f})" for x, y in seen_obstacles or []) or "none"
+    system = render(
+        "waypoints_system",
+        corridors=corridors or "- (no corridors published)",
+        junctions="; ".join(f"{o.label} at ({o.center[0]}, {o.center[1]})" for o in junctions) or "none",
+        robot_x=f"{start.x:.2f}",
+        robot_y=f"{start.y:.2f}",
+        robot_yaw_deg=f"{math.degrees(start.yaw):.0f}",
+        target_name=target.label,
+        target_x=f"{goal[0]:.2f}",
+        target_y=f"{goal[1]:.2f}",
+        margin=rules.margin_m,
+        spacing=rules.spacing_m,
+        tolerance=rules.target_tolerance_m,
+        max_waypoints=rules.max_waypoints,
+        obstacles=obstacles,
+    )
+    user = render("waypoints_user", target_name=target.label, max_waypoints=rules.max_waypoints)
+    schema = response_schema(WaypointList)
+    messages = [Message("system", system), Message("user", user)]
+    plan = PlanResult(target.id, goal)
+    started = time.perf_counter()
+    for number in range(1, max_generations + 1):
+        reply = call(ChatRequest(tuple(messages), schema, temperature, 512, seed), "waypoints")
+        result = parse_answer(reply.text, WaypointList)
+        if result.value is None:
+            attempt = Attempt(number, reply.latency_s, [], [f"{result.outcome}: {result.error}"])
+            feedback = correction_message(result, schema)
+        else:
+            points = [(float(x), float(y)) for x, y in result.value.points]
+            problems = validate_waypoints(
+                points, (start.x, start.y), goal, scenario, grid, rules, extra_obstacles=seen_obstacles
+            )
+            attempt = Attempt(number, reply.latency_s, points, problems)
+            feedback = render("waypoints_feedback", problems="\n".join(f"- {p}" for p in problems))
+        plan.attempts.append(attempt)
+        if on_attempt is not None:
+            on_attempt(attempt)
+        if attempt.valid:
+            break
+        messages += [Message("assistant", reply.text), Message("user", feedback)]
+    plan.planning_time_s = time.perf_counter() - started
+    return plan
+
+
+def map_to_odom(point: Point, start_map: Pose2D, start_odom: Pose2D) -> Point:
+    """A map-frame point in the odometry frame: rotate by the frame offset, then translate."""
+    dtheta = start_odom.yaw - start_map.yaw
+    dx, dy = point[0] - start_map.x, point[1] - start_map.y
+    c, s = math.cos(dtheta), math.sin(dtheta)
+    return (start_odom.x + c * dx - s * dy, start_odom.y + s * dx + c * dy)
+
+
+# --- the planner ---------------------------------------------------------------------------------
+
+
+class WaypointPlanner(Planner):
+    """Source B on the simulator; several targets in sequence with repeated `--task`."""
+
+    name = "waypoints"
+    needs_backend = True
+
+    def __init__(self, config: WaypointConfig | None = None) -> None:
+        self.cfg = config or WaypointConfig()
+
+    @staticmethod
+    def templates(options: DriveOptions) -> list[str]:
+        """Prompt templates this planner renders (their hashes go into the run config)."""
+        return ["ground_system", "ground_user", "waypoints_system", "waypoints_user", "waypoints_feedback"]
+
+    def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
+        """Ground, plan, validate, execute, replan — per leg of the command sequence."""
+        from llmnav.baselines.grid import build_grid
+        from llmnav.observe import call_model
+        from llmnav.tasks import sequence_legs
+
+        world, scenario, opts, cfg = ctx.world, ctx.scenario, ctx.options, self.cfg
+        if not scenario.corridors:
+            raise InvalidActionError(
+                f"scenario '{scenario.name}' publishes no corridors; the waypoint planner needs them"
+            )
+        grid = build_grid(scenario)
+        world.motion.on_pose = lambda pose, t: ctx.log.event("pose", pose=pose.as_list())
+        ctx.log.event("pose", pose=world.robot.pose().as_list())
+        step = 0
+        metrics: dict[str, Any] = {
+            "planning_time_s": 0.0,
+            "execution_time_s": 0.0,
+            "generations": 0,
+            "valid_generations": 0,
+            "collision_events": 0,
+            "replans": 0,
+            "legs": [],
+        }
+
+        def call(request: ChatRequest, purpose: str) -> ChatResult:
+            return call_model(ctx, request, purpose=purpose, step=step)
+
+        def log_attempt(attempt: Attempt) -> None:
+            ctx.log.event(
+                "planner",
+                kind="waypoint_attempt",
+                step=step,
+                attempt=attempt.number,
+                points=attempt.points,
+                valid=attempt.valid,
+                problems=attempt.problems,
+            )
+
+        last_replan = -math.inf
+        preset = [tuple(p) for p in opts.preset_waypoints]
+        for leg in sequence_legs(scenario, ctx.task):
+            step += 1
+            target = ground_target(scenario, leg, call)
+            ctx.log.event("planner", kind="grounding", step=step, command=leg.text, target=target.id)
+            seen: list[Point] = []
+            replans = 0
+            while True:
+                start = world.robot.pose()
+                if preset:  # `llmnav plan --execute`: the plan was made already; it is validated again
+                    plan = PlanResult(target.id, target.goal_point)
+                    problems = validate_waypoints(
+                        preset, (start.x, start.y), target.goal_point, scenario, grid, scenario.waypoint_rules
+                    )
+                    plan.attempts.append(Attempt(1, 0.0, list(preset), problems))
+                    log_attempt(plan.attempts[0])
+                    preset = []
+                else:
+                    plan = generate_plan(
+                        scenario,
+                        target,
+                        start,
+                        call,
+                        max_generations=opts.max_generations,
+                        grid=grid,
+                        temperature=opts.temperature,
+                        seed=opts.seed,
+                        seen_obstacles=seen,
+                        on_attempt=log_attempt,
+                    )
+                self._count(metrics, plan)
+                for attempt in plan.attempts:
+                    if not attempt.valid:
+                        ctx.log.event(
+                            "guard",
+                            step=step,
+                            attempt=attempt.number,
+                            outcome="bounds",
+                            error="; ".join(attempt.problems)[:500],
+                        )
+                waypoints = plan.waypoints
+                if waypoints is None:
+                    return self._end(
+                        metrics,
+                        "failed",
+                        f"no valid waypoints for {target.label} after {len(plan.attempts)} generations",
+                        step,
+                    )
+                ctx.view.on_step(
+                    StepInfo(
+                        step,
+                        f"plan to {target.label}: {len(waypoints)} waypoints",
+                        latency_s=plan.planning_time_s,
+                        json_retries=len(plan.attempts) - 1,
+                    )
+                )
+                stop = self._execute(ctx, waypoints, metrics, step, start)
+                if stop is None:
+                    break
+                if stop == "collision":
+                    return self._end(metrics, "failed", "collided while following waypoints", step)
+                metrics["collision_events"] += 1
+                seen.append(self._obstacle_ahead(ctx))
+                if replans >= opts.max_replans:
+                    return self._end(
+                        metrics,
+                        "failed",
+                        f"path to {target.label} still blocked after {replans} replans",
+                        step,
+                    )
+                wait = opts.replan_cooldown_s - (world.sim_time - last_replan)
+                if wait > 0:  # cooldown between replans, in simulated time, standing still
+                    world.motion.velocity_tick(0.0, 0.0, wait)
+                replans += 1
+                metrics["replans"] += 1
+                last_replan = world.sim_time
+                ctx.log.event("planner", kind="replan", step=step, reason=stop, number=replans)
+            metrics["legs"].append({"target": target.id, "reached": True})
+        return self._end(metrics, "completed", "reached every target", step)
+
+    def _execute(
+        self,
+        ctx: EpisodeContext,
+        waypoints: list[Point],
+        metrics: dict[str, Any],
+        step: int,
+        start_map: Pose2D,
+    ) -> str | None:
+        """Follow the waypoints; None when all are reached, else the stop reason."""
+        world, cfg = ctx.world, self.cfg
+        start_odom = world.robot.odom()
+        t0 = world.sim_time
+        try:
+            for index, point in enumerate(waypoints, start=1):
+                before = world.robot.pose()
+                x, y = map_to_odom(point, start_map, start_odom)
+                result = world.motion.go_to(
+                    x,
+                    y,
+                    tol_m=cfg.reach_tol_m,
+                    ang_tol=cfg.angle_tol_rad,
+                    v_max=cfg.linear_speed,
+                    w_max=cfg.angular_speed,
+                    obstacle_stop_m=cfg.critical_m,
+                    emergency_stop_m=cfg.emergency_m,
+                )
+                ctx.log.event(
+                    "action",
+                    step=step,
+                    command="WAYPOINT",
+                    parameters=[round(point[0], 3), round(point[1], 3)],
+                    index=index,
+                    pose_before=before.as_list(),
+                    pose_after=result.end.as_list(),
+                    collided=result.collided,
+                    collision_with=result.collision_with,
+                    stopped_reason=result.stopped_reason,
+                )
+                if result.collided:
+                    return "collision"
+                if result.stopped_reason is not None:
+                    return result.stopped_reason
+        finally:
+            metrics["execution_time_s"] += world.sim_time - t0
+        return None
+
+    def _obstacle_ahead(self, ctx: EpisodeContext) -> Point:
+        """World position of the closest LiDAR return within ±15° ahead (what stopped the robot)."""
+        import numpy as np
+
+        scan = ctx.world.lidar.scan()
+        pose = ctx.world.robot.pose()
+        ahead = np.abs(scan.angles) <= math.radians(15)
+        ranges = np.where(ahead, scan.ranges, np.inf)
+        i = int(np.argmin(ranges))
+        r = float(ranges[i]) if math.isfinite(float(ranges[i])) else self.cfg.critical_m
+        heading = pose.yaw + float(scan.angles[i])
+        return (pose.x + (r + 0.2) * math.cos(heading), pose.y + (r + 0.2) * math.sin(heading))
+
+    @staticmethod
+    def _count(metrics: dict[str, Any], plan: PlanResult) -> None:
+        metrics["planning_time_s"] += plan.planning_time_s
+        metrics["generations"] += len(plan.attempts)
+        metrics["valid_generations"] += sum(a.valid for a in plan.attempts)
+
+    @staticmethod
+    def _end(metrics: dict[str, Any], outcome: str, reason: str, step: int) -> EpisodeOutcome:
+        gens = metrics["generations"]
+        metrics["wgsr"] = 100.0 * metrics["valid_generations"] / gens if gens else None
+        exec_s = metrics["execution_time_s"]
+        metrics["replanning_rate"] = metrics["replans"] / exec_s if exec_s > 0 else 0.0
+        return EpisodeOutcome(outcome, reason, step, metrics)  # type: ignore[arg-type]
+
+
+def plan_summary(plan: PlanResult) -> dict[str, Any]:
+    """JSON-able summary of a plan (for `llmnav plan --json`)."""
+    return {
+        "target": plan.target_id,
+        "target_point": list(plan.target),
+        "waypoints": plan.waypoints,
+        "planning_time_s": round(plan.planning_time_s, 3),
+        "wgsr": plan.wgsr,
+        "attempts": [
+            {"number": a.number, "points": a.points, "valid": a.valid, "problems": a.problems}
+            for a in plan.attempts
+        ],
+    }
+
+
+def plan_json(plan: PlanResult) -> str:
+    """`plan_summary` as JSON text."""
+    return json.dumps(plan_summary(plan), indent=2)
