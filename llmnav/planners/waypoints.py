@@ -274,7 +274,7 @@ class WaypointPlanner(Planner):
         from llmnav.observe import call_model
         from llmnav.tasks import sequence_legs
 
-        world, scenario, opts, cfg = ctx.world, ctx.scenario, ctx.options, self.cfg
+        world, scenario, opts = ctx.world, ctx.scenario, ctx.options
         if not scenario.corridors:
             raise InvalidActionError(
                 f"scenario '{scenario.name}' publishes no corridors; the waypoint planner needs them"
