@@ -36,13 +36,21 @@ SCENARIO_DATA: dict[str, Any] = {
 }
 
 
+def write_scenario_file(path: Path) -> Path:
+    """The tiny scenario as a YAML file (what a run's `scenario_file` points at)."""
+    import yaml
+
+    path.write_text(yaml.safe_dump(SCENARIO_DATA))
+    return path
+
+
 def tiny_scenario() -> Scenario:
     return parse_scenario(SCENARIO_DATA, "tiny.yaml")
 
 
 def config_for(task_id: str, *, planner: str = "stepwise", backend: str | None = "replay:x",
                options: dict[str, Any] | None = None, start_pose_index: int = 1, seed: int = 0,
-               scenario: str = "tiny") -> dict[str, Any]:
+               scenario: str = "tiny", scenario_file: Path | None = None) -> dict[str, Any]:
     sc = tiny_scenario()
     task = sc.task(task_id)
     opts = {"planner": planner, "sensing": ["lidar", "image"], "lidar_sectors": 8, "prompt": "full",
@@ -51,6 +59,7 @@ def config_for(task_id: str, *, planner: str = "stepwise", backend: str | None =
     start = sc.start_poses(task)[start_pose_index - 1]
     return {
         "scenario": scenario,
+        "scenario_file": str(scenario_file) if scenario_file else None,
         "task": {"id": task.id, "text": task.text, "kind": task.kind, "difficulty": task.difficulty,
                  "targets": [t.model_dump() for t in task.targets]},
         "start_pose_index": start_pose_index,

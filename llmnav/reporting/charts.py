@@ -1,0 +1,70 @@
+"""Bar charts of score and success by condition, with error bars (matplotlib, Agg backend)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from llmnav.errors import BadInputError
+
+if TYPE_CHECKING:
+    from llmnav.score import Run
+
+
+def _safe(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name).strip("_") or "all"
+
+
+def plot_conditions(runs: Sequence[Run], keys: Sequence[str], out_dir: Path) -> list[Path]:
+    """Per task: mean score ± SD and success rate ± binomial SE for each condition; returns the PNGs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from llmnav.score import group_runs
+    from llmnav.stats import describe
+
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise BadInputError(f"--plot {out_dir}: cannot create folder: {err.strerror or err}") from None
+    by_task: dict[str, list[tuple[str, list[Run]]]] = {}
+    for task, cond, group in group_runs(runs, keys):
+        by_task.setdefault(task, []).append((cond, group))
+    written = []
+    for task, groups in by_task.items():
+        labels = [cond for cond, _ in groups]
+        score_mean, score_sd, rate, rate_se = [], [], [], []
+        for _, group in groups:
+            scores = [
+                float(r.summary["score"]) for r in group if isinstance(r.summary.get("score"), (int, float))
+            ]
+            d = describe(scores)
+            score_mean.append(d.mean if d.n else math.nan)
+            score_sd.append(d.sd if d.n > 1 else 0.0)
+            p = sum(1 for r in group if r.summary.get("success")) / len(group)
+            rate.append(p)
+            rate_se.append(math.sqrt(p * (1 - p) / len(group)))  # binomial standard error
+        fig, axes = plt.subplots(
+            1, 2, figsize=(max(6.0, 1.2 * len(labels) + 3), 3.6), constrained_layout=True
+        )
+        positions = list(range(len(labels)))
+        axes[0].bar(positions, score_mean, yerr=score_sd, capsize=4, color="#4c72b0")
+        axes[0].set_ylabel("score S (mean ± SD)")
+        axes[1].bar(positions, rate, yerr=rate_se, capsize=4, color="#55a868")
+        axes[1].set_ylabel("success rate (± SE)")
+        for ax in axes:
+            ax.set_ylim(0, 1.05)
+            tilt = len(labels) > 3
+            ax.set_xticks(
+                positions, labels, rotation=30 if tilt else 0, ha="right" if tilt else "center", fontsize=8
+            )
+        fig.suptitle(f"{task} by {', '.join(keys)}" if keys else task)
+        path = out_dir / f"{_safe(task)}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written

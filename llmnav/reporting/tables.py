@@ -1,0 +1,74 @@
+"""Rendering `llmnav.score.Table`s: rich tables for the terminal, Markdown, CSV and JSON."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Literal
+
+if TYPE_CHECKING:
+    from rich.table import Table as RichTable
+
+    from llmnav.score import Table
+
+Format = Literal["rich", "md", "csv", "json"]
+
+
+def to_rich(table: Table) -> RichTable:
+    """A rich table (first two columns left-aligned labels, numbers right-aligned)."""
+    from rich.table import Table as RichTable
+
+    out = RichTable(title=table.title, caption=table.note or None, title_justify="left", header_style="bold")
+    for i, column in enumerate(table.columns):
+        out.add_column(column, justify="left" if i < 2 else "right", no_wrap=i >= 2)
+    for row in table.rows:
+        out.add_row(*row)
+    return out
+
+
+def _md_cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def to_markdown(tables: Sequence[Table]) -> str:
+    """GitHub-flavoured Markdown: a heading and a pipe table per table."""
+    parts = []
+    for table in tables:
+        lines = [f"### {table.title}", ""]
+        lines.append("| " + " | ".join(_md_cell(c) for c in table.columns) + " |")
+        lines.append("|" + "|".join("---" if i < 2 else "---:" for i in range(len(table.columns))) + "|")
+        lines.extend("| " + " | ".join(_md_cell(c) for c in row) + " |" for row in table.rows)
+        if table.note:
+            lines += ["", f"_{table.note}_"]
+        parts.append("\n".join(lines))
+    return "\n\n".join(parts) + "\n"
+
+
+def to_csv(tables: Sequence[Table]) -> str:
+    """One CSV: a `table` column naming the table, then that table's columns (header repeated per table)."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    for table in tables:
+        writer.writerow(["table", *table.columns])
+        for row in table.rows:
+            writer.writerow([table.title, *row])
+    return buffer.getvalue()
+
+
+def to_json(tables: Sequence[Table]) -> str:
+    """The tables' raw records (numbers, not formatted strings)."""
+    data = [{"title": t.title, "note": t.note, "records": t.records} for t in tables]
+    return json.dumps(data, indent=2, allow_nan=False, default=str) + "\n"
+
+
+def render_text(tables: Sequence[Table], fmt: Format) -> str:
+    """Markdown, CSV or JSON text of the tables (`rich` renders through a console instead)."""
+    if fmt == "md":
+        return to_markdown(tables)
+    if fmt == "csv":
+        return to_csv(tables)
+    if fmt == "json":
+        return to_json(tables)
+    raise ValueError(f"no text rendering for format {fmt!r}")

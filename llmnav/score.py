@@ -1,0 +1,533 @@
+"""`llmnav score`: read run folders, group them by task and condition, and build the sources' tables.
+
+Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
+`build_tables` (stepwise / path / waypoint / FSM tables, only those with data) and `compare_groups`
+(`--compare KEY=A KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`.
+Tables are plain data (`Table`): formatted cells for display and raw numbers for JSON.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from llmnav.errors import BadInputError
+from llmnav.metrics import CONDITION_KEYS, summarize_run
+from llmnav.runlog import RUN_FILE, read_run
+from llmnav.stats import Comparison, compare, describe
+
+if TYPE_CHECKING:
+    from llmnav.scenario import Scenario
+
+NA = "N.A."  # the task has no target to score against
+MISSING = "—"  # no data (no model calls, baseline unavailable, ...)
+ITERATIVE_PLANNERS = frozenset({"stepwise", "hybrid"})
+
+
+@dataclass
+class Run:
+    """One run folder as `score` sees it: its summary and its configuration line."""
+
+    run_dir: Path
+    summary: dict[str, Any]
+    config: dict[str, Any]
+
+    @property
+    def task(self) -> str:
+        """Task id, else its text."""
+        return str(self.summary.get("task_id") or self.summary.get("task_text") or "?")
+
+    @property
+    def condition(self) -> dict[str, Any]:
+        """The run's condition values (see llmnav.metrics.CONDITION_KEYS)."""
+        return dict(self.summary.get("condition") or {})
+
+    @property
+    def planner(self) -> str:
+        """Planner name."""
+        return str(self.summary.get("planner") or self.condition.get("planner") or "?")
+
+    @property
+    def metrics(self) -> dict[str, Any]:
+        """The planner's own metrics."""
+        return dict(self.summary.get("planner_metrics") or {})
+
+
+@dataclass
+class Table:
+    """A titled table: formatted rows for display, raw records for JSON."""
+
+    title: str
+    columns: list[str]
+    rows: list[list[str]]
+    records: list[dict[str, Any]] = field(default_factory=list)
+    note: str = ""
+
+
+# --- loading ------------------------------------------------------------------------------------
+
+
+def find_run_dirs(paths: Sequence[Path]) -> list[Path]:
+    """Every run folder (a folder holding run.jsonl) at or below the given paths, sorted, deduplicated."""
+    found: set[Path] = set()
+    for path in paths:
+        path = Path(path)
+        if not path.exists():
+            raise BadInputError(f"{path}: no such file or folder")
+        if path.is_file():
+            if path.name != RUN_FILE:
+                raise BadInputError(f"{path}: not a run folder or ablation folder")
+            found.add(path.parent.resolve())
+            continue
+        found.update(p.parent.resolve() for p in path.rglob(RUN_FILE))
+    if not found:
+        raise BadInputError(f"no run folders (with {RUN_FILE}) under {', '.join(str(p) for p in paths)}")
+    return sorted(found)
+
+
+@lru_cache(maxsize=16)
+def _scenario(name_or_path: str) -> Scenario | None:
+    from llmnav.errors import ScenarioError
+    from llmnav.scenario import load_scenario
+
+    try:
+        return load_scenario(name_or_path)
+    except (ScenarioError, OSError):
+        return None
+
+
+def scenario_of(config: dict[str, Any]) -> Scenario | None:
+    """The run's scenario (its recorded file, else its bundled name); None when it cannot be loaded."""
+    for key in ("scenario_file", "scenario"):
+        value = config.get(key)
+        if value:
+            scenario = _scenario(str(value))
+            if scenario is not None:
+                return scenario
+    return None
+
+
+def load_run(run_dir: Path) -> Run:
+    """A run's summary: summary.json when the run ended, else computed from its (cut-short) log."""
+    record = read_run(run_dir)
+    summary = record.summary
+    if summary is None or "outcome" not in summary:
+        summary = summarize_run(record, scenario_of(record.config))
+    return Run(Path(run_dir), summary, record.config)
+
+
+def load_runs(paths: Sequence[Path]) -> list[Run]:
+    """Every run below the given paths."""
+    return [load_run(d) for d in find_run_dirs(paths)]
+
+
+# --- grouping -----------------------------------------------------------------------------------
+
+
+def _hashable(value: Any) -> Any:
+    return tuple(value) if isinstance(value, list) else value
+
+
+def varying_keys(runs: Sequence[Run]) -> list[str]:
+    """Condition keys whose value differs across the runs (what a table's groups are told apart by)."""
+    keys = []
+    for key in CONDITION_KEYS:
+        if len({_hashable(r.condition.get(key)) for r in runs}) > 1:
+            keys.append(key)
+    return keys
+
+
+def condition_label(run: Run, keys: Sequence[str]) -> str:
+    """`key=value, ...` over the varying keys ("all" when nothing varies)."""
+    if not keys:
+        return "all"
+    return ", ".join(f"{k}={run.condition.get(k)}" for k in keys)
+
+
+def _task_sort_key(task: str) -> tuple[Any, ...]:
+    digits = "".join(ch for ch in task if ch.isdigit())
+    return (task.rstrip("0123456789"), int(digits) if digits else -1, task)
+
+
+def group_runs(
+    runs: Sequence[Run], keys: Sequence[str], *, by_task: bool = True
+) -> list[tuple[str, str, list[Run]]]:
+    """(task, condition label, runs) groups in a stable order (task number, then first appearance)."""
+    groups: dict[tuple[str, str], list[Run]] = defaultdict(list)
+    for run in runs:
+        groups[(run.task if by_task else "all", condition_label(run, keys))].append(run)
+    ordered = sorted(groups, key=lambda tc: (_task_sort_key(tc[0]), tc[1]))
+    return [(task, cond, groups[(task, cond)]) for task, cond in ordered]
+
+
+# --- formatting helpers -------------------------------------------------------------------------
+
+
+def _num(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value) if math.isfinite(float(value)) else None
+
+
+def _values(runs: Iterable[Run], get: Callable[[Run], Any]) -> list[float]:
+    return [v for v in (_num(get(r)) for r in runs) if v is not None]
+
+
+def _fmt(value: float | None, digits: int = 2) -> str:
+    return MISSING if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _mean_sd(values: Sequence[float], digits: int = 2) -> str:
+    if not values:
+        return MISSING
+    d = describe(values)
+    return _fmt(d.mean, digits) if d.n < 2 else f"{d.mean:.{digits}f} ± {d.sd:.{digits}f}"
+
+
+def _stats_record(values: Sequence[float]) -> dict[str, Any] | None:
+    if not values:
+        return None
+    d = describe(values)
+    clean = [None if not math.isfinite(x) else x for x in (d.mean, d.sd, d.ci_low, d.ci_high)]
+    return {"n": d.n, "mean": clean[0], "sd": clean[1], "ci95": [clean[2], clean[3]]}
+
+
+def _metric(name: str) -> Callable[[Run], Any]:
+    return lambda run: run.metrics.get(name)
+
+
+# --- the tables ---------------------------------------------------------------------------------
+
+
+def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Source A, Table 1 style, per task and condition: iterations, latency, #JSON, #Safety, k/N, score."""
+    if not runs:
+        return None
+    columns = ["Task", "Condition", "N", "Iterations", "Latency (s)", "#JSON", "#Safety", "Success", "Score"]
+    rows, records = [], []
+    for task, cond, group in group_runs(runs, keys):
+        successes = sum(1 for r in group if r.summary.get("success"))
+        scores = _values(group, lambda r: r.summary.get("score"))
+        no_target = all(r.summary.get("task_kind") == "explore" for r in group)
+        fields = {
+            "iterations": _values(group, lambda r: r.summary.get("iterations")),
+            "latency_s": _values(group, lambda r: r.summary.get("latency_s_mean")),
+            "json_errors": _values(group, lambda r: r.summary.get("json_errors")),
+            "safety_vetoes": _values(group, lambda r: r.summary.get("safety_vetoes")),
+        }
+        has_model = any(r.summary.get("llm_calls", 1) for r in group)
+        rows.append(
+            [
+                task,
+                cond,
+                str(len(group)),
+                _mean_sd(fields["iterations"], 1),
+                _mean_sd(fields["latency_s"], 2),
+                _mean_sd(fields["json_errors"], 1) if has_model else MISSING,
+                _mean_sd(fields["safety_vetoes"], 1) if has_model else MISSING,
+                f"{successes}/{len(group)}",
+                NA if no_target else _mean_sd(scores, 2),
+            ]
+        )
+        records.append(
+            {
+                "task": task,
+                "condition": cond,
+                "n": len(group),
+                "successes": successes,
+                "success_rate": successes / len(group),
+                "score": None if no_target else _stats_record(scores),
+                **{name: _stats_record(vals) for name, vals in fields.items()},
+            }
+        )
+    return Table("Episodes (stepwise source, Table 1 style)", columns, rows, records, "mean ± SD per run")
+
+
+def _start_key(run: Run) -> tuple[str, Any]:
+    return (run.task, run.summary.get("start_pose_index"))
+
+
+def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
+    """Oracle shortest-path length per (task, start pose); None where the oracle is unavailable."""
+    try:
+        from llmnav.baselines.oracle import oracle_length  # being written separately; optional here
+    except ImportError:
+        return {}
+    lengths: dict[tuple[str, Any], float | None] = {}
+    for run in runs:
+        key = _start_key(run)
+        if key in lengths:
+            continue
+        lengths[key] = None
+        scenario = scenario_of(run.config)
+        start = run.config.get("start_pose")
+        if scenario is None or start is None:
+            continue
+        try:
+            from llmnav.geometry import Pose2D
+
+            task = scenario.task(run.task)
+            lengths[key] = _num(oracle_length(scenario, task, Pose2D.from_list(start)))
+        except Exception:  # noqa: BLE001 — a missing baseline shows as "—", it must not break the table
+            lengths[key] = None
+    return lengths
+
+
+def path_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Source A, Table 2 style, successful runs only: path length and its ratio to Oracle and Frontier."""
+    successful = [
+        r for r in runs if r.summary.get("success") and _num(r.summary.get("path_length_m")) is not None
+    ]
+    if not successful:
+        return None
+    oracle = _oracle_lengths(successful)
+    frontier: dict[tuple[str, Any], list[float]] = defaultdict(list)
+    for run in successful:
+        if run.planner == "frontier":
+            frontier[_start_key(run)].append(float(run.summary["path_length_m"]))
+    columns = ["Task", "Condition", "N ok", "Path (m)", "Oracle (m)", "Ratio", "Frontier (m)", "Ratio"]
+    rows, records = [], []
+    for task, cond, group in group_runs(successful, keys):
+        paths = _values(group, lambda r: r.summary.get("path_length_m"))
+        oracle_m, oracle_ratio, frontier_m, frontier_ratio = [], [], [], []
+        for run in group:
+            path = float(run.summary["path_length_m"])
+            o = oracle.get(_start_key(run))
+            if o:
+                oracle_m.append(o)
+                oracle_ratio.append(path / o)
+            f = frontier.get(_start_key(run))
+            if f and run.planner != "frontier":
+                f_mean = sum(f) / len(f)
+                frontier_m.append(f_mean)
+                if f_mean > 0:
+                    frontier_ratio.append(path / f_mean)
+        rows.append(
+            [
+                task,
+                cond,
+                str(len(group)),
+                _mean_sd(paths, 2),
+                _mean_sd(oracle_m, 2),
+                _mean_sd(oracle_ratio, 2),
+                _mean_sd(frontier_m, 2),
+                _mean_sd(frontier_ratio, 2),
+            ]
+        )
+        records.append(
+            {
+                "task": task,
+                "condition": cond,
+                "n": len(group),
+                "path_length_m": _stats_record(paths),
+                "oracle_length_m": _stats_record(oracle_m),
+                "oracle_ratio": _stats_record(oracle_ratio),
+                "frontier_length_m": _stats_record(frontier_m),
+                "frontier_ratio": _stats_record(frontier_ratio),
+            }
+        )
+    return Table("Path length (stepwise source, Table 2 style; successful runs)", columns, rows, records)
+
+
+def waypoint_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Source B, Tables 1–3 style: per command and averaged."""
+    wp = [r for r in runs if r.planner == "waypoints" or "wgsr" in r.metrics]
+    if not wp:
+        return None
+    columns = [
+        "Command", "Condition", "N", "Planning (s)", "Execution (s)", "Path (m)", "WGSR (%)",
+        "Collision events", "Replanning (1/s)", "Success",
+    ]  # fmt: skip
+    fields: dict[str, Callable[[Run], Any]] = {
+        "planning_time_s": _metric("planning_time_s"),
+        "execution_time_s": _metric("execution_time_s"),
+        "path_length_m": lambda r: r.summary.get("path_length_m"),
+        "wgsr": _metric("wgsr"),
+        "collision_events": _metric("collision_events"),
+        "replanning_rate": _metric("replanning_rate"),
+    }
+    digits = {"wgsr": 1, "collision_events": 1, "replanning_rate": 3}
+    rows, records = [], []
+
+    def add(label: str, cond: str, group: Sequence[Run]) -> None:
+        vals = {name: _values(group, get) for name, get in fields.items()}
+        ok = sum(1 for r in group if r.summary.get("success"))
+        rows.append(
+            [label, cond, str(len(group))]
+            + [_mean_sd(vals[n], digits.get(n, 2)) for n in fields]
+            + [f"{ok}/{len(group)}"]
+        )
+        records.append(
+            {"command": label, "condition": cond, "n": len(group), "successes": ok}
+            | {n: _stats_record(v) for n, v in vals.items()}
+        )
+
+    for _task, cond, group in group_runs(wp, keys):
+        add(str(group[0].summary.get("task_text") or group[0].task), cond, group)
+    for _task, cond, group in group_runs(wp, keys, by_task=False):
+        add("Average", cond, group)
+    return Table("Waypoint planner (waypoint source, Tables 1–3 style)", columns, rows, records)
+
+
+def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Source C, Tables 5–6 style: e_pos, η, loop and model latency, acceptance, utilisation, rejections."""
+    fsm = [r for r in runs if r.planner == "fsm" or "e_pos_m" in r.metrics]
+    if not fsm:
+        return None
+    columns = [
+        "Task", "Condition", "N", "e_pos (m)", "η", "Loop (ms)", "Model (ms)", "r_acc", "r_use",
+        "Stale", "Bounds", "Parse",
+    ]  # fmt: skip
+
+    def loop_ms(run: Run) -> Any:
+        tick = run.metrics.get("tick_latency_ms")
+        return tick.get("mean") if isinstance(tick, dict) else tick
+
+    def model_ms(run: Run) -> Any:
+        value = run.metrics.get("model_latency_ms")
+        return value.get("mean") if isinstance(value, dict) else value
+
+    def rejected(reason: str) -> Callable[[Run], Any]:
+        return lambda run: (run.metrics.get("rejected") or {}).get(reason)
+
+    fields: dict[str, tuple[Callable[[Run], Any], int]] = {
+        "e_pos_m": (_metric("e_pos_m"), 3),
+        "eta": (_metric("eta"), 3),
+        "loop_latency_ms": (loop_ms, 2),
+        "model_latency_ms": (model_ms, 1),
+        "r_acc": (_metric("r_acc"), 2),
+        "r_use": (_metric("r_use"), 2),
+        "rejected_stale": (rejected("stale"), 1),
+        "rejected_bounds": (rejected("bounds"), 1),
+        "rejected_parse": (rejected("parse"), 1),
+    }
+    rows, records = [], []
+    for task, cond, group in group_runs(fsm, keys):
+        vals = {name: _values(group, get) for name, (get, _) in fields.items()}
+        rows.append([task, cond, str(len(group))] + [_mean_sd(vals[n], d) for n, (_, d) in fields.items()])
+        records.append(
+            {"task": task, "condition": cond, "n": len(group)}
+            | {n: _stats_record(v) for n, v in vals.items()}
+        )
+    title = "FSM with LLM assist (FSM source, Tables 5–6 style)"
+    return Table(title, columns, rows, records, "rejections: counts per run")
+
+
+def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
+    """Every table that has data; groups are told apart by `group_keys` (default: the varying keys)."""
+    keys = list(group_keys) if group_keys is not None else varying_keys(runs)
+    builders = (stepwise_table, path_table, waypoint_table, fsm_table)
+    return [t for t in (b(runs, keys) for b in builders) if t is not None]
+
+
+# --- comparisons --------------------------------------------------------------------------------
+
+# What `--compare` tests: name → how to read it from a run.
+COMPARE_METRICS: dict[str, Callable[[Run], Any]] = {
+    "score": lambda r: r.summary.get("score"),
+    "success": lambda r: 1.0 if r.summary.get("success") else 0.0,
+    "path_length_m": lambda r: r.summary.get("path_length_m"),
+    "iterations": lambda r: r.summary.get("iterations"),
+    "latency_s": lambda r: r.summary.get("latency_s_mean"),
+    "e_pos_m": _metric("e_pos_m"),
+    "eta": _metric("eta"),
+    "planning_time_s": _metric("planning_time_s"),
+    "wgsr": _metric("wgsr"),
+}
+
+
+def parse_selector(text: str) -> tuple[str, str]:
+    """`KEY=VALUE` of `--compare`; KEY a condition key or task/scenario."""
+    key, sep, value = text.partition("=")
+    key = key.strip().replace("-", "_")
+    allowed = (*CONDITION_KEYS, "task", "scenario")
+    if not sep or not key or not value:
+        raise BadInputError(f"--compare {text!r}: expected KEY=VALUE, e.g. lidar_sectors=8")
+    if key not in allowed:
+        raise BadInputError(f"--compare {text!r}: unknown key '{key}' (one of: {', '.join(allowed)})")
+    return key, value.strip()
+
+
+def _selected(run: Run, key: str, value: str) -> bool:
+    if key == "task":
+        actual: Any = run.task
+    elif key == "scenario":
+        actual = run.summary.get("scenario")
+    else:
+        actual = run.condition.get(key)
+    return str(actual).lower() == value.lower()
+
+
+@dataclass
+class GroupComparison:
+    """One metric compared between two selections of runs."""
+
+    metric: str
+    result: Comparison
+
+
+def compare_groups(runs: Sequence[Run], first: str, second: str) -> tuple[Table, list[GroupComparison]]:
+    """Welch's t and Hedges' g for every metric that both selections have (at least 2 values each)."""
+    key_a, value_a = parse_selector(first)
+    key_b, value_b = parse_selector(second)
+    group_a = [r for r in runs if _selected(r, key_a, value_a)]
+    group_b = [r for r in runs if _selected(r, key_b, value_b)]
+    for label, group in ((first, group_a), (second, group_b)):
+        if not group:
+            raise BadInputError(f"--compare {label}: no run matches")
+    results = []
+    for name, get in COMPARE_METRICS.items():
+        a, b = _values(group_a, get), _values(group_b, get)
+        if len(a) >= 2 and len(b) >= 2:
+            results.append(GroupComparison(name, compare(a, b)))
+    columns = ["Metric", f"{first} mean ± SD [95% CI]", f"{second} mean ± SD [95% CI]", "t", "df", "p", "g"]
+    rows, records = [], []
+    for item in results:
+        c = item.result
+
+        def cell(d: Any) -> str:
+            return f"{d.mean:.3f} ± {d.sd:.3f} [{_fmt(d.ci_low, 3)}, {_fmt(d.ci_high, 3)}] (n={d.n})"
+
+        p = c.welch.p
+        rows.append(
+            [
+                item.metric,
+                cell(c.a),
+                cell(c.b),
+                _fmt(c.welch.t, 2),
+                _fmt(c.welch.df, 1),
+                MISSING if math.isnan(p) else (f"{p:.2g}" if p >= 1e-4 else f"{p:.1e}"),
+                _fmt(c.hedges_g, 2),
+            ]
+        )
+        records.append(
+            {
+                "metric": item.metric,
+                "a": {"selector": first, **_describe_record(c.a)},
+                "b": {"selector": second, **_describe_record(c.b)},
+                "t": _nan_none(c.welch.t),
+                "df": _nan_none(c.welch.df),
+                "p": _nan_none(p),
+                "hedges_g": _nan_none(c.hedges_g),
+            }
+        )
+    note = "Welch's t (two-sided p), Hedges' g with small-sample correction; positive = first group larger"
+    return Table(f"Comparison: {first} vs {second}", columns, rows, records, note), results
+
+
+def _nan_none(value: float) -> float | None:
+    return None if value is None or not math.isfinite(value) else value
+
+
+def _describe_record(d: Any) -> dict[str, Any]:
+    return {
+        "n": d.n,
+        "mean": _nan_none(d.mean),
+        "sd": _nan_none(d.sd),
+        "ci95": [_nan_none(d.ci_low), _nan_none(d.ci_high)],
+    }
