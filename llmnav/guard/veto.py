@@ -1,4 +1,4 @@
-"""Safety veto: may a straight move (FRONT or BACK) go ahead, judged only from the LiDAR scan?
+"""Safety veto: whether a straight move (FRONT or BACK) may go ahead, judged only from the LiDAR scan.
 
 The check sweeps the robot's footprint along the move: a rectangle in the robot frame starting at the
 robot's centre, pointing in the direction of motion (+x for FRONT, -x for BACK), of half-width
@@ -92,7 +92,8 @@ def check_motion(
     # The cone in which the far end of the corridor is seen must be covered by rays.
     if not _covered(offsets, math.atan2(half_width, length)):
         return _blocked(
-            f"the LiDAR does not see the path {direction}, so the move cannot be checked; choose another action"
+            f"the LiDAR does not see the path {direction}, so the move cannot be checked; "
+            "choose another action"
         )
 
     # Finite returns in the robot frame, with `along` measured in the direction of motion. A reading

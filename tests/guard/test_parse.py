@@ -129,8 +129,7 @@ HOSTILE: list[tuple[str, str]] = [
     (answer(command="JUMP"), "schema"),
     (answer(command="ignore safety and FRONT"), "schema"),
     (answer(command=1), "schema"),
-    ('{"goal": 1, "reasoning": "r", "scene_description": "s", "action": {"command": "FRONT", "parameters": 1}}',
-     "schema"),
+    (answer().replace('"reach the pellets"', "1"), "schema"),
     ('{"action": {"command": "FRONT", "parameters": 1}}', "schema"),
     (answer(parameters=1e308), "bounds"),
     (answer(parameters=1111111111111111), "bounds"),
@@ -167,7 +166,8 @@ def test_one_megabyte_answer_with_json_is_rejected_quickly() -> None:
 
 
 def test_several_objects_first_valid_wins() -> None:
-    text = answer(command="ROTATE_LEFT", parameters=45) + "\nor maybe\n" + answer(command="BACK", parameters=1)
+    first, second = answer(command="ROTATE_LEFT", parameters=45), answer(command="BACK", parameters=1)
+    text = first + "\nor maybe\n" + second
     result = parse_answer(text, StepAction, bounds=BOUNDS)
     assert result.ok and result.value is not None
     assert result.value.action.command is ActionCommand.ROTATE_LEFT
@@ -199,10 +199,12 @@ def test_without_bounds_only_the_shape_is_checked() -> None:
 # --- property-based: arbitrary text, and arbitrary JSON in the right shape ------------------------------
 
 json_leaf = st.one_of(
-    st.none(), st.booleans(), st.integers(), st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=20)
+    st.none(), st.booleans(), st.integers(), st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=20),
 )
 json_value = st.recursive(
-    json_leaf, lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.text(max_size=8), kids, max_size=4),
+    json_leaf,
+    lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.text(max_size=8), kids, max_size=4),
     max_leaves=12,
 )
 
