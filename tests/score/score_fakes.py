@@ -23,15 +23,33 @@ SCENARIO_DATA: dict[str, Any] = {
         {"id": "boxes", "label": "dark brown boxes", "center": [-5.0, 0.0], "size": [1.0, 1.0]},
     ],
     "tasks": [
-        {"id": "T1", "text": "Go to the pile of pellets", "targets": [{"object": "pellets"}],
-         "start_poses": [{"x": 0, "y": 0}, {"x": 0, "y": 3}]},
-        {"id": "T2", "text": "Go to pellets or boxes",
-         "targets": [{"object": "pellets"}, {"object": "boxes"}],
-         "difficulty": "hard", "start_poses": [{"x": 0, "y": 0}]},
-        {"id": "T6", "text": "Make a 360-degree turn", "kind": "rotate", "difficulty": "easy",
-         "start_poses": [{"x": 0, "y": 0}]},
-        {"id": "T7", "text": "Look around", "kind": "explore", "difficulty": "easy",
-         "start_poses": [{"x": 0, "y": 0}]},
+        {
+            "id": "T1",
+            "text": "Go to the pile of pellets",
+            "targets": [{"object": "pellets"}],
+            "start_poses": [{"x": 0, "y": 0}, {"x": 0, "y": 3}],
+        },
+        {
+            "id": "T2",
+            "text": "Go to pellets or boxes",
+            "targets": [{"object": "pellets"}, {"object": "boxes"}],
+            "difficulty": "hard",
+            "start_poses": [{"x": 0, "y": 0}],
+        },
+        {
+            "id": "T6",
+            "text": "Make a 360-degree turn",
+            "kind": "rotate",
+            "difficulty": "easy",
+            "start_poses": [{"x": 0, "y": 0}],
+        },
+        {
+            "id": "T7",
+            "text": "Look around",
+            "kind": "explore",
+            "difficulty": "easy",
+            "start_poses": [{"x": 0, "y": 0}],
+        },
     ],
 }
 
@@ -48,20 +66,41 @@ def tiny_scenario() -> Scenario:
     return parse_scenario(SCENARIO_DATA, "tiny.yaml")
 
 
-def config_for(task_id: str, *, planner: str = "stepwise", backend: str | None = "replay:x",
-               options: dict[str, Any] | None = None, start_pose_index: int = 1, seed: int = 0,
-               scenario: str = "tiny", scenario_file: Path | None = None) -> dict[str, Any]:
+def config_for(
+    task_id: str,
+    *,
+    planner: str = "stepwise",
+    backend: str | None = "replay:x",
+    options: dict[str, Any] | None = None,
+    start_pose_index: int = 1,
+    seed: int = 0,
+    scenario: str = "tiny",
+    scenario_file: Path | None = None,
+) -> dict[str, Any]:
     sc = tiny_scenario()
     task = sc.task(task_id)
-    opts = {"planner": planner, "sensing": ["lidar", "image"], "lidar_sectors": 8, "prompt": "full",
-            "history": "all", "self_check": False, "assist": "none", "seed": seed}
+    opts = {
+        "planner": planner,
+        "sensing": ["lidar", "image"],
+        "lidar_sectors": 8,
+        "prompt": "full",
+        "history": "all",
+        "self_check": False,
+        "assist": "none",
+        "seed": seed,
+    }
     opts.update(options or {})
     start = sc.start_poses(task)[start_pose_index - 1]
     return {
         "scenario": scenario,
         "scenario_file": str(scenario_file) if scenario_file else None,
-        "task": {"id": task.id, "text": task.text, "kind": task.kind, "difficulty": task.difficulty,
-                 "targets": [t.model_dump() for t in task.targets]},
+        "task": {
+            "id": task.id,
+            "text": task.text,
+            "kind": task.kind,
+            "difficulty": task.difficulty,
+            "targets": [t.model_dump() for t in task.targets],
+        },
         "start_pose_index": start_pose_index,
         "start_pose": [start.x, start.y, math.radians(start.yaw_deg)],
         "planner": planner,
@@ -71,23 +110,44 @@ def config_for(task_id: str, *, planner: str = "stepwise", backend: str | None =
     }
 
 
-def write_run(run_dir: Path, config: dict[str, Any], poses: list[list[float]], *,
-              outcome: str | None = "completed", latencies: tuple[float, ...] = (1.0,),
-              guards: tuple[str, ...] = (), metrics: dict[str, Any] | None = None,
-              summary: bool = False, scenario: Scenario | None = None) -> Path:
+def write_run(
+    run_dir: Path,
+    config: dict[str, Any],
+    poses: list[list[float]],
+    *,
+    outcome: str | None = "completed",
+    latencies: tuple[float, ...] = (1.0,),
+    guards: tuple[str, ...] = (),
+    metrics: dict[str, Any] | None = None,
+    summary: bool = False,
+    scenario: Scenario | None = None,
+) -> Path:
     """A run folder: llm calls, guard verdicts, one action per pose sample, and an end event unless None."""
     with RunLog(run_dir, config) as log:
         for step, latency in enumerate(latencies):
-            log.event("llm_call", step=step, purpose="action", request={"messages": []},
-                      reply={"text": "{}", "latency_s": latency, "model": "fake"})
+            log.event(
+                "llm_call",
+                step=step,
+                purpose="action",
+                request={"messages": []},
+                reply={"text": "{}", "latency_s": latency, "model": "fake"},
+            )
         for step, outcome_name in enumerate(guards):
             log.event("guard", step=step, outcome=outcome_name, error=None, attempt=1)
         for step, pose in enumerate(poses):
             log.sim_time = float(step)
             log.event("pose", pose=pose)
             if step:
-                log.event("action", step=step, command="FRONT", parameters=1.0, pose_before=poses[step - 1],
-                          pose_after=pose, collided=False, collision_with=None)
+                log.event(
+                    "action",
+                    step=step,
+                    command="FRONT",
+                    parameters=1.0,
+                    pose_before=poses[step - 1],
+                    pose_after=pose,
+                    collided=False,
+                    collision_with=None,
+                )
         if outcome is not None:
             log.event("end", outcome=outcome, reason="test", metrics=metrics or {})
     if summary and outcome is not None:
@@ -112,8 +172,14 @@ def fake_episode(spec: Any) -> dict[str, Any]:
     key = f"{task_id}|{spec.start_pose}|{seed}|{options.get('lidar_sectors')}"
     digest = hashlib.sha256(key.encode()).digest()
     x_end = 1.0 + digest[0] / 255 * 5.0  # [m] somewhere between 1 and 6 m along x
-    config = config_for(task_id, planner=options.get("planner", "stepwise"), backend=spec.backend,
-                        options=options, start_pose_index=spec.start_pose, seed=seed)
+    config = config_for(
+        task_id,
+        planner=options.get("planner", "stepwise"),
+        backend=spec.backend,
+        options=options,
+        start_pose_index=spec.start_pose,
+        seed=seed,
+    )
     poses = [[0.0, 0.0, 0.0], [x_end / 2, 0.0, 0.0], [x_end, 0.0, 0.0]]
     time.sleep(0.01)
     run_dir = Path(spec.out_dir)

@@ -53,7 +53,7 @@ def test_best_target_takes_max_score_not_nearest() -> None:
     # nearer target behind (score 0) vs a farther one straight ahead
     best = best_target(pose, [(-2.0, 0.0), (4.0, 0.0)])
     assert best is not None and best.index == 1
-    assert best.score == pytest.approx(1.5 ** -1.5)
+    assert best.score == pytest.approx(1.5**-1.5)
     assert best_target(pose, []) is None
 
 
@@ -69,8 +69,13 @@ def test_path_length_and_rotation() -> None:
 
 
 def test_summarize_completed_target_run(tmp_path: Path) -> None:
-    run = write_run(tmp_path / "r", config_for("T1"), [[0, 0, 0], [1.5, 0, 0], [3.0, 0, 0]],
-                    latencies=(1.0, 2.0, 4.5), guards=("ok", "parse", "schema", "veto", "bounds"))
+    run = write_run(
+        tmp_path / "r",
+        config_for("T1"),
+        [[0, 0, 0], [1.5, 0, 0], [3.0, 0, 0]],
+        latencies=(1.0, 2.0, 4.5),
+        guards=("ok", "parse", "schema", "veto", "bounds"),
+    )
     s = summarize_run(read_run(run), tiny_scenario())
     assert s["outcome"] == "completed" and not s["cut_short"]
     assert s["task_id"] == "T1" and s["task_kind"] == "target"
@@ -120,8 +125,9 @@ def test_summarize_rotate_and_explore(tmp_path: Path) -> None:
     assert s["score"] == 0.0 and s["success"] is False
     s = summarize_run(read_run(write_run(tmp_path / "c", config_for("T7"), [[0, 0, 0]])), tiny_scenario())
     assert s["score"] is None and s["success"] is True
-    s = summarize_run(read_run(write_run(tmp_path / "d", config_for("T7"), [[0, 0, 0]], outcome="failed")),
-                      tiny_scenario())
+    s = summarize_run(
+        read_run(write_run(tmp_path / "d", config_for("T7"), [[0, 0, 0]], outcome="failed")), tiny_scenario()
+    )
     assert s["success"] is False
 
 

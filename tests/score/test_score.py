@@ -23,13 +23,23 @@ def _make_runs(root: Path) -> None:
     for sectors, ends in finals.items():
         for pose_index, end in enumerate(ends, start=1):
             cfg = config_for("T1", options={"lidar_sectors": sectors}, start_pose_index=pose_index)
-            write_run(root / f"T1-s{sectors}-p{pose_index}", cfg, [[0, 0, 0], end], summary=True,
-                      latencies=(1.0, 3.0) if sectors == 3 else (2.0,), guards=("parse",) if sectors == 3 else ())
+            write_run(
+                root / f"T1-s{sectors}-p{pose_index}",
+                cfg,
+                [[0, 0, 0], end],
+                summary=True,
+                latencies=(1.0, 3.0) if sectors == 3 else (2.0,),
+                guards=("parse",) if sectors == 3 else (),
+            )
     write_run(root / "T7-s8", config_for("T7", options={"lidar_sectors": 8}), [[0, 0, 0]], summary=True)
     root.mkdir(parents=True, exist_ok=True)
     sc_file = write_scenario_file(root / "tiny.yaml")  # a cut-short run is scored against its scenario file
-    cut = write_run(root / "deep" / "T1-cut", config_for("T1", options={"lidar_sectors": 8}, scenario_file=sc_file),
-                    [[0, 0, 0], [2.0, 0, 0]], outcome=None)
+    cut = write_run(
+        root / "deep" / "T1-cut",
+        config_for("T1", options={"lidar_sectors": 8}, scenario_file=sc_file),
+        [[0, 0, 0], [2.0, 0, 0]],
+        outcome=None,
+    )
     with open(cut / "run.jsonl", "a") as f:
         f.write('{"type": "pose", "po')
 
@@ -72,26 +82,60 @@ def test_compare_groups(tmp_path: Path) -> None:
     assert by_metric["score"].a.n == 2 and by_metric["score"].b.n == 3
     from llmnav.stats import compare
 
-    expected = compare([r.summary["score"] for r in load_runs([tmp_path]) if r.condition["lidar_sectors"] == 3
-                        and r.task == "T1"],
-                       [r.summary["score"] for r in load_runs([tmp_path]) if r.condition["lidar_sectors"] == 8
-                        and r.task == "T1"])
+    expected = compare(
+        [
+            r.summary["score"]
+            for r in load_runs([tmp_path])
+            if r.condition["lidar_sectors"] == 3 and r.task == "T1"
+        ],
+        [
+            r.summary["score"]
+            for r in load_runs([tmp_path])
+            if r.condition["lidar_sectors"] == 8 and r.task == "T1"
+        ],
+    )
     assert by_metric["score"].hedges_g == pytest.approx(expected.hedges_g)
     assert table.rows[0][0] == "score"
 
 
 def test_waypoint_and_fsm_tables(tmp_path: Path) -> None:
-    wp = {"planning_time_s": 9.0, "execution_time_s": 50.0, "generations": 2, "valid_generations": 2,
-          "wgsr": 100.0, "collision_events": 1, "replans": 0, "replanning_rate": 0.0}
+    wp = {
+        "planning_time_s": 9.0,
+        "execution_time_s": 50.0,
+        "generations": 2,
+        "valid_generations": 2,
+        "wgsr": 100.0,
+        "collision_events": 1,
+        "replans": 0,
+        "replanning_rate": 0.0,
+    }
     for i, planning in enumerate((9.0, 11.0)):
-        write_run(tmp_path / f"wp{i}", config_for("T1", planner="waypoints"), [[0, 0, 0], [4.0, 0, 0]],
-                  metrics=wp | {"planning_time_s": planning}, summary=True)
+        write_run(
+            tmp_path / f"wp{i}",
+            config_for("T1", planner="waypoints"),
+            [[0, 0, 0], [4.0, 0, 0]],
+            metrics=wp | {"planning_time_s": planning},
+            summary=True,
+        )
     for assist, e in (("none", 0.25), ("none", 0.23), ("llm", 0.15), ("llm", 0.17)):
-        fsm = {"e_pos_m": e, "eta": 0.8, "tick_latency_ms": {"mean": 3.4, "p50": 3.3, "p99": 5.0, "max": 6.0},
-               "model_latency_ms": 186.0, "suggestions": 10, "accepted": 8,
-               "rejected": {"stale": 1, "bounds": 1, "parse": 0}, "r_acc": 0.8, "r_use": 0.5}
-        write_run(tmp_path / f"fsm-{assist}-{e}", config_for("T1", planner="fsm", options={"assist": assist}),
-                  [[0, 0, 0], [4.0, 0, 0]], metrics=fsm, summary=True)
+        fsm = {
+            "e_pos_m": e,
+            "eta": 0.8,
+            "tick_latency_ms": {"mean": 3.4, "p50": 3.3, "p99": 5.0, "max": 6.0},
+            "model_latency_ms": 186.0,
+            "suggestions": 10,
+            "accepted": 8,
+            "rejected": {"stale": 1, "bounds": 1, "parse": 0},
+            "r_acc": 0.8,
+            "r_use": 0.5,
+        }
+        write_run(
+            tmp_path / f"fsm-{assist}-{e}",
+            config_for("T1", planner="fsm", options={"assist": assist}),
+            [[0, 0, 0], [4.0, 0, 0]],
+            metrics=fsm,
+            summary=True,
+        )
     runs = load_runs([tmp_path])
     titles = {t.title.split(" (")[0]: t for t in build_tables(runs)}
     waypoint = titles["Waypoint planner"]
@@ -112,9 +156,23 @@ def test_cli_formats_plot_and_errors(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert "Success" in result.output and "1/2" in result.output
     out = tmp_path / "t.json"
-    result = cli.invoke(app, ["score", str(runs_dir), "--format", "json", "--out", str(out),
-                              "--compare", "lidar_sectors=3", "--compare", "lidar_sectors=8",
-                              "--plot", str(tmp_path / "plots")])
+    result = cli.invoke(
+        app,
+        [
+            "score",
+            str(runs_dir),
+            "--format",
+            "json",
+            "--out",
+            str(out),
+            "--compare",
+            "lidar_sectors=3",
+            "--compare",
+            "lidar_sectors=8",
+            "--plot",
+            str(tmp_path / "plots"),
+        ],
+    )
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
     assert data[0]["records"][0]["task"] == "T1" and data[-1]["title"].startswith("Comparison")
@@ -129,4 +187,7 @@ def test_cli_formats_plot_and_errors(tmp_path: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()
     assert cli.invoke(app, ["score", str(empty)]).exit_code == 2
-    assert cli.invoke(app, ["score", str(runs_dir), "--compare", "bogus=1", "--compare", "prompt=x"]).exit_code == 2
+    assert (
+        cli.invoke(app, ["score", str(runs_dir), "--compare", "bogus=1", "--compare", "prompt=x"]).exit_code
+        == 2
+    )
