@@ -1,0 +1,261 @@
+"""Occupancy grids: the true grid rasterised from a scenario, and a map the robot builds from its LiDAR.
+
+Two grids share one geometry (`GridGeometry`, 0.05 m square cells over the scenario bounds):
+
+- `build_grid(scenario)` rasterises `Scenario.solid_shapes()` (yawed boxes, cylinders) exactly: a cell is
+  *occupied* when its centre lies within half a cell of a shape (so thin shapes are never lost) and
+  *blocked* when its centre lies within the robot radius + a margin of a shape or of the bounds — the
+  classic configuration-space inflation that lets a planner treat the robot as a point.
+- `LidarMap` is the explorer's map (unknown / free / occupied). Each scan is ray cast into the grid by
+  sampling points along every ray (vectorised numpy, half-cell steps): cells a ray crosses become free,
+  the cell where it ends becomes occupied. The world is static, so an occupied cell never turns free again.
+
+Cells are indexed `(row, col)` = `(iy, ix)`; row 0 is the southern edge (`y = bounds.y[0]`).
+Reference: H. Moravec and A. Elfes, "High resolution maps from wide angle sonar", ICRA 1985 (occupancy
+grids); T. Lozano-Pérez, "Spatial planning: a configuration space approach", 1983 (inflation).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar, Protocol
+
+import numpy as np
+
+from llmnav.errors import BadInputError
+
+if TYPE_CHECKING:
+    from llmnav.geometry import Pose2D
+    from llmnav.scenario import Bounds, Scenario, Shape
+    from llmnav.sim.robot_specs import RobotSpec
+
+Cell = tuple[int, int]  # (row, col)
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """How the true occupancy grid is built."""
+
+    resolution_m: float = 0.05  # [m] cell side
+    margin_m: float = 0.10  # [m] clearance kept beyond the robot radius (controller slack)
+
+
+@dataclass(frozen=True)
+class GridGeometry:
+    """Where the cells are: origin is the south-west corner of cell (0, 0)."""
+
+    origin_x: float  # [m]
+    origin_y: float  # [m]
+    resolution: float  # [m] cell side
+    rows: int
+    cols: int
+
+    @classmethod
+    def from_bounds(cls, bounds: Bounds, resolution_m: float) -> GridGeometry:
+        """Cover the scenario bounds with square cells."""
+        if resolution_m <= 0:
+            raise BadInputError(f"grid resolution must be positive, got {resolution_m} m")
+        cols = max(1, math.ceil((bounds.x[1] - bounds.x[0]) / resolution_m - 1e-9))
+        rows = max(1, math.ceil((bounds.y[1] - bounds.y[0]) / resolution_m - 1e-9))
+        return cls(bounds.x[0], bounds.y[0], resolution_m, rows, cols)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols) of arrays on this geometry."""
+        return (self.rows, self.cols)
+
+    def world_to_cell(self, x: float, y: float) -> Cell:
+        """The cell containing a point (may lie outside the grid; check with `contains`)."""
+        return (
+            math.floor((y - self.origin_y) / self.resolution),
+            math.floor((x - self.origin_x) / self.resolution),
+        )
+
+    def cell_to_world(self, row: int, col: int) -> tuple[float, float]:
+        """Centre [m] of a cell."""
+        return (
+            self.origin_x + (col + 0.5) * self.resolution,
+            self.origin_y + (row + 0.5) * self.resolution,
+        )
+
+    def contains(self, cell: Cell) -> bool:
+        """Whether a cell index lies inside the grid."""
+        return 0 <= cell[0] < self.rows and 0 <= cell[1] < self.cols
+
+    def world_to_cells(self, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorised `world_to_cell`: (rows, cols) integer arrays."""
+        rows = np.floor((ys - self.origin_y) / self.resolution).astype(np.int64)
+        cols = np.floor((xs - self.origin_x) / self.resolution).astype(np.int64)
+        return rows, cols
+
+    def centres(self, rows: slice = slice(None), cols: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """Cell-centre coordinates (xs, ys) [m] of a window of the grid, each of the window's shape."""
+        row_idx = np.arange(self.rows)[rows]
+        col_idx = np.arange(self.cols)[cols]
+        xs = self.origin_x + (col_idx + 0.5) * self.resolution
+        ys = self.origin_y + (row_idx + 0.5) * self.resolution
+        grid_x, grid_y = np.meshgrid(xs, ys)
+        return grid_x, grid_y
+
+
+@dataclass
+class OccupancyGrid:
+    """The true grid of a scenario: `occupied` = solid footprints; `blocked` = robot centre may not be."""
+
+    geometry: GridGeometry
+    occupied: np.ndarray  # bool [rows, cols]
+    blocked: np.ndarray  # bool [rows, cols], occupied inflated by `inflation_m` (and the bounds)
+    inflation_m: float  # [m] robot radius + margin
+
+    def is_free(self, x: float, y: float) -> bool:
+        """Whether the robot centre may stand at (x, y)."""
+        cell = self.geometry.world_to_cell(x, y)
+        return self.geometry.contains(cell) and not bool(self.blocked[cell])
+
+
+def shape_distance(shape: Shape, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Vectorised `Shape.distance_to`: distance [m] from points to the footprint (0 inside)."""
+    dx, dy = xs - shape.center[0], ys - shape.center[1]
+    if shape.shape == "cylinder":
+        assert shape.radius is not None
+        return np.maximum(np.hypot(dx, dy) - shape.radius, 0.0)
+    assert shape.size is not None
+    cos_yaw, sin_yaw = math.cos(shape.yaw), math.sin(shape.yaw)
+    # Rotate the offsets into the box frame (by -yaw).
+    local_x = cos_yaw * dx + sin_yaw * dy
+    local_y = -sin_yaw * dx + cos_yaw * dy
+    out_x = np.maximum(np.abs(local_x) - shape.size[0] / 2, 0.0)
+    out_y = np.maximum(np.abs(local_y) - shape.size[1] / 2, 0.0)
+    return np.hypot(out_x, out_y)
+
+
+def _mark_shape(mask: np.ndarray, geometry: GridGeometry, shape: Shape, within_m: float) -> None:
+    """Set cells whose centre lies within `within_m` of the shape (only the shape's window is evaluated)."""
+    half_x, half_y = shape.half_extents()
+    reach_x, reach_y = half_x + within_m, half_y + within_m
+    res = geometry.resolution
+    col0 = max(0, math.floor((shape.center[0] - reach_x - geometry.origin_x) / res))
+    col1 = min(geometry.cols, math.ceil((shape.center[0] + reach_x - geometry.origin_x) / res) + 1)
+    row0 = max(0, math.floor((shape.center[1] - reach_y - geometry.origin_y) / res))
+    row1 = min(geometry.rows, math.ceil((shape.center[1] + reach_y - geometry.origin_y) / res) + 1)
+    if col0 >= col1 or row0 >= row1:
+        return
+    xs, ys = geometry.centres(slice(row0, row1), slice(col0, col1))
+    mask[row0:row1, col0:col1] |= shape_distance(shape, xs, ys) <= within_m
+
+
+def build_grid(
+    scenario: Scenario, *, robot: RobotSpec | None = None, config: GridConfig | None = None
+) -> OccupancyGrid:
+    """Rasterise a scenario's solid shapes; inflate them (and the bounds) by robot radius + margin.
+
+    `robot` defaults to the scenario's robot model. Shapes whose bottom is above the robot's height
+    (signs hung on walls) are left out: the robot passes beneath them.
+    """
+    from llmnav.sim.robot_specs import ROBOT_SPECS  # plain data module, no pybullet
+
+    config = config or GridConfig()
+    robot = robot or ROBOT_SPECS[scenario.robot]
+    geometry = GridGeometry.from_bounds(scenario.bounds, config.resolution_m)
+    inflation = robot.radius_m + config.margin_m
+    occupied = np.zeros(geometry.shape, dtype=bool)
+    blocked = np.zeros(geometry.shape, dtype=bool)
+    for shape in scenario.solid_shapes():
+        if shape.z >= robot.height_m:
+            continue
+        _mark_shape(occupied, geometry, shape, geometry.resolution / 2)
+        _mark_shape(blocked, geometry, shape, inflation)
+    # Beyond the bounds is treated as a wall: the robot's body must stay inside.
+    xs, ys = geometry.centres()
+    bounds = scenario.bounds
+    blocked |= (xs - bounds.x[0] < inflation) | (bounds.x[1] - xs < inflation)
+    blocked |= (ys - bounds.y[0] < inflation) | (bounds.y[1] - ys < inflation)
+    return OccupancyGrid(geometry, occupied, blocked, inflation)
+
+
+def inflate(mask: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
+    """Cells whose centre lies within `radius_m` of a set cell's centre (Euclidean distance transform)."""
+    from scipy.ndimage import distance_transform_edt
+
+    if not mask.any():
+        return np.zeros_like(mask, dtype=bool)
+    distance_cells = distance_transform_edt(~mask)
+    return np.asarray(distance_cells * resolution_m <= radius_m)
+
+
+class ScanLike(Protocol):
+    """What `LidarMap.integrate` reads from a scan (llmnav.sim.sensors.LidarScan has these fields)."""
+
+    angles: np.ndarray  # [rad] relative to the heading, CCW positive
+    ranges: np.ndarray  # [m], np.inf where nothing was hit
+    range_max: float  # [m]
+
+
+class LidarMap:
+    """A map built from the robot's own LiDAR: every cell unknown, free or occupied.
+
+    The robot is assumed to know its pose (ground truth or good odometry); the map covers the same
+    extent as the scenario bounds, which the explorer is allowed to know.
+    """
+
+    UNKNOWN: ClassVar[int] = -1
+    FREE: ClassVar[int] = 0
+    OCCUPIED: ClassVar[int] = 1
+
+    def __init__(self, geometry: GridGeometry, *, sample_step_m: float | None = None) -> None:
+        self.geometry = geometry
+        self.state = np.full(geometry.shape, self.UNKNOWN, dtype=np.int8)
+        # [m] spacing of the points sampled along each ray; half a cell misses no crossed cell in practice
+        self.sample_step_m = sample_step_m if sample_step_m is not None else geometry.resolution / 2
+        self.scans = 0
+
+    def integrate(self, pose: Pose2D, scan: ScanLike) -> None:
+        """Ray cast one scan taken at `pose` (LiDAR at the robot centre) into the map."""
+        angles = np.asarray(scan.angles, dtype=float) + pose.yaw
+        ranges = np.asarray(scan.ranges, dtype=float)
+        hit = np.isfinite(ranges) & (ranges < scan.range_max)
+        # A ray that hit nothing still proves the space up to its maximum range free.
+        free_len = np.where(hit, ranges - self.geometry.resolution / 2, scan.range_max)
+        free_len = np.clip(free_len, 0.0, scan.range_max)
+        steps = np.arange(0.0, float(free_len.max(initial=0.0)) + 1e-9, self.sample_step_m)
+        cos_a, sin_a = np.cos(angles), np.sin(angles)
+        # [rays, samples] grid of sample distances, masked past each ray's free length.
+        valid = steps[None, :] <= free_len[:, None]
+        xs = pose.x + cos_a[:, None] * steps[None, :]
+        ys = pose.y + sin_a[:, None] * steps[None, :]
+        rows, cols = self.geometry.world_to_cells(xs[valid], ys[valid])
+        self._set(rows, cols, self.FREE, keep_occupied=True)
+        hit_x = pose.x + cos_a[hit] * ranges[hit]
+        hit_y = pose.y + sin_a[hit] * ranges[hit]
+        rows, cols = self.geometry.world_to_cells(hit_x, hit_y)
+        self._set(rows, cols, self.OCCUPIED, keep_occupied=False)
+        self.scans += 1
+
+    def _set(self, rows: np.ndarray, cols: np.ndarray, value: int, *, keep_occupied: bool) -> None:
+        inside = (rows >= 0) & (rows < self.geometry.rows) & (cols >= 0) & (cols < self.geometry.cols)
+        rows, cols = rows[inside], cols[inside]
+        if keep_occupied:
+            keep = self.state[rows, cols] != self.OCCUPIED
+            rows, cols = rows[keep], cols[keep]
+        self.state[rows, cols] = value
+
+    def mark_occupied(self, x: float, y: float, radius_m: float) -> None:
+        """Mark a disc occupied (a bump into something the LiDAR cannot see)."""
+        xs, ys = self.geometry.centres()
+        self.state[np.hypot(xs - x, ys - y) <= radius_m] = self.OCCUPIED
+
+    @property
+    def free(self) -> np.ndarray:
+        """Bool mask of known-free cells."""
+        return np.asarray(self.state == self.FREE)
+
+    @property
+    def occupied(self) -> np.ndarray:
+        """Bool mask of occupied cells."""
+        return np.asarray(self.state == self.OCCUPIED)
+
+    @property
+    def unknown(self) -> np.ndarray:
+        """Bool mask of cells never observed."""
+        return np.asarray(self.state == self.UNKNOWN)

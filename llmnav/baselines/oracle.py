@@ -1,0 +1,399 @@
+"""Oracle baseline: the shortest collision-free path from the start to the nearest target approach point.
+
+The oracle knows the whole map. It builds the true occupancy grid of the scenario (`grid.build_grid`,
+inflated by robot radius + margin) and runs one A* (`astar.astar`) from the start cell to the union of
+every acceptable target's *approach cells*:
+
+- an object target: free cells whose centre lies 1.5–2.5 m from the object's goal point (the distance at
+  which the stepwise source asks the robot to stop, and at which the score's distance term is 1);
+- a point target (T4's free spot between the stairs and the barrels): the point's own cell when free,
+  otherwise the same band around it.
+
+The heuristic is the Euclidean distance to the nearest target's goal point minus that target's outer radius,
+a lower bound of the remaining cost, so the first approach cell A* settles is the nearest by path length.
+
+Reported length: `OraclePath.length_m` is the raw 8-connected grid length from the start pose through the
+cell centres (what `oracle_length` and the metric `oracle_length_m` give); `smoothed_length_m` is the
+line-of-sight shortcut of the same path (never longer, also collision-free), kept for reference.
+
+`OraclePlanner` drives that path in the simulator with `Motion.go_to`, waypoint by waypoint, then turns
+to face the target. Tasks without targets: a `rotate` task turns 360°, an `explore` task ends at once.
+Reference: Hart, Nilsson, Raphael (1968), see `astar.py`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from llmnav.baselines.astar import GridPath, astar, densify, polyline_length, shortcut
+from llmnav.baselines.grid import Cell, GridConfig, OccupancyGrid, build_grid
+from llmnav.errors import BadInputError
+from llmnav.geometry import Pose2D
+from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, StepInfo
+
+if TYPE_CHECKING:
+    from llmnav.scenario import Scenario, Target, Task
+    from llmnav.sim.motion import MotionResult
+
+Point = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class OracleConfig:
+    """Where the oracle may stop and how its path is driven."""
+
+    approach_min_m: float = 1.5  # [m] closest acceptable distance to a target's goal point
+    approach_max_m: float = 2.5  # [m] farthest acceptable distance (the score's full-distance radius)
+    start_snap_m: float = 0.5  # [m] a start inside the inflation may step this far to the nearest free cell
+    waypoint_spacing_m: float = 2.0  # [m] longest straight leg handed to go_to (keeps legs short and logged)
+    waypoint_tol_m: float = 0.1  # [m] go_to tolerance at intermediate waypoints (source B's reach tolerance)
+    final_tol_m: float = 0.05  # [m] tolerance at the approach point (stay inside the band)
+    grid: GridConfig = field(default_factory=GridConfig)
+
+
+@dataclass(frozen=True)
+class OraclePath:
+    """A shortest path to one target's approach point."""
+
+    target: Target
+    target_point: Point  # [m] the target's goal point (what the robot finally faces)
+    approach: Point  # [m] where the path ends
+    cells: list[Cell]
+    points: list[Point]  # [m] start pose, then cell centres
+    waypoints: list[Point]  # [m] shortcut and densified; excludes the start, ends at `approach`
+    length_m: float  # [m] raw grid length (the value reported)
+    smoothed_length_m: float  # [m] line-of-sight shortcut length
+
+
+@dataclass(frozen=True)
+class _Goal:
+    """One target's approach cells and the radius used by the heuristic."""
+
+    target: Target
+    point: Point
+    mask: np.ndarray
+    reach_m: float  # [m] every goal cell centre lies within this of `point`
+
+
+def _approach_goal(grid: OccupancyGrid, target: Target, point: Point, config: OracleConfig) -> _Goal:
+    geometry = grid.geometry
+    if target.point is not None and grid.is_free(*point):
+        mask = np.zeros(geometry.shape, dtype=bool)
+        mask[geometry.world_to_cell(*point)] = True
+        return _Goal(target, point, mask, geometry.resolution * math.sqrt(0.5))
+    xs, ys = geometry.centres()
+    distance = np.hypot(xs - point[0], ys - point[1])
+    mask = (distance >= config.approach_min_m) & (distance <= config.approach_max_m) & ~grid.blocked
+    return _Goal(target, point, mask, config.approach_max_m)
+
+
+def _snap_start(grid: OccupancyGrid, x: float, y: float, snap_m: float) -> Cell | None:
+    """The start cell, or the nearest free cell within `snap_m` when the start lies in the inflation."""
+    geometry = grid.geometry
+    cell = geometry.world_to_cell(x, y)
+    if not geometry.contains(cell):
+        return None
+    if not grid.blocked[cell]:
+        return cell
+    reach = math.ceil(snap_m / geometry.resolution)
+    row0, col0 = max(0, cell[0] - reach), max(0, cell[1] - reach)
+    row1, col1 = min(geometry.rows, cell[0] + reach + 1), min(geometry.cols, cell[1] + reach + 1)
+    xs, ys = geometry.centres(slice(row0, row1), slice(col0, col1))
+    distance = np.hypot(xs - x, ys - y)
+    distance[grid.blocked[row0:row1, col0:col1] | (distance > snap_m)] = np.inf
+    if not np.isfinite(distance).any():
+        return None
+    r, c = np.unravel_index(int(np.argmin(distance)), distance.shape)
+    return (row0 + int(r), col0 + int(c))
+
+
+def plan_to_targets(
+    grid: OccupancyGrid,
+    scenario: Scenario,
+    targets: Sequence[Target],
+    start: Point,
+    config: OracleConfig | None = None,
+) -> OraclePath | None:
+    """Shortest path on `grid` from `start` to the nearest approach cell of any target (None: unreachable)."""
+    config = config or OracleConfig()
+    geometry = grid.geometry
+    goals = []
+    for target in targets:
+        point = scenario.object(target.object).goal_point if target.object is not None else target.point
+        assert point is not None
+        goals.append(_approach_goal(grid, target, (float(point[0]), float(point[1])), config))
+    union = np.zeros(geometry.shape, dtype=bool)
+    for goal in goals:
+        union |= goal.mask
+    start_cell = _snap_start(grid, start[0], start[1], config.start_snap_m)
+    if start_cell is None or not union.any():
+        return None
+
+    res = geometry.resolution
+    centres_and_reaches = [(g.point[0], g.point[1], g.reach_m) for g in goals]
+
+    def heuristic(row: int, col: int) -> float:
+        x = geometry.origin_x + (col + 0.5) * res
+        y = geometry.origin_y + (row + 0.5) * res
+        return max(0.0, min(math.hypot(x - px, y - py) - reach for px, py, reach in centres_and_reaches))
+
+    path: GridPath | None = astar(grid.blocked, start_cell, union, resolution_m=res, heuristic=heuristic)
+    if path is None:
+        return None
+    goal = next(g for g in goals if g.mask[path.goal])
+    centres = [geometry.cell_to_world(*cell) for cell in path.cells]
+    points: list[Point] = [(start[0], start[1]), *centres[1:]] if len(centres) > 1 else [(start[0], start[1])]
+    if len(centres) == 1 and math.dist(points[0], centres[0]) > 1e-9:
+        points.append(centres[0])  # a snapped start: the step out of the inflation counts
+    corners = [geometry.cell_to_world(*cell) for cell in shortcut(path.cells, grid.blocked)]
+    smoothed = [(start[0], start[1]), *corners[1:]] if len(corners) > 1 else [(start[0], start[1]), *corners]
+    waypoints = densify(smoothed, config.waypoint_spacing_m)[1:]
+    return OraclePath(
+        target=goal.target,
+        target_point=goal.point,
+        approach=centres[-1],
+        cells=path.cells,
+        points=points,
+        waypoints=waypoints,
+        length_m=polyline_length(points),
+        smoothed_length_m=polyline_length(smoothed),
+    )
+
+
+@dataclass(frozen=True, eq=True)
+class _ScenarioKey:
+    """Hashable handle of a (frozen, but list-holding) Scenario for caches: equal content, equal key."""
+
+    digest: str
+    scenario: Scenario = field(compare=False, hash=False)
+
+    @classmethod
+    def of(cls, scenario: Scenario) -> _ScenarioKey:
+        return cls(hashlib.sha256(scenario.model_dump_json().encode()).hexdigest(), scenario)
+
+
+@lru_cache(maxsize=8)
+def _grid_for(key: _ScenarioKey, config: GridConfig) -> OccupancyGrid:
+    return build_grid(key.scenario, config=config)
+
+
+def scenario_grid(scenario: Scenario, config: GridConfig | None = None) -> OccupancyGrid:
+    """The true inflated grid of a scenario (cached by content: do not modify the returned arrays)."""
+    return _grid_for(_ScenarioKey.of(scenario), config or GridConfig())
+
+
+def oracle_path(
+    scenario: Scenario, task: Task, start: Pose2D, *, config: OracleConfig | None = None
+) -> OraclePath | None:
+    """A* from `start` to the nearest acceptable approach point; None if unreachable or without targets."""
+    config = config or OracleConfig()
+    if not task.targets:
+        return None
+    grid = scenario_grid(scenario, config.grid)
+    return plan_to_targets(grid, scenario, task.targets, (start.x, start.y), config)
+
+
+@lru_cache(maxsize=1024)
+def _cached_length(key: _ScenarioKey, task_id: str, x: float, y: float) -> float | None:
+    scenario = key.scenario
+    path = oracle_path(scenario, scenario.task(task_id), Pose2D(x, y, 0.0))
+    return None if path is None else path.length_m
+
+
+def oracle_length(
+    scenario: Scenario, task: Task | str, start_pose_index_or_pose: int | Pose2D
+) -> float | None:
+    """The oracle's path length [m] (raw grid length), cached; None for tasks without targets or no path.
+
+    An int is a 1-based index into the task's start poses (as `llmnav drive --start-pose`); a Pose2D is
+    used as is.
+    """
+    task_obj = scenario.task(task) if isinstance(task, str) else task
+    if isinstance(start_pose_index_or_pose, Pose2D):
+        pose = start_pose_index_or_pose
+    else:
+        poses = scenario.start_poses(task_obj)
+        index = int(start_pose_index_or_pose)
+        if not 1 <= index <= len(poses):
+            raise BadInputError(
+                f"start pose {index} of task {task_obj.id} does not exist (1-based, 1..{len(poses)})"
+            )
+        pose = poses[index - 1].pose()
+    if not task_obj.targets:
+        return None
+    return _cached_length(_ScenarioKey.of(scenario), task_obj.id, round(pose.x, 6), round(pose.y, 6))
+
+
+# --- execution in the simulator ----------------------------------------------------------------------
+
+
+@contextmanager
+def pose_logging(ctx: EpisodeContext) -> Iterator[None]:
+    """Log every trajectory sample as a `pose` event while moving (unless the runner already does)."""
+    motion = ctx.world.motion
+    previous = motion.on_pose
+    if previous is None:
+
+        def log_pose(pose: Pose2D, sim_time: float) -> None:
+            ctx.log.sim_time = sim_time
+            ctx.log.event("pose", pose=pose.as_list())
+
+        motion.on_pose = log_pose
+    try:
+        yield
+    finally:
+        motion.on_pose = previous
+
+
+@dataclass
+class Drive:
+    """What a sequence of motions did."""
+
+    travelled_m: float = 0.0  # [m] ground-truth distance driven
+    steps: int = 0  # motions executed (action events logged)
+    last: MotionResult | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Whether the last motion reached its goal."""
+        return self.last is None or self.last.ok
+
+
+def _log_action(
+    ctx: EpisodeContext, step: int, command: str, parameters: object, result: MotionResult
+) -> None:
+    ctx.log.sim_time = ctx.world.sim_time
+    ctx.log.event(
+        "action",
+        step=step,
+        command=command,
+        parameters=parameters,
+        pose_before=result.start.as_list(),
+        pose_after=result.end.as_list(),
+        collided=result.collided,
+        collision_with=result.collision_with,
+        stopped_reason=result.stopped_reason,
+    )
+    ctx.view.on_step(StepInfo(step=step, action=f"{command} {parameters}"))
+
+
+def drive_waypoints(
+    ctx: EpisodeContext,
+    waypoints: Sequence[Point],
+    drive: Drive,
+    *,
+    tol_m: float = 0.1,
+    final_tol_m: float = 0.05,
+    obstacle_stop_m: float | None = None,
+) -> Drive:
+    """go_to each waypoint in turn, logging one `action` per waypoint; stops at the first failed motion."""
+    for i, (x, y) in enumerate(waypoints):
+        tol = final_tol_m if i == len(waypoints) - 1 else tol_m
+        result = ctx.world.motion.go_to(x, y, tol_m=tol, obstacle_stop_m=obstacle_stop_m)
+        drive.steps += 1
+        drive.travelled_m += result.distance_m
+        drive.last = result
+        _log_action(ctx, drive.steps, "GO_TO", [round(x, 3), round(y, 3)], result)
+        if not result.ok:
+            break
+    return drive
+
+
+def rotate_by(ctx: EpisodeContext, angle_rad: float, drive: Drive) -> Drive:
+    """One logged in-place rotation (positive = counter-clockwise)."""
+    result = ctx.world.motion.rotate(angle_rad)
+    drive.steps += 1
+    drive.travelled_m += result.distance_m
+    drive.last = result
+    command = "ROTATE_LEFT" if angle_rad >= 0 else "ROTATE_RIGHT"
+    _log_action(ctx, drive.steps, command, round(math.degrees(abs(angle_rad)), 2), result)
+    return drive
+
+
+def face_point(ctx: EpisodeContext, point: Point, drive: Drive, *, min_angle_rad: float = 0.02) -> Drive:
+    """Turn in place to face a point (skipped when already within `min_angle_rad` [rad])."""
+    bearing = ctx.world.robot.pose().bearing_to(*point)
+    if abs(bearing) < min_angle_rad:
+        return drive
+    return rotate_by(ctx, bearing, drive)
+
+
+def failure_reason(result: MotionResult | None) -> str:
+    """One line saying why a motion stopped."""
+    if result is None:
+        return "no motion"
+    if result.collided:
+        return f"collision with {result.collision_with or 'an obstacle'}"
+    return f"motion stopped: {result.stopped_reason or 'goal not reached'}"
+
+
+def run_untargeted(ctx: EpisodeContext, drive: Drive) -> EpisodeOutcome:
+    """Tasks without targets: `rotate` turns 360° (four quarter turns), `explore` ends at once."""
+    if ctx.task.kind != "rotate":
+        return EpisodeOutcome("completed", "no target", iterations=0, metrics={"travelled_m": 0.0})
+    for _ in range(4):
+        rotate_by(ctx, math.pi / 2, drive)
+        if not drive.ok:
+            return EpisodeOutcome("failed", failure_reason(drive.last), iterations=drive.steps)
+    return EpisodeOutcome(
+        "completed", "rotated 360 degrees", iterations=drive.steps, metrics={"travelled_m": 0.0}
+    )
+
+
+class OraclePlanner(Planner):
+    """Drives the oracle's shortest path in the simulator and faces the target."""
+
+    name: ClassVar[str] = "oracle"
+    needs_backend: ClassVar[bool] = False
+
+    def __init__(self, config: OracleConfig | None = None) -> None:
+        self.config = config or OracleConfig()
+
+    def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
+        """Plan once from the current pose, drive the path, turn to the target."""
+        drive = Drive()
+        with pose_logging(ctx):
+            if not ctx.task.targets:
+                return run_untargeted(ctx, drive)
+            start = ctx.world.robot.pose()
+            path = oracle_path(ctx.scenario, ctx.task, start, config=self.config)
+            if path is None:
+                ctx.log.event("planner", kind="oracle_path", found=False)
+                return EpisodeOutcome("failed", "no collision-free path to any target", metrics={})
+            ctx.log.event(
+                "planner",
+                kind="oracle_path",
+                found=True,
+                target=path.target.object or list(path.target.point or ()),
+                approach=[round(v, 3) for v in path.approach],
+                length_m=round(path.length_m, 3),
+                smoothed_length_m=round(path.smoothed_length_m, 3),
+                waypoints=[[round(x, 3), round(y, 3)] for x, y in path.waypoints],
+            )
+            metrics = {
+                "oracle_length_m": round(path.length_m, 4),
+                "oracle_smoothed_length_m": round(path.smoothed_length_m, 4),
+            }
+            drive_waypoints(
+                ctx,
+                path.waypoints,
+                drive,
+                tol_m=self.config.waypoint_tol_m,
+                final_tol_m=self.config.final_tol_m,
+            )
+            if drive.ok:
+                face_point(ctx, path.target_point, drive)
+            metrics["travelled_m"] = round(drive.travelled_m, 4)
+            if not drive.ok:
+                return EpisodeOutcome(
+                    "failed", failure_reason(drive.last), iterations=drive.steps, metrics=metrics
+                )
+            return EpisodeOutcome("completed", "reached target", iterations=drive.steps, metrics=metrics)
