@@ -48,3 +48,7 @@ class InvalidActionError(LlmnavError):
 
 class VetoedMotionError(LlmnavError):
     """The safety veto blocked every action the model proposed within the allowed negotiation turns."""
+
+
+class PromptTemplateError(BadInputError):
+    """A prompt template is unknown or malformed, or a value it needs was not given (the message names it)."""

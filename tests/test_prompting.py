@@ -1,0 +1,150 @@
+"""Prompt templates: every template renders completely, hashes are stable, errors name what is missing."""
+
+from __future__ import annotations
+
+import re
+from itertools import product
+from pathlib import Path
+
+import pytest
+
+from llmnav import prompting
+from llmnav.errors import PromptTemplateError
+
+STEPWISE_VALUES = {"max_step_m": 5.0, "lidar_sectors": 8, "lidar_fov_deg": 90.0}
+
+# Values the planners pass for each non-stepwise template.
+OTHER_VALUES: dict[str, dict[str, object]] = {
+    "self_check": {},
+    "ground_system": {},
+    "ground_user": {"command": "Go to room 101", "objects": "- room_101: room 101 at (3.0, 1.9)"},
+    "waypoints_system": {
+        "corridors": "- main: x from -1 to 14, y from -2 to 2",
+        "junctions": "none",
+        "robot_x": "0.00",
+        "robot_y": "0.00",
+        "robot_yaw_deg": "0",
+        "target_name": "room 101",
+        "target_x": "3.00",
+        "target_y": "1.50",
+        "margin": 0.5,
+        "spacing": 0.7,
+        "tolerance": 0.05,
+        "max_waypoints": 3,
+        "obstacles": "none",
+    },
+    "waypoints_user": {"target_name": "room 101", "max_waypoints": 3},
+    "waypoints_feedback": {"problems": "- waypoint 2 (5.0, 1.9) is within 0.5 m of the corridor edge"},
+    "fsm_velocity": {"v_min": 0.0, "v_max": 0.06, "w_max": 0.5, "d_goal": 0.5},
+    "hybrid_system": {"robot": "pr2"},
+    "hybrid_user": {
+        "task": "Go to the pile of pellets",
+        "pose": "x 1.0 m, y 2.0 m, heading 90 deg",
+        "last_result": "none yet",
+        "observation": "Front distance: 3.2 m",
+        "options": "1. go to pellets\n2. rotate 360 degrees",
+    },
+}
+
+LEFTOVER = re.compile(r"\$\w|\$\{|<!--|-->")
+
+
+def assert_complete(text: str) -> None:
+    assert text.strip(), "empty prompt"
+    assert not LEFTOVER.search(text), f"leftover placeholder or directive: {LEFTOVER.search(text)}"
+
+
+def test_every_template_is_covered_by_this_test() -> None:
+    assert set(prompting.list_templates()) == set(prompting.STEPWISE_VARIANTS) | set(OTHER_VALUES)
+
+
+@pytest.mark.parametrize("name", prompting.stepwise_variants())
+@pytest.mark.parametrize(("lidar", "image", "detections"), list(product([True, False], repeat=3)))
+def test_stepwise_variants_render(name: str, lidar: bool, image: bool, detections: bool) -> None:
+    text = prompting.render(name, lidar=lidar, image=image, detections=detections, **STEPWISE_VALUES)
+    assert_complete(text)
+    assert "```json" in text and '"command"' in text  # one fenced example
+    for command in ("FRONT", "BACK", "ROTATE_LEFT", "ROTATE_RIGHT", "COMPLETE"):
+        assert command in text
+    assert "at most 5)" in text  # the max step is filled in
+
+
+def test_variant_sections_follow_the_spec() -> None:
+    flags = {"lidar": True, "image": True, "detections": False}
+    full = prompting.render("full", **flags, **STEPWISE_VALUES)
+    for heading in ("# Role", "# Commands", "# Movement constraints", "# Workflow", "# Camera image",
+                    "# LiDAR data", "# Output format", "# Key priorities"):
+        assert heading in full
+    assert "# Movement constraints" not in prompting.render("full_noconstraints", **flags, **STEPWISE_VALUES)
+    no_lidar = prompting.render("no_lidar_guidelines", **flags, **STEPWISE_VALUES)
+    assert "# LiDAR data" not in no_lidar and "# Camera image" in no_lidar
+    short = prompting.render("short", **flags, **STEPWISE_VALUES)
+    assert "# Workflow" not in short and "# Movement constraints" in short and "# Output format" in short
+    short_nc = prompting.render("short_noconstraints", **flags, **STEPWISE_VALUES)
+    assert "# Movement constraints" not in short_nc and "# Commands" in short_nc
+    # sensing flags switch the guideline sections
+    no_image = prompting.render("full", lidar=True, image=False, detections=True, **STEPWISE_VALUES)
+    assert "# Camera image" not in no_image and "# Detected objects" in no_image
+    assert "8" in full and "90 degrees" in full
+
+
+@pytest.mark.parametrize("name", sorted(OTHER_VALUES))
+def test_other_templates_render(name: str) -> None:
+    text = prompting.render(name, **OTHER_VALUES[name])
+    assert_complete(text)
+    for value in OTHER_VALUES[name].values():
+        shown = f"{value:g}" if isinstance(value, float) else str(value)
+        assert shown in text, f"{shown!r} missing from {name}"
+
+
+def test_self_check_asks_for_confirmed() -> None:
+    assert "CONFIRMED" in prompting.render("self_check")
+
+
+def test_missing_placeholder_and_flag_are_named() -> None:
+    values = dict(OTHER_VALUES["fsm_velocity"])
+    del values["d_goal"]
+    with pytest.raises(PromptTemplateError, match=r"'fsm_velocity'.*\$d_goal"):
+        prompting.render("fsm_velocity", **values)
+    with pytest.raises(PromptTemplateError, match="flag 'image'"):
+        prompting.render("full", lidar=True, detections=False, **STEPWISE_VALUES)
+
+
+@pytest.mark.parametrize("name", ["does_not_exist", "../pyproject", "parts/stepwise_role", ""])
+def test_unknown_or_unsafe_names_are_rejected(name: str) -> None:
+    with pytest.raises(PromptTemplateError):
+        prompting.render(name)
+
+
+def test_extra_values_are_ignored() -> None:
+    assert prompting.render("ground_system", unused="x") == prompting.render("ground_system")
+
+
+def test_aliases() -> None:
+    flags = {"lidar": True, "image": True, "detections": False, **STEPWISE_VALUES}
+    assert prompting.render("self-check", **flags) == prompting.render("full", **flags)
+    assert prompting.render("full-noconstraints", **flags) == prompting.render("full_noconstraints", **flags)
+
+
+def test_hashes_are_stable_and_distinct() -> None:
+    names = prompting.list_templates()
+    first = {n: prompting.template_hash(n) for n in names}
+    assert first == {n: prompting.template_hash(n) for n in names}
+    assert all(re.fullmatch(r"[0-9a-f]{64}", h) for h in first.values())
+    assert len(set(first.values())) == len(names)
+
+
+def test_hash_covers_included_parts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "t.md").write_text("<!-- include p -->\nHello $who\n", encoding="utf-8")
+    (tmp_path / "parts" / "p.md").write_text("Part one.\n", encoding="utf-8")
+    monkeypatch.setattr(prompting, "prompt_dir", lambda: tmp_path)
+    before = prompting.template_hash("t")
+    assert prompting.render("t", who="robot") == "Part one.\nHello robot\n"
+    (tmp_path / "parts" / "p.md").write_text("Part two.\n", encoding="utf-8")
+    assert prompting.template_hash("t") != before
+
+
+def test_load_template_returns_template() -> None:
+    template = prompting.load_template("waypoints_user")
+    assert template.substitute(target_name="window", max_waypoints=3).count("window") == 1
