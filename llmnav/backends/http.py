@@ -1,0 +1,398 @@
+"""The HTTP plumbing shared by the ollama, gemini and openai backends.
+
+One `JsonHttpClient` per backend instance: JSON in, JSON out, with
+- connect and read timeouts,
+- retries with exponential backoff and jitter on 429, 500/502/503/504 and transport failures
+  (refused, reset, timed out, torn replies), honouring a server's `Retry-After` (seconds or HTTP date),
+  `retry-after-ms`, and Gemini's `error.details[].retryDelay` ("7s"), up to a cap,
+- an optional requests-per-minute limit,
+- one `ModelError` with a one-line message after the last attempt,
+- redaction of API keys from every message it produces (keys travel in headers, never in text).
+
+`HttpOptions` are the knobs every HTTP backend accepts through `get_backend(spec, **options)`;
+`sleep` is injectable so tests run in milliseconds.
+"""
+
+from __future__ import annotations
+
+import email.utils
+import json
+import logging
+import random
+import re
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from llmnav.backends.base import Backend
+from llmnav.errors import BackendSpecError, ModelError
+
+if TYPE_CHECKING:
+    import httpx
+
+log = logging.getLogger(__name__)
+
+RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
+REASON_CHARS = 160  # longest server reason quoted in an error message
+_SECRET_QUERY = re.compile(r"([?&](?:key|api[_-]?key|access_token|token)=)[^&#\s]+", re.IGNORECASE)
+_DELAY = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*s\s*$")  # protobuf Duration as JSON: "7s", "0.5s"
+
+
+class HttpOptions(BaseModel):
+    """Options every HTTP backend accepts (unknown names are an error, not silently ignored)."""
+
+    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+
+    timeout_s: float = Field(default=60.0, gt=0)  # [s] read/write timeout of one attempt
+    connect_timeout_s: float = Field(default=5.0, gt=0)  # [s]
+    max_retries: int = Field(default=4, ge=0)  # attempts = max_retries + 1
+    backoff_base_s: float = Field(default=1.0, ge=0)  # [s] first backoff ceiling, doubled each retry
+    backoff_max_s: float = Field(default=30.0, ge=0)  # [s] ceiling of one backoff
+    retry_after_max_s: float = Field(default=120.0, ge=0)  # [s] longest server-requested wait accepted
+    rpm: float | None = Field(default=None, gt=0)  # requests per minute; None = unlimited
+    base_url: str | None = None  # server base URL override
+    sleep: Callable[[float], None] | None = None  # injectable for tests; default time.sleep
+
+
+OptionsT = TypeVar("OptionsT", bound=BaseModel)
+
+
+def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) -> OptionsT:
+    """Validate backend options; a bad one becomes a one-line BackendSpecError."""
+    try:
+        return model(**options)
+    except ValidationError as err:
+        first = err.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "options"
+        known = ", ".join(sorted(model.model_fields))
+        raise BackendSpecError(f"{backend}: bad option '{where}': {first['msg']} (known: {known})") from None
+
+
+def redact(text: str, secrets: Iterable[str] = ()) -> str:
+    """Remove API keys from text: every known secret, and secret-looking URL query values."""
+    for secret in secrets:
+        if secret:
+            text = text.replace(secret, "***")
+    return _SECRET_QUERY.sub(r"\1***", text)
+
+
+def one_line(text: str, limit: int = REASON_CHARS) -> str:
+    """Collapse whitespace and shorten, so a server's words fit in a one-line error."""
+    flat = " ".join(str(text).split())
+    return flat if len(flat) <= limit else flat[: limit - 1] + "…"
+
+
+def parse_retry_delay(value: str, now: datetime | None = None) -> float | None:
+    """A `Retry-After` value (delta seconds or HTTP date) or a protobuf duration ("7s") as seconds."""
+    value = value.strip()
+    match = _DELAY.match(value)
+    if match:
+        return float(match.group(1))
+    try:
+        return max(0.0, float(value))
+    except ValueError:
+        pass
+    try:
+        when = email.utils.parsedate_to_datetime(value)
+    except (TypeError, ValueError):
+        return None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=UTC)
+    return max(0.0, (when - (now or datetime.now(UTC))).total_seconds())
+
+
+def server_retry_delay(response: httpx.Response) -> float | None:
+    """How long the server asked us to wait, from headers or a Google RetryInfo detail; None if unsaid."""
+    header_ms = response.headers.get("retry-after-ms")
+    if header_ms:
+        try:
+            return max(0.0, float(header_ms) / 1000.0)
+        except ValueError:
+            pass
+    header = response.headers.get("retry-after")
+    if header:
+        delay = parse_retry_delay(header)
+        if delay is not None:
+            return delay
+    try:
+        data = response.json()
+    except ValueError:
+        return None
+    error = data.get("error") if isinstance(data, dict) else None
+    details = error.get("details") if isinstance(error, dict) else None
+    if not isinstance(details, list):
+        return None
+    for detail in details:
+        if isinstance(detail, dict) and isinstance(detail.get("retryDelay"), str):
+            delay = parse_retry_delay(detail["retryDelay"])
+            if delay is not None:
+                return delay
+    return None
+
+
+def error_reason(response: httpx.Response) -> str:
+    """A short reason for a failed reply: the provider's error message if it gave one."""
+    reason = response.reason_phrase or ""
+    try:
+        data = response.json()
+    except ValueError:
+        data = None
+    if isinstance(data, dict) and "error" in data:
+        err = data["error"]
+        if isinstance(err, dict):  # Gemini / OpenAI: {"error": {"message", "status"|"type", "code"}}
+            message = err.get("message") or err.get("status") or err.get("type") or ""
+            return one_line(f"{reason}: {message}" if message else reason)
+        return one_line(f"{reason}: {err}")  # Ollama: {"error": "model not found"}
+    text = response.text.strip()
+    return one_line(f"{reason}: {text}" if text else reason)
+
+
+def backoff_delay(retry: int, base_s: float, max_s: float, rng: random.Random) -> float:
+    """Exponential backoff with jitter: a uniform draw in [½, 1] of min(max, base·2^(retry-1)) [s]."""
+    ceiling = min(max_s, base_s * 2.0 ** (retry - 1))
+    return ceiling * rng.uniform(0.5, 1.0)
+
+
+@dataclass
+class HttpReply:
+    """A successful JSON reply and what it took."""
+
+    data: dict[str, Any]
+    status: int
+    attempts: int
+    elapsed_s: float  # [s] wall time, retries and waits included
+
+
+class JsonHttpClient:
+    """A JSON-over-HTTP client with timeouts, retries, rate limit and key redaction."""
+
+    def __init__(
+        self,
+        label: str,
+        base_url: str,
+        options: HttpOptions,
+        *,
+        headers: dict[str, str] | None = None,
+        secrets: Iterable[str] = (),
+    ) -> None:
+        import httpx
+
+        self.label = label  # backend name, the prefix of every error message
+        self.base_url = base_url.rstrip("/")
+        self.options = options
+        self._secrets = tuple(s for s in secrets if s)
+        self._sleep = options.sleep or time.sleep
+        self._rng = random.Random()
+        self._last_start = float("-inf")  # [s] monotonic start of the previous request (rate limit)
+        timeout = httpx.Timeout(options.timeout_s, connect=options.connect_timeout_s)
+        self._client = httpx.Client(timeout=timeout, headers=headers or {}, trust_env=False)
+
+    def __repr__(self) -> str:
+        return f"<JsonHttpClient {self.label} {self.redact(self.base_url)}>"
+
+    def redact(self, text: str) -> str:
+        """Text with this client's secrets removed."""
+        return redact(text, self._secrets)
+
+    def post(self, path: str, body: dict[str, Any]) -> HttpReply:
+        """POST JSON with retries; raise one ModelError after the last attempt."""
+        return self.request("POST", path, body)
+
+    def get(self, path: str, *, timeout_s: float | None = None, retries: bool = True) -> HttpReply:
+        """GET JSON (status probes pass a short timeout and no retries)."""
+        return self.request("GET", path, None, timeout_s=timeout_s, retries=retries)
+
+    def request(
+        self,
+        method: str,
+        path: str,
+        body: dict[str, Any] | None,
+        *,
+        timeout_s: float | None = None,
+        retries: bool = True,
+    ) -> HttpReply:
+        """Send one request, retrying transient failures.
+
+        The ModelError is raised outside any `except` block, so no httpx exception (which may hold
+        headers) rides along as its context.
+        """
+        import httpx
+
+        url = f"{self.base_url}{path}"
+        attempts = self.options.max_retries + 1 if retries else 1
+        timeout = (
+            httpx.Timeout(timeout_s, connect=min(timeout_s, self.options.connect_timeout_s))
+            if timeout_s is not None
+            else None
+        )
+        t0 = time.perf_counter()
+        failure = "no attempt made"
+        attempt = 0
+        while attempt < attempts:
+            attempt += 1
+            self._respect_rate_limit()
+            server_delay: float | None = None
+            try:
+                if timeout is None:
+                    response = self._client.request(method, url, json=body)
+                else:
+                    response = self._client.request(method, url, json=body, timeout=timeout)
+            except httpx.TimeoutException as err:
+                failure = _timeout_reason(err, timeout_s or self.options.timeout_s)
+            except httpx.TransportError as err:
+                failure = _transport_reason(err)
+            else:
+                if response.status_code < 400:
+                    return HttpReply(
+                        self._decode(response), response.status_code, attempt, time.perf_counter() - t0
+                    )
+                failure = f"HTTP {response.status_code} {error_reason(response)}"
+                if response.status_code not in RETRY_STATUSES:
+                    break
+                server_delay = server_retry_delay(response)
+            if attempt >= attempts:
+                break
+            if server_delay is not None and server_delay > self.options.retry_after_max_s:
+                failure += (
+                    f"; server asks to wait {server_delay:.0f} s, over the "
+                    f"{self.options.retry_after_max_s:.0f} s limit"
+                )
+                break
+            delay = (
+                server_delay
+                if server_delay is not None
+                else backoff_delay(
+                    attempt, self.options.backoff_base_s, self.options.backoff_max_s, self._rng
+                )
+            )
+            log.info(
+                "%s: %s; retry %d/%d in %.2f s",
+                self.label,
+                self.redact(failure),
+                attempt,
+                attempts - 1,
+                delay,
+            )
+            self._sleep(delay)
+        elapsed = time.perf_counter() - t0
+        noun = "attempt" if attempt == 1 else "attempts"
+        raise ModelError(
+            self.redact(f"{self.label}: {failure} ({attempt} {noun} in {elapsed:.1f} s, {method} {url})")
+        )
+
+    def _decode(self, response: httpx.Response) -> dict[str, Any]:
+        try:
+            data = json.loads(response.content)
+        except (ValueError, UnicodeDecodeError):
+            data = None
+            snippet = one_line(response.content[:60].decode("utf-8", errors="replace"), 60)
+        if not isinstance(data, dict):
+            if data is not None:
+                snippet = one_line(json.dumps(data)[:60], 60)
+            raise ModelError(
+                self.redact(
+                    f"{self.label}: HTTP {response.status_code} reply is not a JSON object "
+                    f"({len(response.content)} bytes: {snippet!r})"
+                )
+            )
+        return data
+
+    def _respect_rate_limit(self) -> None:
+        if self.options.rpm is None:
+            return
+        interval = 60.0 / self.options.rpm  # [s] between request starts
+        now = time.monotonic()
+        wait = self._last_start + interval - now
+        if wait > 0:
+            self._sleep(wait)
+            now += wait
+        self._last_start = now
+
+    def close(self) -> None:
+        """Close the connection pool."""
+        self._client.close()
+
+
+def _timeout_reason(err: httpx.TimeoutException, timeout_s: float) -> str:
+    import httpx
+
+    if isinstance(err, httpx.ConnectTimeout):
+        return f"connect timeout ({timeout_s:g} s)"
+    if isinstance(err, httpx.PoolTimeout):
+        return "connection pool timeout"
+    return f"read timeout ({timeout_s:g} s)"
+
+
+def _transport_reason(err: httpx.TransportError) -> str:
+    text = re.sub(r"\[Errno -?\d+\]\s*", "", str(err)) or type(err).__name__
+    return f"connection failed: {one_line(text, 100)}"
+
+
+def normalise_url(url: str) -> str:
+    """Add a missing scheme and drop a trailing slash (`OLLAMA_HOST=0.0.0.0:11434` style values)."""
+    url = url.strip().rstrip("/")
+    if "://" not in url:
+        url = f"http://{url}"
+    return url.replace("://0.0.0.0", "://127.0.0.1")
+
+
+class HttpBackend(Backend):
+    """What the three HTTP backends share: validated options and one lazily built client."""
+
+    options_model: ClassVar[type[HttpOptions]] = HttpOptions
+    example: ClassVar[str] = ""  # a spec string shown by `llmnav backends`
+
+    def __init__(self, arg: str | None = None, **options: Any) -> None:
+        super().__init__(arg, **options)
+        self.settings = parse_options(self.options_model, self.name, options)
+        self._client: JsonHttpClient | None = None
+
+    def _make_client(self) -> JsonHttpClient:
+        """Build this backend's client (base URL, auth headers, secrets to redact)."""
+        raise NotImplementedError
+
+    @property
+    def client(self) -> JsonHttpClient:
+        """The backend's HTTP client, built on first use."""
+        if self._client is None:
+            self._client = self._make_client()
+        return self._client
+
+    def close(self) -> None:
+        """Close the HTTP connection pool."""
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+
+def probe(
+    label: str,
+    base_url: str,
+    path: str,
+    *,
+    headers: dict[str, str] | None = None,
+    secrets: Iterable[str] = (),
+    timeout_s: float = 2.0,
+) -> HttpReply:
+    """One quick GET without retries (for `status()`); raises ModelError with a one-line reason."""
+    client = JsonHttpClient(
+        label,
+        base_url,
+        HttpOptions(max_retries=0, timeout_s=timeout_s, connect_timeout_s=timeout_s),
+        headers=headers,
+        secrets=secrets,
+    )
+    try:
+        return client.get(path, retries=False)
+    finally:
+        client.close()
+
+
+def short_reason(err: ModelError) -> str:
+    """The reason inside a client error message, without the backend prefix and the attempts trailer."""
+    reason = str(err).split(": ", 1)[-1]
+    return one_line(reason.rsplit(" (", 1)[0], 100)

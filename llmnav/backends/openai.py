@@ -1,0 +1,151 @@
+"""OpenAI-compatible backend: `openai[:MODEL][@BASE_URL]` → POST {BASE_URL}/chat/completions.
+
+Works with OpenAI itself and with local OpenAI-compatible servers (llama.cpp server, vLLM, LM Studio).
+Base URL: the `@` part of the spec, else the `base_url` option, else `OPENAI_BASE_URL`, else
+https://api.openai.com/v1. `OPENAI_API_KEY` is sent as a Bearer token when set; it is required only for
+api.openai.com. Images travel as `image_url` data URLs; the schema as `response_format: json_schema`.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, ClassVar, Literal
+
+from pydantic import Field
+
+from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult
+from llmnav.backends.http import HttpBackend, HttpOptions, JsonHttpClient, normalise_url, probe, short_reason
+from llmnav.errors import MissingKeyError, ModelError
+
+DEFAULT_BASE_URL = "https://api.openai.com/v1"
+DEFAULT_MODEL = "gpt-4o-mini"
+KEY_VARIABLE = "OPENAI_API_KEY"
+
+
+class OpenAIOptions(HttpOptions):
+    """OpenAI knobs on top of the shared HTTP options."""
+
+    timeout_s: float = Field(default=90.0, gt=0)  # [s]
+    strict: bool = False  # json_schema strict mode (OpenAI then demands additionalProperties: false)
+    schema_name: str = "answer"  # json_schema.name
+    json_mode: bool = True  # response_format json_object when a request carries no schema
+    max_tokens_field: Literal["max_tokens", "max_completion_tokens"] = "max_tokens"  # newer models
+
+
+def split_arg(arg: str | None) -> tuple[str, str | None]:
+    """`MODEL@BASE_URL` → (model, base URL or None)."""
+    model, _, base = (arg or "").partition("@")
+    return model or DEFAULT_MODEL, (base or None)
+
+
+def resolve_base(spec_base: str | None, option_base: str | None = None) -> str:
+    """Spec `@URL`, option, `OPENAI_BASE_URL`, default — first one set."""
+    return normalise_url(spec_base or option_base or os.environ.get("OPENAI_BASE_URL") or DEFAULT_BASE_URL)
+
+
+def _api_key() -> str | None:
+    return os.environ.get(KEY_VARIABLE, "").strip() or None
+
+
+def _is_official(base: str) -> bool:
+    return "api.openai.com" in base
+
+
+class OpenAIBackend(HttpBackend):
+    """Any server speaking OpenAI's chat-completions API."""
+
+    name = "openai"
+    default_arg = DEFAULT_MODEL
+    description = "OpenAI or a compatible server (OPENAI_API_KEY, OPENAI_BASE_URL)"
+    example = "openai:gpt-4o-mini@http://127.0.0.1:8080/v1"
+    multimodal = True
+    options_model: ClassVar[type[HttpOptions]] = OpenAIOptions
+
+    def __init__(self, arg: str | None = None, **options: Any) -> None:
+        super().__init__(arg, **options)
+        self.model, spec_base = split_arg(self.arg)
+        self.base_url = resolve_base(spec_base, self.settings.base_url)
+        self.__key = _api_key()
+        if self.__key is None and _is_official(self.base_url):
+            raise MissingKeyError(f"openai needs an API key for {self.base_url}: set {KEY_VARIABLE}")
+
+    def _make_client(self) -> JsonHttpClient:
+        headers = {"Authorization": f"Bearer {self.__key}"} if self.__key else {}
+        secrets = (self.__key,) if self.__key else ()
+        return JsonHttpClient(self.name, self.base_url, self.settings, headers=headers, secrets=secrets)
+
+    def build_body(self, request: ChatRequest) -> dict[str, Any]:
+        """The chat/completions body for a request."""
+        settings = self.settings
+        assert isinstance(settings, OpenAIOptions)
+        messages: list[dict[str, Any]] = []
+        for message in request.messages:
+            if message.images:
+                parts: list[dict[str, Any]] = [{"type": "text", "text": message.text}]
+                parts += [
+                    {"type": "image_url", "image_url": {"url": f"data:image/jpeg;base64,{img.jpeg_b64}"}}
+                    for img in message.images
+                ]
+                messages.append({"role": message.role, "content": parts})
+            else:
+                messages.append({"role": message.role, "content": message.text})
+        body: dict[str, Any] = {
+            "model": self.model,
+            "messages": messages,
+            "temperature": request.temperature,
+            settings.max_tokens_field: request.max_tokens,
+        }
+        if request.seed is not None:
+            body["seed"] = request.seed
+        if request.json_schema is not None:
+            body["response_format"] = {
+                "type": "json_schema",
+                "json_schema": {
+                    "name": settings.schema_name,
+                    "schema": request.json_schema,
+                    "strict": settings.strict,
+                },
+            }
+        elif settings.json_mode:
+            body["response_format"] = {"type": "json_object"}
+        return body
+
+    def chat(self, request: ChatRequest) -> ChatResult:
+        """One chat-completions call."""
+        reply = self.client.post("/chat/completions", self.build_body(request))
+        data = reply.data
+        choices = data.get("choices")
+        first = choices[0] if isinstance(choices, list) and choices and isinstance(choices[0], dict) else None
+        message = first.get("message") if first else None
+        if not isinstance(message, dict):
+            raise ModelError("openai: reply has no choices[0].message")
+        content = message.get("content")
+        if not isinstance(content, str):
+            refusal = message.get("refusal")
+            raise ModelError(
+                f"openai: model refused: {refusal}" if refusal else "openai: reply has no content"
+            )
+        usage = data.get("usage") or {}
+        return ChatResult(
+            text=content,
+            latency_s=reply.elapsed_s,
+            model=str(data.get("model") or self.model),
+            prompt_tokens=usage.get("prompt_tokens"),
+            completion_tokens=usage.get("completion_tokens"),
+            meta={"attempts": reply.attempts, "finish_reason": first.get("finish_reason") if first else None},
+        )
+
+    @classmethod
+    def status(cls, arg: str | None = None) -> BackendStatus:
+        """Server reachable: GET {base}/models with a short timeout."""
+        _, spec_base = split_arg(arg)
+        base = resolve_base(spec_base)
+        key = _api_key()
+        if key is None and _is_official(base):
+            return BackendStatus(False, f"{KEY_VARIABLE} not set (needed for {base})")
+        headers = {"Authorization": f"Bearer {key}"} if key else {}
+        try:
+            probe(cls.name, base, "/models", headers=headers, secrets=(key,) if key else (), timeout_s=3.0)
+        except ModelError as err:
+            return BackendStatus(False, f"{base} not usable: {short_reason(err)}")
+        return BackendStatus(True, f"server reachable at {base}")
