@@ -1,0 +1,98 @@
+"""`llmnav scenarios`: list the bundled scenarios, show one scenario's tasks and plot its top view."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from llmnav.commands.common import cli_errors, console
+from llmnav.errors import BadInputError
+from llmnav.scenario import Scenario, Task, list_scenarios, load_scenario
+
+app = typer.Typer(
+    help="List the bundled scenarios or show one (tasks, start poses, top-view plot).", no_args_is_help=False
+)
+
+
+def _size(scenario: Scenario) -> str:
+    """The world's extent as 'W m x H m'."""
+    bx, by = scenario.bounds.x, scenario.bounds.y
+    return f"{bx[1] - bx[0]:.1f} m x {by[1] - by[0]:.1f} m"
+
+
+def _targets(scenario: Scenario, task: Task) -> str:
+    """Acceptable targets as 'ID (label)' or '(x, y)'."""
+    parts = []
+    for target in task.targets:
+        if target.object is not None:
+            parts.append(f"{target.object} ({scenario.object(target.object).label})")
+        else:
+            assert target.point is not None
+            parts.append(f"point ({target.point[0]:g}, {target.point[1]:g})")
+    return ", ".join(parts) or "-"
+
+
+@app.callback(invoke_without_command=True)
+def scenarios(ctx: typer.Context) -> None:
+    """List the bundled scenarios (the default when no subcommand is given)."""
+    if ctx.invoked_subcommand is None:
+        list_command()
+
+
+@app.command("list")
+@cli_errors
+def list_command() -> None:
+    """Table of the bundled scenarios: name, robot, size, objects, tasks."""
+    table = Table(title="Bundled scenarios")
+    for column in ("name", "robot", "size", "objects", "tasks", "description"):
+        table.add_column(column, justify="right" if column in ("objects", "tasks") else "left")
+    for name in list_scenarios():
+        scenario = load_scenario(name)
+        table.add_row(
+            name,
+            scenario.robot,
+            _size(scenario),
+            str(len(scenario.objects)),
+            str(len(scenario.tasks)),
+            scenario.description,
+        )
+    console.print(table)
+
+
+@app.command("show")
+@cli_errors
+def show(
+    name: Annotated[str, typer.Argument(help="Bundled scenario name or path to a scenario YAML file.")],
+    plot: Annotated[Path | None, typer.Option("--plot", help="Write a top view PNG to this file.")] = None,
+    task: Annotated[str | None, typer.Option("--task", help="Only this task (id), also in the plot.")] = None,
+) -> None:
+    """A scenario's tasks (id, kind, difficulty, text, targets, start poses); optionally its top view."""
+    scenario = load_scenario(name)
+    chosen: Task | None = None
+    if task is not None:
+        try:
+            chosen = scenario.task(task)
+        except KeyError:
+            known = ", ".join(t.id for t in scenario.tasks) or "none"
+            raise BadInputError(f"scenario '{scenario.name}' has no task '{task}' (tasks: {known})") from None
+    console.print(
+        f"[bold]{scenario.name}[/] ({scenario.robot}, {_size(scenario)}, {len(scenario.objects)} objects)"
+        + (f": {scenario.description}" if scenario.description else ""),
+        highlight=False,
+    )
+    table = Table()
+    for column in ("id", "kind", "difficulty", "text", "targets"):
+        table.add_column(column, no_wrap=column in ("id", "kind"))
+    table.add_column("start poses x, y @ yaw", no_wrap=True)
+    for t in [chosen] if chosen is not None else scenario.tasks:
+        starts = "\n".join(f"{s.x:g}, {s.y:g} @ {s.yaw_deg:g}°" for s in scenario.start_poses(t))
+        table.add_row(t.id, t.kind, t.difficulty, t.text, _targets(scenario, t), starts)
+    console.print(table)
+    if plot is not None:
+        from llmnav.reporting.topview import plot_scenario  # matplotlib only when a plot is asked for
+
+        written = plot_scenario(scenario, plot, task=chosen)
+        console.print(f"top view written to {written}", highlight=False)
