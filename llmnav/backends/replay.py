@@ -1,0 +1,233 @@
+"""Replay backend: `replay:RUN_DIR` or `replay:RUN_DIR/run.jsonl` answers with a recorded run's replies.
+
+It reads the run log's `llm_call` events and returns their replies in order, with the recorded latency
+and token counts, so a replayed run reproduces the original's metrics without a model. Strict by default:
+each incoming request must equal the recorded one (`ChatRequest.to_log()` after a JSON round trip), else
+`ReplayDivergenceError` names the call, step and the first differing message. Loose mode (`?loose` after
+the path, as `llmnav drive --replay-loose` writes it, or the `loose=True` option) answers in order anyway.
+Recorded failures (`error`) are raised again as `ModelError`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult
+from llmnav.backends.http import parse_options
+from llmnav.errors import BackendSpecError, BadInputError, ModelError, ReplayDivergenceError
+from llmnav.runlog import RUN_FILE, dumps
+
+DIFF_LINES = 8  # lines of unified diff shown after the one-line summary
+
+
+class ReplayOptions(BaseModel):
+    """Replay knobs."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    loose: bool = False  # answer in order even when requests differ from the recording
+
+
+@dataclass(frozen=True)
+class RecordedCall:
+    """One `llm_call` event of the run log."""
+
+    number: int  # 1-based position among the log's model calls
+    line: int  # line in the file (for error messages)
+    step: Any
+    purpose: str | None
+    request: dict[str, Any]
+    reply: dict[str, Any] | None
+    error: str | None
+
+
+def split_arg(arg: str) -> tuple[Path, bool]:
+    """`PATH[?loose]` → (path of run.jsonl, loose flag)."""
+    path, _, query = arg.partition("?")
+    loose = False
+    for item in filter(None, query.split("&")):
+        key, _, value = item.partition("=")
+        if key != "loose":
+            raise BackendSpecError(f"replay: unknown flag '{key}' in '{arg}' (known: loose)")
+        loose = value.lower() not in ("0", "false", "no")
+    file = Path(path).expanduser()
+    if file.is_dir():
+        file = file / RUN_FILE
+    return file, loose
+
+
+def load_calls(file: Path) -> list[RecordedCall]:
+    """The `llm_call` events of a run log, checked; BadInputError (file and line) on anything malformed."""
+    try:
+        text = file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        reason = err.strerror if isinstance(err, OSError) and err.strerror else type(err).__name__
+        raise BadInputError(f"replay: cannot read {file}: {reason}") from None
+    lines = text.split("\n")
+    calls: list[RecordedCall] = []
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            event = json.loads(line)
+        except json.JSONDecodeError:
+            if number == len(lines) and not text.endswith("\n"):  # torn last line of a killed run
+                break
+            raise BadInputError(f"replay: {file}: line {number}: not valid JSON") from None
+        if not isinstance(event, dict) or "type" not in event:
+            raise BadInputError(f"replay: {file}: line {number}: not a run-log event")
+        if event["type"] == "llm_call":
+            calls.append(_check_call(event, file, number, len(calls) + 1))
+    return calls
+
+
+def _check_call(event: dict[str, Any], file: Path, line: int, number: int) -> RecordedCall:
+    def bad(problem: str) -> BadInputError:
+        return BadInputError(f"replay: {file}: line {line}: llm_call {problem}")
+
+    request = event.get("request")
+    if not isinstance(request, dict) or not isinstance(request.get("messages"), list):
+        raise bad("has no request with messages")
+    reply, error = event.get("reply"), event.get("error")
+    if reply is None and error is None:
+        raise bad("has neither reply nor error")
+    if reply is not None:
+        if not isinstance(reply, dict) or not isinstance(reply.get("text"), str):
+            raise bad("reply has no text")
+        latency = reply.get("latency_s", 0.0)
+        if not isinstance(latency, (int, float)) or isinstance(latency, bool):
+            raise bad("reply latency_s is not a number")
+    elif not isinstance(error, str):
+        raise bad("error is not a string")
+    purpose = event.get("purpose")
+    return RecordedCall(
+        number,
+        line,
+        event.get("step"),
+        purpose if isinstance(purpose, str) else None,
+        request,
+        reply,
+        error if reply is None else None,
+    )
+
+
+def describe_difference(recorded: dict[str, Any], asked: dict[str, Any]) -> str:
+    """First difference between two logged requests: a one-line summary, then a few diff lines."""
+    old_msgs, new_msgs = recorded.get("messages", []), asked.get("messages", [])
+    for index in range(max(len(old_msgs), len(new_msgs))):
+        old = old_msgs[index] if index < len(old_msgs) else None
+        new = new_msgs[index] if index < len(new_msgs) else None
+        if old == new:
+            continue
+        if old is None or new is None:
+            return (
+                f"message {index + 1} is {'extra' if old is None else 'missing'} "
+                f"({len(new_msgs)} messages, recorded {len(old_msgs)})"
+            )
+        role = new.get("role") if isinstance(new, dict) else "?"
+        summary = f"message {index + 1} ({role}) differs"
+        return summary + "\n" + _diff(_render(old), _render(new))
+    for key in sorted(set(recorded) | set(asked)):
+        if key != "messages" and recorded.get(key) != asked.get(key):
+            return f"{key} differs" + "\n" + _diff(_render(recorded.get(key)), _render(asked.get(key)))
+    return "requests differ"
+
+
+def _render(value: Any) -> list[str]:
+    if isinstance(value, dict) and isinstance(value.get("text"), str):  # a message: text line by line
+        extra = {k: v for k, v in value.items() if k != "text"}
+        return [json.dumps(extra, sort_keys=True), *value["text"].splitlines()]
+    return json.dumps(value, indent=1, sort_keys=True).splitlines()
+
+
+def _diff(old: list[str], new: list[str]) -> str:
+    lines = [
+        line
+        for line in difflib.unified_diff(old, new, "recorded", "now", n=0, lineterm="")
+        if not line.startswith(("---", "+++", "@@"))
+    ]
+    shown = [line if len(line) <= 160 else line[:159] + "…" for line in lines[:DIFF_LINES]]
+    if len(lines) > DIFF_LINES:
+        shown.append(f"... ({len(lines) - DIFF_LINES} more lines)")
+    return "\n".join(shown)
+
+
+class ReplayBackend(Backend):
+    """Answers with the replies recorded in a run log, in order."""
+
+    name = "replay"
+    default_arg = None
+    description = "Replies recorded in a run log, in order (strict unless ?loose)"
+    example = "replay:runs/RUN_ID"
+    multimodal = True
+    deterministic = True
+
+    def __init__(self, arg: str | None = None, **options: Any) -> None:
+        super().__init__(arg, **options)
+        if not self.arg:
+            raise BackendSpecError("replay needs a run: replay:RUN_DIR or replay:RUN_DIR/run.jsonl")
+        settings = parse_options(ReplayOptions, self.name, options)
+        self.file, spec_loose = split_arg(self.arg)
+        self.loose = settings.loose or spec_loose
+        self.calls = load_calls(self.file)
+        self.position = 0  # calls answered so far
+        self.divergences = 0  # requests that differed (loose mode)
+
+    def chat(self, request: ChatRequest) -> ChatResult:
+        """The next recorded reply; strict mode checks the request first."""
+        if self.position >= len(self.calls):
+            raise ModelError(
+                f"replay: {self.file} holds {len(self.calls)} model calls and call {self.position + 1} "
+                "asked for another (the run went further than the recording)"
+            )
+        call = self.calls[self.position]
+        self.position += 1
+        asked = json.loads(dumps(request.to_log()))  # the same JSON round trip the log went through
+        diverged = asked != call.request
+        if diverged:
+            self.divergences += 1
+            if not self.loose:
+                where = f"call {call.number} (step {call.step}" + (
+                    f", {call.purpose})" if call.purpose else ")"
+                )
+                raise ReplayDivergenceError(
+                    f"replay: {where} differs from the recording at {self.file}:{call.line}: "
+                    f"{describe_difference(call.request, asked)}"
+                )
+        if call.reply is None:
+            raise ModelError(f"replay: recorded failure of call {call.number}: {call.error}")
+        reply = call.reply
+        meta = dict(reply.get("meta") or {})
+        if diverged:
+            meta["replay_diverged"] = True
+        return ChatResult(
+            text=reply["text"],
+            latency_s=float(reply.get("latency_s") or 0.0),
+            model=str(reply.get("model") or "replay"),
+            prompt_tokens=reply.get("prompt_tokens"),
+            completion_tokens=reply.get("completion_tokens"),
+            meta=meta,
+        )
+
+    @property
+    def remaining(self) -> int:
+        """Recorded calls not yet answered."""
+        return len(self.calls) - self.position
+
+    @classmethod
+    def status(cls, arg: str | None = None) -> BackendStatus:
+        """Always available; it needs a run folder as its argument."""
+        if not arg:
+            return BackendStatus(True, "needs a recorded run: replay:RUN_DIR")
+        try:
+            file, _ = split_arg(arg)
+            calls = load_calls(file)
+        except BadInputError as err:
+            return BackendStatus(False, str(err).splitlines()[0])
+        return BackendStatus(True, f"{len(calls)} recorded model calls in {file}")
