@@ -187,3 +187,39 @@ def fake_episode(spec: Any) -> dict[str, Any]:
     summary = summarize_run(read_run(run_dir), sc)
     write_json_atomic(run_dir / SUMMARY_FILE, summary)
     return summary
+
+
+class InterruptingRunner:
+    """Runs `fake_episode` but is 'killed' during episode number `kill_at` (1-based): half a log, then Ctrl-C."""
+
+    def __init__(self, kill_at: int) -> None:
+        self.kill_at = kill_at
+        self.calls = 0
+
+    def __call__(self, spec: Any) -> dict[str, Any]:
+        self.calls += 1
+        if self.calls == self.kill_at:
+            options = spec.options.model_dump(mode="json")
+            config = config_for(
+                spec.task_id,
+                options=options,
+                start_pose_index=spec.start_pose,
+                seed=options["seed"],
+                backend=spec.backend,
+            )
+            write_run(Path(spec.out_dir), config, [[0.0, 0.0, 0.0]], outcome=None)
+            with open(Path(spec.out_dir) / "run.jsonl", "a") as f:
+                f.write('{"type": "pose", "pose": [0.5,')
+            raise KeyboardInterrupt
+        return fake_episode(spec)
+
+
+class CountingRunner:
+    """`fake_episode`, counting which episodes it ran."""
+
+    def __init__(self) -> None:
+        self.ran: list[str] = []
+
+    def __call__(self, spec: Any) -> dict[str, Any]:
+        self.ran.append(Path(spec.out_dir).name)
+        return fake_episode(spec)

@@ -1,0 +1,163 @@
+"""`llmnav ablate`: run a grid of conditions over tasks, start poses and trials, then print the tables."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from llmnav.commands.common import cli_errors, console
+
+if TYPE_CHECKING:
+    from llmnav.ablate import Ablation, ManifestEntry
+
+_LIST = "comma-separated"
+
+
+@cli_errors
+def ablate(
+    scenario: Annotated[str | None, typer.Option("--scenario", help="Scenario name or file.")] = None,
+    tasks: Annotated[str | None, typer.Option("--tasks", help=f"Task ids ({_LIST}) or 'all'.")] = None,
+    poses: Annotated[str | None, typer.Option("--poses", help="Start poses: 1-5, 1,3 or all.")] = None,
+    trials: Annotated[
+        int | None, typer.Option("--trials", min=1, help="Trials per task, pose and condition.")
+    ] = None,
+    seed: Annotated[
+        int | None, typer.Option("--seed", help="Base seed (episode seeds derive from it).")
+    ] = None,
+    lidar_sectors: Annotated[
+        str | None, typer.Option("--lidar-sectors", help=f"e.g. 3,5,8 ({_LIST}).")
+    ] = None,
+    prompt: Annotated[str | None, typer.Option("--prompt", help=f"Prompt variants ({_LIST}).")] = None,
+    history: Annotated[str | None, typer.Option("--history", help=f"0, 1, 2, all ({_LIST}).")] = None,
+    sensing: Annotated[
+        str | None, typer.Option("--sensing", help=f"e.g. lidar+image,image ({_LIST}).")
+    ] = None,
+    backend: Annotated[str | None, typer.Option("--backend", help=f"Backend specs ({_LIST}).")] = None,
+    assist: Annotated[str | None, typer.Option("--assist", help=f"none, ema, llm ({_LIST}).")] = None,
+    planner: Annotated[str | None, typer.Option("--planner", help=f"Planners ({_LIST}).")] = None,
+    grid: Annotated[
+        Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")
+    ] = None,
+    name: Annotated[
+        str | None, typer.Option("--name", help="Ablation name (default from scenario and factors).")
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Ablation folder (default ablations/<name>).")
+    ] = None,
+    workers: Annotated[int, typer.Option("--workers", min=1, help="Parallel worker processes.")] = 1,
+    ray: Annotated[
+        str | None, typer.Option("--ray", help="Run as Ray tasks on this cluster address ('auto' for local).")
+    ] = None,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="List the episodes and stop.")] = False,
+) -> None:
+    """Run an ablation grid (resumable: run it again to finish it), then print the tables by factor."""
+    from llmnav import ablate as lib
+
+    data: dict[str, Any] = lib.load_grid_file(grid) if grid is not None else {}
+    flags: dict[str, Any] = {"scenario": scenario, "trials": trials, "seed": seed, "name": name}
+    if tasks is not None:
+        flags["tasks"] = "all" if tasks.strip().lower() == "all" else lib.split_list(tasks)
+    if poses is not None:
+        flags["poses"] = lib.parse_poses(poses)
+    for key, value in (
+        ("lidar_sectors", lidar_sectors), ("prompt", prompt), ("history", history), ("sensing", sensing),
+        ("backend", backend), ("assist", assist), ("planner", planner),
+    ):  # fmt: skip
+        if value is not None:
+            flags[key] = lib.split_list(value)
+    data.update({k: v for k, v in flags.items() if v is not None})
+    spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
+    root = out if out is not None else Path("ablations") / spec.default_name()
+    ablation = lib.plan(spec, root)
+    if dry_run:
+        _print_plan(ablation)
+        return
+    with _progress() as progress:
+        lib.run(
+            ablation,
+            workers=workers,
+            ray_address=ray,
+            on_start=progress.start,
+            on_result=progress.advance,
+        )
+    _print_results(ablation)
+
+
+def _print_plan(ablation: Ablation) -> None:
+    from rich.table import Table
+
+    from llmnav.ablate import describe_episodes
+
+    table = Table(title=f"{ablation.grid.default_name()}: {ablation.size} episodes → {ablation.root}")
+    for column in ("Key", "Task", "Pose", "Trial", "Seed", "Backend"):
+        table.add_column(column)
+    for row in describe_episodes(ablation.episodes):
+        table.add_row(*row)
+    console.print(table)
+    factors = ablation.grid.factors()
+    detail = ", ".join(f"{k}: {len(v)}" for k, v in factors.items()) or "no factors"
+    console.print(f"{ablation.size} episodes ({detail}; trials: {ablation.grid.trials})", highlight=False)
+
+
+class _progress:
+    """A rich progress bar with ETA and a running success count (a context manager)."""
+
+    def __init__(self) -> None:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self.bar = Progress(
+            TextColumn("[bold]ablate[/]"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("success {task.fields[successes]}/{task.fields[finished]}"),
+            TextColumn("errors {task.fields[errors]}"),
+            TimeRemainingColumn(),
+            console=console,
+        )
+        self.task_id: Any = None
+
+    def __enter__(self) -> _progress:
+        self.bar.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.bar.__exit__(None, None, None)
+
+    def start(self, total: int, done: int, successes: int) -> None:
+        """Bar at the episodes already finished by an earlier run."""
+        self.task_id = self.bar.add_task(
+            "ablate", total=total, completed=done, successes=successes, finished=done, errors=0
+        )
+
+    def advance(self, entry: ManifestEntry, ablation: Ablation) -> None:
+        """One more episode settled."""
+        entries = ablation.entries.values()
+        finished = [e for e in entries if e.status == "done"]
+        self.bar.update(
+            self.task_id,
+            advance=1,
+            finished=len(finished),
+            successes=sum(1 for e in finished if e.success),
+            errors=sum(1 for e in entries if e.status == "error"),
+        )
+
+
+def _print_results(ablation: Ablation) -> None:
+    from llmnav.ablate import results_runs, table_keys
+    from llmnav.reporting.tables import to_rich
+    from llmnav.score import build_tables
+
+    runs = results_runs(ablation)
+    errors = [e for e in ablation.entries.values() if e.status == "error"]
+    if runs:
+        for table in build_tables(runs, table_keys(ablation)):
+            console.print(to_rich(table))
+    console.print(
+        f"{len(runs)}/{ablation.size} episodes done, {len(errors)} error(s); "
+        f"manifest: {ablation.root / 'manifest.json'}",
+        highlight=False,
+    )
+    for entry in errors[:5]:
+        console.print(f"[red]error[/] {entry.key}: {entry.error}", highlight=False)

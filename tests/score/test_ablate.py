@@ -1,0 +1,183 @@
+"""Ablation grids: expansion, seeds, manifest, interrupt + resume, parallel == serial, CLI errors."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner
+
+sys.path.insert(0, str(Path(__file__).parent))
+from score_fakes import CountingRunner, InterruptingRunner, fake_episode, write_scenario_file  # noqa: E402
+
+from llmnav import ablate as lib  # noqa: E402
+from llmnav.cli import app  # noqa: E402
+from llmnav.errors import BadInputError  # noqa: E402
+
+
+@pytest.fixture()
+def scenario_file(tmp_path: Path) -> Path:
+    return write_scenario_file(tmp_path / "tiny.yaml")
+
+
+def _grid(scenario_file: Path, **extra: Any) -> lib.GridSpec:
+    data = {
+        "scenario": str(scenario_file),
+        "tasks": ["T1", "T2"],
+        "poses": [1],
+        "trials": 2,
+        "lidar_sectors": [3, 5, 8],
+        "seed": 7,
+    } | extra
+    return lib.grid_from_mapping(data, "test")
+
+
+def _manifest(root: Path) -> dict[str, Any]:
+    return json.loads((root / "manifest.json").read_text())
+
+
+def test_expand_keys_seeds_and_options(scenario_file: Path, tmp_path: Path) -> None:
+    ab = lib.plan(_grid(scenario_file, sensing=["lidar+image", "image"]), tmp_path / "ab")
+    assert ab.size == 2 * 1 * 2 * 3 * 2
+    keys = [ep.key for ep in ab.episodes]
+    assert len(set(keys)) == ab.size and len({ep.dir_name for ep in ab.episodes}) == ab.size
+    first = ab.episodes[0]
+    assert first.key == "T1-p1-t1-sensing=lidar+image-lidar_sectors=3"
+    assert first.options.sensing == ("lidar", "image") and first.options.lidar_sectors == 3
+    # every condition of one (task, pose, trial) shares its seed; trials differ
+    same = {ep.seed for ep in ab.episodes if (ep.task_id, ep.trial) == ("T1", 1)}
+    assert len(same) == 1
+    assert first.seed == lib.episode_seed(7, "T1", 1, 1) != lib.episode_seed(7, "T1", 1, 2)
+    assert lib.episode_seed(8, "T1", 1, 1) != first.seed
+    assert first.options.seed == first.seed and first.backend == "local"
+    # all tasks, all poses
+    assert lib.plan(lib.grid_from_mapping({"scenario": str(scenario_file)}, "t"), tmp_path).size == 5
+
+
+def test_grid_errors_are_one_line(scenario_file: Path, tmp_path: Path) -> None:
+    with pytest.raises(BadInputError, match="has 1 start pose"):
+        lib.plan(_grid(scenario_file, poses=[1, 2]), tmp_path)
+    with pytest.raises(BadInputError, match="no task 'T99'"):
+        lib.plan(_grid(scenario_file, tasks=["T99"]), tmp_path)
+    with pytest.raises(BadInputError, match="lidar_sectors"):
+        lib.grid_from_mapping({"lidar_sectors": ["many"]}, "g.yaml")
+    with pytest.raises(BadInputError, match="g.yaml: colour: Extra inputs"):
+        lib.grid_from_mapping({"colour": 1}, "g.yaml")
+    with pytest.raises(BadInputError, match="history"):
+        lib.plan(_grid(scenario_file, history=["7"]), tmp_path)
+    assert lib.parse_poses("1-3,5") == [1, 2, 3, 5] and lib.parse_poses("all") is None
+    with pytest.raises(BadInputError):
+        lib.parse_poses("a-b")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("lidar_sectors: [3, 5\n")
+    with pytest.raises(BadInputError, match="bad.yaml: line"):
+        lib.load_grid_file(bad)
+
+
+def test_interrupt_and_resume_gives_the_same_manifest(scenario_file: Path, tmp_path: Path) -> None:
+    grid = _grid(scenario_file)
+    whole = lib.run(lib.plan(grid, tmp_path / "whole"), runner=fake_episode)
+    assert all(e.status == "done" for e in whole.entries.values())
+
+    killer = InterruptingRunner(kill_at=5)
+    with pytest.raises(KeyboardInterrupt):
+        lib.run(lib.plan(grid, tmp_path / "resumed"), runner=killer)
+    partial = _manifest(tmp_path / "resumed")
+    assert partial["done"] == 4 and partial["episodes"][4]["status"] == "pending"
+    cut_dir = tmp_path / "resumed" / partial["episodes"][4]["dir"]
+    assert (cut_dir / "run.jsonl").exists() and not (cut_dir / "summary.json").exists()
+
+    counter = CountingRunner()
+    lib.run(lib.plan(grid, tmp_path / "resumed"), runner=counter)
+    assert len(counter.ran) == grid_size(grid) - 4  # finished episodes are skipped, the cut one redone
+    assert partial["episodes"][4]["dir"] in counter.ran
+    assert _manifest(tmp_path / "resumed") == _manifest(tmp_path / "whole")
+    # a third run has nothing left to do
+    again = CountingRunner()
+    lib.run(lib.plan(grid, tmp_path / "resumed"), runner=again)
+    assert again.ran == []
+
+
+def grid_size(grid: lib.GridSpec) -> int:
+    return len(lib.expand(grid))
+
+
+def test_inconsistent_folder_is_rerun(scenario_file: Path, tmp_path: Path) -> None:
+    grid = _grid(scenario_file, trials=1, lidar_sectors=[3])
+    lib.run(lib.plan(grid, tmp_path / "ab"), runner=fake_episode)
+    # the same folder name under a different base seed holds a run with other options: rerun it
+    counter = CountingRunner()
+    lib.run(
+        lib.plan(_grid(scenario_file, trials=1, lidar_sectors=[3], seed=99), tmp_path / "ab"), runner=counter
+    )
+    assert len(counter.ran) == 2
+
+
+def test_parallel_equals_serial(scenario_file: Path, tmp_path: Path) -> None:
+    grid = _grid(scenario_file)
+    serial = lib.run(lib.plan(grid, tmp_path / "serial"), runner=fake_episode)
+    parallel = lib.run(lib.plan(grid, tmp_path / "parallel"), runner=fake_episode, workers=2)
+    assert _manifest(tmp_path / "serial") == _manifest(tmp_path / "parallel")
+    for ep in serial.episodes:
+        a = json.loads((tmp_path / "serial" / ep.dir_name / "summary.json").read_text())
+        b = json.loads((tmp_path / "parallel" / ep.dir_name / "summary.json").read_text())
+        for volatile in ("wall_time_s",):
+            a.pop(volatile), b.pop(volatile)
+        assert a == b
+    assert parallel.size == serial.size
+
+
+def test_runner_errors(scenario_file: Path, tmp_path: Path) -> None:
+    def broken(spec: Any) -> dict[str, Any]:
+        if spec.options.lidar_sectors == 5:
+            raise RuntimeError("planner bug")
+        return fake_episode(spec)
+
+    ab = lib.run(lib.plan(_grid(scenario_file), tmp_path / "ab"), runner=broken)
+    errors = [e for e in ab.entries.values() if e.status == "error"]
+    assert len(errors) == 4 and errors[0].error == "RuntimeError: planner bug"
+
+    def no_key(spec: Any) -> dict[str, Any]:
+        raise BadInputError("GEMINI_API_KEY is not set")
+
+    with pytest.raises(BadInputError, match="GEMINI_API_KEY"):
+        lib.run(lib.plan(_grid(scenario_file), tmp_path / "nokey"), runner=no_key)
+
+
+def test_cli_dry_run_and_errors(scenario_file: Path, tmp_path: Path) -> None:
+    cli = CliRunner()
+    result = cli.invoke(
+        app,
+        [
+            "ablate",
+            "--scenario",
+            str(scenario_file),
+            "--tasks",
+            "T1",
+            "--poses",
+            "1-2",
+            "--lidar-sectors",
+            "3,5,8",
+            "--trials",
+            "2",
+            "--dry-run",
+            "--out",
+            str(tmp_path / "x"),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "12 episodes" in result.output and "T1-p2-t2-lidar_sectors=8" in result.output
+    assert not (tmp_path / "x").exists()
+    grid = tmp_path / "g.yaml"
+    grid.write_text(f"scenario: {scenario_file}\ntasks: T1\nposes: 1-2\nprompt: [full, short]\n")
+    result = cli.invoke(app, ["ablate", "--grid", str(grid), "--dry-run", "--trials", "3"])
+    assert result.exit_code == 0, result.output
+    assert "12 episodes" in result.output
+    grid.write_text("lidar_sectors: seven\n")
+    bad = cli.invoke(app, ["ablate", "--grid", str(grid), "--dry-run"])
+    assert bad.exit_code == 2 and len(bad.output.strip().splitlines()) == 1
+    bad = cli.invoke(app, ["ablate", "--scenario", "nowhere", "--dry-run"])
+    assert bad.exit_code == 2 and "nowhere" in bad.output
