@@ -190,7 +190,7 @@ def fake_episode(spec: Any) -> dict[str, Any]:
 
 
 class InterruptingRunner:
-    """Runs `fake_episode` but is 'killed' during episode number `kill_at` (1-based): half a log, then Ctrl-C."""
+    """`fake_episode`, but 'killed' in episode number `kill_at` (1-based): half a log, then Ctrl-C."""
 
     def __init__(self, kill_at: int) -> None:
         self.kill_at = kill_at
