@@ -1,0 +1,120 @@
+"""Guard overhead: parse_answer per answer over a realistic mix, and the safety veto per check.
+
+Targets: median parse ≤ 1 ms per answer, veto check far below a LiDAR scan (≈ 1.5 ms, SPEC F).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from llmnav.guard.parse import parse_answer
+from llmnav.guard.schemas import ActionBounds, StepAction
+from llmnav.guard.veto import check_motion
+
+PARSE_TARGET_MS = 1.0
+VETO_TARGET_MS = 1.5  # one LiDAR scan's cost: the veto should be small next to it
+
+
+def _answer(rng: random.Random) -> dict[str, object]:
+    command = rng.choice(["FRONT", "BACK", "ROTATE_LEFT", "ROTATE_RIGHT"])
+    value = round(rng.uniform(0.3, 3.0), 2) if command in ("FRONT", "BACK") else rng.choice([15, 30, 45, 90])
+    return {
+        "goal": "Find the pile of pellets near the loading dock",
+        "reasoning": "The aisle ahead is clear for a few metres; the pellets were last seen to the left. "
+        * rng.randint(1, 3),
+        "scene_description": "Shelves on both sides, a forklift parked on the right, open floor ahead.",
+        "action": {"command": command, "parameters": value},
+    }
+
+
+LOOKALIKE = "FR\u041eNT"  # Cyrillic O
+
+# Each maker turns an answer dict into text of one kind a model might produce.
+MAKERS: dict[str, Callable[[dict[str, object], random.Random], str]] = {
+    "valid plain": lambda a, r: json.dumps(a),
+    "valid fenced": lambda a, r: "Here is my decision:\n```json\n" + json.dumps(a, indent=2) + "\n```\n",
+    "valid in prose": lambda a, r: "I considered the scene {carefully}. " + json.dumps(a) + " Done.",
+    "repair: trailing comma": lambda a, r: json.dumps(a)[:-2] + ",}}",
+    "repair: truncated": lambda a, r: json.dumps(a)[: -r.randint(1, 2)],
+    "repair: single quotes": lambda a, r: json.dumps(a).replace('"', "'"),
+    "schema: NaN": lambda a, r: json.dumps({**a, "action": {"command": "FRONT", "parameters": math.nan}}),
+    "schema: look-alike": lambda a, r: json.dumps({**a, "action": {"command": LOOKALIKE, "parameters": 1}}),
+    "schema: extra key": lambda a, r: json.dumps({**a, "confidence": 0.9}),
+    "bounds: huge": lambda a, r: json.dumps({**a, "action": {"command": "FRONT", "parameters": 1e308}}),
+    "parse: prose only": lambda a, r: "I will move forward two metres because the path is clear. " * 3,
+}
+# Realistic weights: mostly valid, a few of each failure.
+WEIGHTS = [40, 25, 10, 4, 4, 3, 3, 2, 3, 3, 3]
+
+
+@dataclass
+class Scan:
+    angles: np.ndarray
+    ranges: np.ndarray
+    range_max: float = 10.0
+    range_min: float = 0.05
+
+
+def _median_ms(samples: list[float]) -> float:
+    return statistics.median(samples) * 1000.0
+
+
+def main() -> None:
+    """Print the guard table."""
+    rng = random.Random(0)
+    kinds = rng.choices(list(MAKERS), weights=WEIGHTS, k=1000)
+    texts = [(kind, MAKERS[kind](_answer(rng), rng)) for kind in kinds]
+    bounds = ActionBounds()
+    for _, text in texts[:50]:  # warm-up (imports, pydantic caches)
+        parse_answer(text, StepAction, bounds=bounds)
+    per_kind: dict[str, list[float]] = {}
+    outcomes: dict[str, set[str]] = {}
+    everything: list[float] = []
+    for kind, text in texts:
+        start = time.perf_counter()
+        result = parse_answer(text, StepAction, bounds=bounds)
+        elapsed = time.perf_counter() - start
+        everything.append(elapsed)
+        per_kind.setdefault(kind, []).append(elapsed)
+        outcomes.setdefault(kind, set()).add(result.outcome + ("+repaired" if result.repaired else ""))
+
+    angles = np.linspace(-math.pi, math.pi, 360, endpoint=False)
+    ranges = np.where(np.cos(angles) > 0.1, 2.0 / np.maximum(np.cos(angles), 1e-9), np.inf)
+    scan = Scan(angles, ranges)
+    veto_times: list[float] = []
+    for i in range(2000):
+        distance = (0.5, 2.5, -1.0)[i % 3]
+        start = time.perf_counter()
+        check_motion(distance, scan, robot_width_m=0.72)
+        veto_times.append(time.perf_counter() - start)
+
+    print("guard: parse_answer over 1000 mixed answers (StepAction + ActionBounds)")
+    print(f"  {'kind':<24}{'n':>5}{'median ms':>11}{'max ms':>9}  outcome")
+    for kind in MAKERS:
+        samples = per_kind.get(kind, [])
+        if samples:
+            print(
+                f"  {kind:<24}{len(samples):>5}{_median_ms(samples):>11.3f}{max(samples) * 1000:>9.2f}  "
+                f"{','.join(sorted(outcomes[kind]))}"
+            )
+    overall = _median_ms(everything)
+    p95 = float(np.percentile(everything, 95)) * 1000.0
+    veto = _median_ms(veto_times)
+    worst = max(everything) * 1000.0
+    print(f"  {'all':<24}{len(everything):>5}{overall:>11.3f}{worst:>9.2f}  p95 {p95:.3f} ms")
+    ratio = overall / PARSE_TARGET_MS
+    print(f"  median parse {overall:.3f} ms vs target {PARSE_TARGET_MS} ms (ratio {ratio:.2f})")
+    print(f"  veto check (360 rays) median {veto:.3f} ms vs target {VETO_TARGET_MS} ms "
+          f"(ratio {veto / VETO_TARGET_MS:.2f})")
+
+
+if __name__ == "__main__":
+    main()
