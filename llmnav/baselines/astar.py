@@ -4,7 +4,7 @@ Moves go to the 8 neighbours; a straight move costs one cell side, a diagonal �
 diagonal is allowed only when both cells it squeezes between are free (no corner cutting, so the
 inflated robot never clips an obstacle's corner). With the octile heuristic — the exact cost on an empty
 8-connected grid — A* returns a shortest grid path. The goal may be one cell or a set of cells (a mask);
-for a set the caller passes an admissible heuristic (0 turns A* into Dijkstra).
+for a set the caller passes an admissible heuristic array (0 turns A* into Dijkstra).
 
 `shortcut` then removes grid zig-zags by line of sight on the same blocked mask; its result is still
 collision-free and never longer. Which length to report is the caller's choice: `GridPath.length_m` is
@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +26,6 @@ import numpy as np
 from llmnav.errors import BadInputError
 
 Cell = tuple[int, int]  # (row, col)
-Heuristic = Callable[[int, int], float]  # (row, col) -> lower bound of the remaining cost [m]
 
 _SQRT2 = math.sqrt(2.0)
 
@@ -60,16 +58,27 @@ def octile_distance(a: Cell, b: Cell, resolution_m: float) -> float:
     return resolution_m * (max(d_row, d_col) + (_SQRT2 - 1.0) * min(d_row, d_col))
 
 
+def octile_field(shape: tuple[int, int], goal: Cell, resolution_m: float) -> np.ndarray:
+    """`octile_distance` [m] from every cell of a grid to `goal` (the default A* heuristic)."""
+    d_row = np.abs(np.arange(shape[0]) - goal[0])[:, None]
+    d_col = np.abs(np.arange(shape[1]) - goal[1])[None, :]
+    return np.asarray(resolution_m * (np.maximum(d_row, d_col) + (_SQRT2 - 1.0) * np.minimum(d_row, d_col)))
+
+
 def astar(
     blocked: np.ndarray,
     start: Cell,
     goal: Cell | np.ndarray,
     *,
     resolution_m: float,
-    heuristic: Heuristic | None = None,
+    heuristic: np.ndarray | None = None,
     config: AStarConfig | None = None,
 ) -> GridPath | None:
     """Shortest 8-connected path from `start` to `goal` (a cell, or a bool mask of acceptable cells).
+
+    `heuristic` holds, per cell, a lower bound [m] of the cost to the nearest goal cell; it must be
+    consistent (never drop by more than a move's cost) for the result to be optimal. Default: the octile
+    distance to a single goal cell, zero (Dijkstra) for a mask.
 
     Returns None when no goal cell is reachable. Raises BadInputError for a start or goal outside the
     grid, and when `max_expansions` is exceeded.
@@ -83,18 +92,16 @@ def astar(
             raise BadInputError(f"A* goal mask shape {goal.shape} differs from the grid's {blocked.shape}")
         goal_mask = goal & ~blocked
         if heuristic is None:
-            heuristic = _zero
+            heuristic = np.zeros(blocked.shape)
     else:
         if not (0 <= goal[0] < rows and 0 <= goal[1] < cols):
             raise BadInputError(f"A* goal cell {goal} lies outside the {rows}x{cols} grid")
         goal_mask = np.zeros_like(blocked, dtype=bool)
         goal_mask[goal] = not blocked[goal]
         if heuristic is None:
-            goal_cell = goal
-
-            def heuristic(row: int, col: int) -> float:
-                return octile_distance((row, col), goal_cell, resolution_m)
-
+            heuristic = octile_field(blocked.shape, goal, resolution_m)
+    if heuristic.shape != blocked.shape:
+        raise BadInputError(f"A* heuristic shape {heuristic.shape} differs from the grid's {blocked.shape}")
     if not goal_mask.any():
         return None
     if blocked[start] and not config.allow_blocked_start:
@@ -102,8 +109,9 @@ def astar(
 
     # Work on flat indices of a grid padded with one blocked ring: no bounds checks in the inner loop.
     width = cols + 2
-    padded_blocked = np.pad(blocked, 1, constant_values=True).ravel().tolist()
-    padded_goal = np.pad(goal_mask, 1, constant_values=False).ravel().tolist()
+    wall = np.pad(blocked, 1, constant_values=True).ravel().tolist()
+    is_goal = np.pad(goal_mask, 1, constant_values=False).ravel().tolist()
+    estimate = np.pad(np.asarray(heuristic, dtype=float), 1).ravel().tolist()  # [m]
     straight = resolution_m
     diagonal = resolution_m * _SQRT2
     # (index offset, cost, the two orthogonal offsets a diagonal squeezes between or None)
@@ -119,46 +127,41 @@ def astar(
     ]
 
     start_index = (start[0] + 1) * width + (start[1] + 1)
-    cost: dict[int, float] = {start_index: 0.0}
-    parent: dict[int, int] = {start_index: -1}
-    closed: set[int] = set()
+    size = len(wall)
+    cost = [math.inf] * size  # [m] best known cost from the start
+    parent = [-1] * size
+    closed = bytearray(size)
+    cost[start_index] = 0.0
     tie = 0  # FIFO among equal f: keeps the search deterministic
-    open_heap: list[tuple[float, int, int]] = [(heuristic(*start), tie, start_index)]
+    open_heap: list[tuple[float, int, int]] = [(estimate[start_index], tie, start_index)]
     expanded = 0
     while open_heap:
         _, _, index = heapq.heappop(open_heap)
-        if index in closed:
+        if closed[index]:
             continue
-        closed.add(index)
+        closed[index] = 1
         expanded += 1
-        if padded_goal[index]:
+        if is_goal[index]:
             return GridPath(_trace(parent, index, width), cost[index], expanded)
         if expanded > config.max_expansions:
             raise BadInputError(f"A* gave up after {config.max_expansions} expansions")
         base = cost[index]
         for offset, step, squeeze in moves:
             neighbour = index + offset
-            if padded_blocked[neighbour] or neighbour in closed:
+            if wall[neighbour] or closed[neighbour]:
                 continue
-            if squeeze is not None and (
-                padded_blocked[index + squeeze[0]] or padded_blocked[index + squeeze[1]]
-            ):
+            if squeeze is not None and (wall[index + squeeze[0]] or wall[index + squeeze[1]]):
                 continue
             new_cost = base + step
-            if new_cost < cost.get(neighbour, math.inf):
+            if new_cost < cost[neighbour]:
                 cost[neighbour] = new_cost
                 parent[neighbour] = index
                 tie += 1
-                row, col = divmod(neighbour, width)
-                heapq.heappush(open_heap, (new_cost + heuristic(row - 1, col - 1), tie, neighbour))
+                heapq.heappush(open_heap, (new_cost + estimate[neighbour], tie, neighbour))
     return None
 
 
-def _zero(row: int, col: int) -> float:
-    return 0.0
-
-
-def _trace(parent: dict[int, int], index: int, width: int) -> list[Cell]:
+def _trace(parent: list[int], index: int, width: int) -> list[Cell]:
     cells: list[Cell] = []
     while index != -1:
         row, col = divmod(index, width)

@@ -5,12 +5,14 @@ inflated by robot radius + margin) and runs one A* (`astar.astar`) from the star
 every acceptable target's *approach cells*:
 
 - an object target: free cells whose centre lies 1.5–2.5 m from the object's goal point (the distance at
-  which the stepwise source asks the robot to stop, and at which the score's distance term is 1);
+  which the stepwise source asks the robot to stop, and at which the score's distance term is 1), shrunk
+  by 0.1 m on both sides so the robot's stop tolerance cannot carry it out of the band;
 - a point target (T4's free spot between the stairs and the barrels): the point's own cell when free,
   otherwise the same band around it.
 
-The heuristic is the Euclidean distance to the nearest target's goal point minus that target's outer radius,
-a lower bound of the remaining cost, so the first approach cell A* settles is the nearest by path length.
+The heuristic is the octile distance to the nearest target's goal point minus that target's outer radius
+(stretched to octile), a lower bound of the remaining cost, so the first approach cell A* settles is the
+nearest by path length.
 
 Reported length: `OraclePath.length_m` is the raw 8-connected grid length from the start pose through the
 cell centres (what `oracle_length` and the metric `oracle_length_m` give); `smoothed_length_m` is the
@@ -44,6 +46,8 @@ if TYPE_CHECKING:
     from llmnav.sim.motion import MotionResult
 
 Point = tuple[float, float]
+SQRT2 = math.sqrt(2.0)
+OCTILE_STRETCH = math.sqrt(4.0 - 2.0 * SQRT2)  # max octile / Euclidean ratio (at 22.5 deg), ~1.082
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,8 @@ class OracleConfig:
 
     approach_min_m: float = 1.5  # [m] closest acceptable distance to a target's goal point
     approach_max_m: float = 2.5  # [m] farthest acceptable distance (the score's full-distance radius)
+    band_slack_m: float = 0.1  # [m] the planned band is shrunk by this on both sides so the driven stop
+    # (within final_tol_m of the approach point) still lies inside the acceptable band
     start_snap_m: float = 0.5  # [m] a start inside the inflation may step this far to the nearest free cell
     waypoint_spacing_m: float = 2.0  # [m] longest straight leg handed to go_to (keeps legs short and logged)
     waypoint_tol_m: float = 0.1  # [m] go_to tolerance at intermediate waypoints (source B's reach tolerance)
@@ -91,8 +97,9 @@ def _approach_goal(grid: OccupancyGrid, target: Target, point: Point, config: Or
         return _Goal(target, point, mask, geometry.resolution * math.sqrt(0.5))
     xs, ys = geometry.centres()
     distance = np.hypot(xs - point[0], ys - point[1])
-    mask = (distance >= config.approach_min_m) & (distance <= config.approach_max_m) & ~grid.blocked
-    return _Goal(target, point, mask, config.approach_max_m)
+    low, high = config.approach_min_m + config.band_slack_m, config.approach_max_m - config.band_slack_m
+    mask = (distance >= low) & (distance <= high) & ~grid.blocked
+    return _Goal(target, point, mask, high)
 
 
 def _snap_start(grid: OccupancyGrid, x: float, y: float, snap_m: float) -> Cell | None:
@@ -137,15 +144,18 @@ def plan_to_targets(
     if start_cell is None or not union.any():
         return None
 
-    res = geometry.resolution
-    centres_and_reaches = [(g.point[0], g.point[1], g.reach_m) for g in goals]
-
-    def heuristic(row: int, col: int) -> float:
-        x = geometry.origin_x + (col + 0.5) * res
-        y = geometry.origin_y + (row + 0.5) * res
-        return max(0.0, min(math.hypot(x - px, y - py) - reach for px, py, reach in centres_and_reaches))
-
-    path: GridPath | None = astar(grid.blocked, start_cell, union, resolution_m=res, heuristic=heuristic)
+    # Octile distance is a norm at most OCTILE_STRETCH times the Euclidean one, so octile(cell, point) minus
+    # OCTILE_STRETCH x reach never overestimates the cost to any goal cell within `reach` of the point.
+    xs, ys = geometry.centres()
+    heuristic = np.full(geometry.shape, np.inf)
+    for goal in goals:
+        dx, dy = np.abs(xs - goal.point[0]), np.abs(ys - goal.point[1])
+        octile = np.maximum(dx, dy) + (SQRT2 - 1.0) * np.minimum(dx, dy)
+        heuristic = np.minimum(heuristic, octile - OCTILE_STRETCH * goal.reach_m)
+    heuristic = np.maximum(heuristic, 0.0)
+    path: GridPath | None = astar(
+        grid.blocked, start_cell, union, resolution_m=geometry.resolution, heuristic=heuristic
+    )
     if path is None:
         return None
     goal = next(g for g in goals if g.mask[path.goal])
@@ -188,6 +198,19 @@ def _grid_for(key: _ScenarioKey, config: GridConfig) -> OccupancyGrid:
 def scenario_grid(scenario: Scenario, config: GridConfig | None = None) -> OccupancyGrid:
     """The true inflated grid of a scenario (cached by content: do not modify the returned arrays)."""
     return _grid_for(_ScenarioKey.of(scenario), config or GridConfig())
+
+
+def with_added_obstacles(scenario: Scenario, centres: Sequence[Point], size_m: float = 0.5) -> Scenario:
+    """The scenario plus the boxes `llmnav drive --obstacle` drops (size [m] as `World.add_obstacle`)."""
+    from llmnav.scenario import Obstacle
+
+    if not centres:
+        return scenario
+    added = [
+        Obstacle(id=f"added:{i}", center=(float(x), float(y)), size=(size_m, size_m))
+        for i, (x, y) in enumerate(centres, start=1)
+    ]
+    return scenario.model_copy(update={"obstacles": [*scenario.obstacles, *added]})
 
 
 def oracle_path(
@@ -364,7 +387,9 @@ class OraclePlanner(Planner):
             if not ctx.task.targets:
                 return run_untargeted(ctx, drive)
             start = ctx.world.robot.pose()
-            path = oracle_path(ctx.scenario, ctx.task, start, config=self.config)
+            # The oracle knows everything, including boxes dropped at run time.
+            scenario = with_added_obstacles(ctx.scenario, ctx.options.obstacles)
+            path = oracle_path(scenario, ctx.task, start, config=self.config)
             if path is None:
                 ctx.log.event("planner", kind="oracle_path", found=False)
                 return EpisodeOutcome("failed", "no collision-free path to any target", metrics={})

@@ -1,4 +1,4 @@
-"""A* on hand-made grids: optimal (against an independent Dijkstra), no corner cutting, unreachable -> None."""
+"""A* on hand-made grids: optimal (against a brute-force Dijkstra), no corner cutting, unreachable."""
 
 from __future__ import annotations
 
