@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import base64
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -58,6 +58,8 @@ class Lidar:
         full_circle = config.fov_deg >= 360.0
         self.angles = np.linspace(-fov / 2.0, fov / 2.0, config.rays, endpoint=not full_circle)  # [rad]
         self._start = robot.spec.radius_m + LIDAR_CLEARANCE  # [m] ray origin distance from the centre
+        self._cos, self._sin = np.cos(self.angles), np.sin(self.angles)
+        self._z = np.full(config.rays, self.mount_height_m)
         self._rng = np.random.default_rng(0)
 
     def reseed(self, seed: int) -> None:
@@ -68,19 +70,19 @@ class Lidar:
         """Cast all rays from the current ground-truth pose."""
         cfg = self.config
         pose = self._robot.pose()
-        world_angles = self.angles + pose.yaw
-        cos, sin = np.cos(world_angles), np.sin(world_angles)
+        cy, sy = math.cos(pose.yaw), math.sin(pose.yaw)
+        # Ray directions in the world frame: the fixed body-frame fan rotated by the heading.
+        dx = self._cos * cy - self._sin * sy
+        dy = self._sin * cy + self._cos * sy
         n = len(self.angles)
-        z = np.full(n, self.mount_height_m)
         start = self._start
-        starts = np.column_stack((pose.x + start * cos, pose.y + start * sin, z))
-        ends = np.column_stack((pose.x + cfg.range_m * cos, pose.y + cfg.range_m * sin, z))
+        starts = np.column_stack((pose.x + start * dx, pose.y + start * dy, self._z))
+        ends = np.column_stack((pose.x + cfg.range_m * dx, pose.y + cfg.range_m * dy, self._z))
         hits = self._p.rayTestBatch(
             starts.tolist(), ends.tolist(), numThreads=0, physicsClientId=self._client
         )
-        fractions = np.fromiter((h[2] for h in hits), dtype=float, count=n)
-        hit = np.fromiter((h[0] >= 0 for h in hits), dtype=bool, count=n)
-        ranges = np.where(hit, start + fractions * (cfg.range_m - start), np.inf)
+        fractions = np.fromiter((h[2] if h[0] >= 0 else np.inf for h in hits), dtype=float, count=n)
+        ranges = start + fractions * (cfg.range_m - start)  # inf where nothing was hit
         if cfg.noise_std_m > 0.0:
             ranges = ranges + self._rng.normal(0.0, cfg.noise_std_m, n)  # inf stays inf
             ranges = np.where(np.isfinite(ranges), np.clip(ranges, cfg.min_range_m, cfg.range_m), np.inf)
@@ -96,19 +98,25 @@ class CameraFrame:
     rgb: np.ndarray  # HxWx3 uint8
     segmentation: np.ndarray | None  # HxW int32 body ids (-1 = background), only when asked
     fov_deg: float = 60.0  # [deg] vertical field of view it was taken with
+    jpeg_quality: int = 80  # the scenario's JPEG quality, used by `image()`
+    _encoded: dict[int, str] = field(default_factory=dict, repr=False, compare=False)
 
     def jpeg_b64(self, quality: int = 80) -> str:
-        """The image as base64 JPEG (what multimodal models receive)."""
-        import cv2
+        """The image as base64 JPEG (what multimodal models receive); encoded once per quality."""
+        if quality not in self._encoded:
+            import cv2
 
-        ok, buf = cv2.imencode(".jpg", self.rgb[:, :, ::-1], [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
-        if not ok:  # pragma: no cover - cv2 only fails on invalid input
-            raise RuntimeError("JPEG encoding failed")
-        return base64.b64encode(buf.tobytes()).decode("ascii")
+            ok, buf = cv2.imencode(
+                ".jpg", self.rgb[:, :, ::-1], [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)]
+            )
+            if not ok:  # pragma: no cover - cv2 only fails on invalid input
+                raise RuntimeError("JPEG encoding failed")
+            self._encoded[quality] = base64.b64encode(buf.tobytes()).decode("ascii")
+        return self._encoded[quality]
 
-    def image(self, quality: int = 80) -> Image:
-        """As a backend `Image`."""
-        return Image(self.jpeg_b64(quality))
+    def image(self, quality: int | None = None) -> Image:
+        """As a backend `Image` (JPEG at `quality`, default the camera's configured quality)."""
+        return Image(self.jpeg_b64(quality if quality is not None else self.jpeg_quality))
 
     @property
     def horizontal_fov_rad(self) -> float:
@@ -163,7 +171,7 @@ class Camera:
             raw = np.asarray(seg, dtype=np.int64).reshape(height, width)
             # Values are body + ((link + 1) << 24); our bodies are single links, so keep the low bits.
             mask = np.where(raw >= 0, raw & ((1 << 24) - 1), -1).astype(np.int32)
-        return CameraFrame(rgb=rgb, segmentation=mask, fov_deg=cfg.fov_deg)
+        return CameraFrame(rgb=rgb, segmentation=mask, fov_deg=cfg.fov_deg, jpeg_quality=cfg.jpeg_quality)
 
 
 @dataclass
