@@ -224,13 +224,14 @@ def _run_logged(
     )
     summary = _summarize(log, scenario, outcome)
     log.write_summary(summary)
+    # The figure is a convenience: a plotting failure must not cost the episode its result.
     try:
         from llmnav.reporting.trajectory import plot_run
 
-        plot_run(log.run_dir, scenario, task, log.run_dir / TRAJECTORY_FILE)
-        summary["trajectory"] = str(log.run_dir / TRAJECTORY_FILE)
-    except LlmnavError:
+        summary["trajectory"] = str(plot_run(log.run_dir, scenario, task, log.run_dir / TRAJECTORY_FILE))
+    except Exception as err:  # noqa: BLE001
         summary["trajectory"] = None
+        summary["trajectory_error"] = f"{type(err).__name__}: {_reason(err)}"
     if crash is not None:
         raise crash
     return summary

@@ -63,12 +63,12 @@ class LiveView:
         return Group(table)
 
     def on_step(self, info: StepInfo) -> None:
-        """Add a row and redraw."""
+        """Add a row and redraw (the display starts with the first step, so bad input prints no table)."""
         self.rows.append(info)
         self._live.update(self._render())
+        self._live.start()
 
     def __enter__(self) -> LiveView:
-        self._live.start()
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -80,7 +80,7 @@ class ProgressView:
 
     def __init__(self, console: Console, max_iterations: int) -> None:
         self.max_iterations = max_iterations
-        self._live = Live(Text("starting…"), console=console, refresh_per_second=4, transient=True)
+        self._live = Live(Text(""), console=console, refresh_per_second=4, transient=True)
 
     def on_step(self, info: StepInfo) -> None:
         """Replace the line."""
@@ -88,9 +88,9 @@ class ProgressView:
         if info.latency_s is not None:
             line += f"  model {info.latency_s:.1f} s"
         self._live.update(Text(line))
+        self._live.start()
 
     def __enter__(self) -> ProgressView:
-        self._live.start()
         return self
 
     def __exit__(self, *exc: object) -> None:
