@@ -95,4 +95,4 @@ def show(
         from llmnav.reporting.topview import plot_scenario  # matplotlib only when a plot is asked for
 
         written = plot_scenario(scenario, plot, task=chosen)
-        console.print(f"top view written to {written}", highlight=False)
+        console.print(f"top view written to {written}", highlight=False, soft_wrap=True)
