@@ -241,6 +241,9 @@ class JsonHttpClient:
                     response = self._client.request(method, url, json=body)
                 else:
                     response = self._client.request(method, url, json=body, timeout=timeout)
+            except (httpx.InvalidURL, httpx.UnsupportedProtocol) as err:
+                failure = f"bad URL: {one_line(str(err), 100)}"
+                break
             except httpx.TimeoutException as err:
                 failure = _timeout_reason(err, timeout_s or self.options.timeout_s)
             except httpx.TransportError as err:
