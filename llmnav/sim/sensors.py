@@ -144,6 +144,8 @@ class Camera:
         p, cfg = self._p, self.config
         width = width or cfg.width
         height = height or cfg.height
+        if not (16 <= width <= 640 and 16 <= height <= 480):
+            raise ValueError(f"camera resolution {width}x{height} outside 16x16..640x480")
         pose = self._robot.pose()
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         # The eye sits just in front of the body so the robot never sees itself.

@@ -26,7 +26,14 @@ ADDED_OBSTACLE_COLOR = (0.8, 0.45, 0.1, 1.0)
 
 
 class World:
-    """The simulated world of one episode."""
+    """The simulated world of one episode.
+
+    Fields: `scenario`; `robot` (Robot); `lidar` (Lidar); `camera` (Camera); `detector` (Detector);
+    `motion` (Motion); `sim_time` [s] since reset; `step_count`; `dt` [s] physics step; `seed`;
+    `client` (the PyBullet physicsClientId); `floor` (body id); `body_names` (body id -> wall/obstacle
+    name or object id); `object_bodies` (object id -> body id); `labelled` (body id -> LabelledObject).
+    `odom_noise` is the relative std of each odometry increment (0: odometry equals ground truth).
+    """
 
     def __init__(
         self,
@@ -43,6 +50,20 @@ class World:
         self.dt = 1.0 / PHYSICS_HZ  # [s]
         self.step_count = 0  # physics steps since reset (sim_time derives from it, so it never drifts)
         self.client = int(p.connect(p.DIRECT))
+        try:
+            self._build(scenario, lidar, camera, detector, odom_noise)
+        except BaseException:
+            self.close()
+            raise
+
+    def _build(
+        self,
+        scenario: Scenario,
+        lidar: LidarConfig | None,
+        camera: CameraConfig | None,
+        detector: DetectorConfig | None,
+        odom_noise: float,
+    ) -> None:
         client = self.client
         p.setTimeStep(self.dt, physicsClientId=client)
         p.setGravity(0.0, 0.0, 0.0, physicsClientId=client)
@@ -96,7 +117,11 @@ class World:
         return self.step_count * self.dt
 
     def reset(self, start: Pose2D, *, seed: int | None = None) -> None:
-        """Put the robot at `start`, zero time and odometry, restart every noise stream (deterministic)."""
+        """Put the robot at `start`, zero time, odometry and collision count, restart every noise stream.
+
+        Deterministic: the same start, seed and commands replay the same poses. Obstacles added with
+        `add_obstacle` stay (they are part of the episode's world).
+        """
         if seed is not None:
             self.seed = seed
         self.step_count = 0

@@ -6,6 +6,7 @@ import math
 
 import cv2
 import numpy as np
+import pytest
 
 from llmnav.geometry import Pose2D
 from llmnav.scenario import LidarConfig
@@ -110,3 +111,17 @@ def test_added_obstacle_is_hit_and_named(world: World) -> None:
     assert abs(_ray(world.lidar.scan(), 0.0) - 1.3) < 0.02
     assert world.object_at_body(body) is None
     assert world.object_at_body(world.object_bodies["ball"]) == "ball"
+
+
+def test_lidar_fov_config(make_room) -> None:
+    with World(make_room(), lidar=LidarConfig(fov_deg=90.0, rays=9)) as w:
+        w.reset(Pose2D(0.5, 0.0, 0.0))
+        scan = w.lidar.scan()
+        assert np.allclose(np.degrees(scan.angles), np.linspace(-45.0, 45.0, 9))
+        assert abs(scan.ranges[4] - 2.4) < 0.02
+        assert abs(scan.ranges[8] - 2.4 / math.cos(math.radians(45))) < 0.03  # the east wall at +45 deg
+
+
+def test_camera_rejects_oversized_frames(world: World) -> None:
+    with pytest.raises(ValueError):
+        world.camera.capture(width=1280, height=720)
