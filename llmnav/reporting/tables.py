@@ -22,7 +22,11 @@ def to_rich(table: Table) -> RichTable:
 
     out = RichTable(title=table.title, caption=table.note or None, title_justify="left", header_style="bold")
     for i, column in enumerate(table.columns):
-        out.add_column(column, justify="left" if i < 2 else "right", no_wrap=i >= 2)
+        if i < 2:  # labels keep their width (capped) in a narrow terminal; numbers wrap instead
+            width = max([len(column), *(len(row[i]) for row in table.rows)])
+            out.add_column(column, justify="left", no_wrap=True, min_width=min(width, 36))
+        else:
+            out.add_column(column, justify="right", overflow="fold")
     for row in table.rows:
         out.add_row(*row)
     return out
