@@ -11,7 +11,6 @@ the error) so that every planner's calls look the same in logs and replay identi
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -42,11 +41,7 @@ class Observation:
 
     def text(self) -> str:
         """The observation as model-facing text (the image travels beside it)."""
-        parts: list[str] = []
-        if self.lidar_text is not None:
-            parts.append(f"LiDAR:\n{self.lidar_text}")
-        if self.detections_text is not None:
-            parts.append(f"Detected objects:\n{self.detections_text}")
+        parts = [t for t in (self.lidar_text, self.detections_text) if t is not None]
         if self.image is not None:
             parts.append("Camera: the attached image is the current front camera view.")
         return "\n\n".join(parts) if parts else "No sensor data."
@@ -60,22 +55,16 @@ class Observation:
 
 def lidar_text(scan: LidarScan, options: DriveOptions) -> tuple[float | None, str]:
     """Front distance [m] and the sector text, per `--lidar-sectors` and `--lidar-fov`."""
-    from llmnav import perception
+    from llmnav.perception import summarize_scan
 
-    summary = perception.summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
-    front = summary.front_m
-    return (front if front is not None and math.isfinite(front) else front), summary.text()
-
-
-def detections_text(detections: list[Detection]) -> str:
-    """Detections as text, one object a line."""
-    from llmnav import perception
-
-    return perception.describe_detections(detections)
+    summary = summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
+    return summary.front_m, summary.text()
 
 
 def observe(world: World, options: DriveOptions, log: RunLog, step: int) -> Observation:
     """Read the sensors `options.sensing` asks for, log the `observation` event, return it."""
+    from llmnav.perception import detections_text
+
     sensing = set(options.sensing)
     scan = world.lidar.scan()
     front, sectors = lidar_text(scan, options)
