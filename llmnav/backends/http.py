@@ -20,6 +20,7 @@ import json
 import logging
 import random
 import re
+import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -187,7 +188,8 @@ class JsonHttpClient:
         self._secrets = tuple(s for s in secrets if s)
         self._sleep = options.sleep or time.sleep
         self._rng = random.Random()
-        self._last_start = float("-inf")  # [s] monotonic start of the previous request (rate limit)
+        self._last_start = float("-inf")  # [s] monotonic start of the latest reserved request (rate limit)
+        self._lock = threading.Lock()
         timeout = httpx.Timeout(options.timeout_s, connect=options.connect_timeout_s)
         self._client = httpx.Client(timeout=timeout, headers=headers or {}, trust_env=False)
 
@@ -308,12 +310,12 @@ class JsonHttpClient:
         if self.options.rpm is None:
             return
         interval = 60.0 / self.options.rpm  # [s] between request starts
-        now = time.monotonic()
-        wait = self._last_start + interval - now
-        if wait > 0:
-            self._sleep(wait)
-            now += wait
-        self._last_start = now
+        with self._lock:  # reserve a slot, so threads sharing the backend (FSM assist) stay spaced
+            now = time.monotonic()
+            start = max(now, self._last_start + interval)
+            self._last_start = start
+        if start > now:
+            self._sleep(start - now)
 
     def close(self) -> None:
         """Close the connection pool."""

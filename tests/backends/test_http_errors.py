@@ -239,3 +239,15 @@ def test_unknown_option_is_rejected(kind, make, server):
 
     with pytest.raises(BackendSpecError, match="tiemout_s"):
         make(server.url, tiemout_s=3)
+
+
+def test_rate_limit_holds_across_threads(kind, make, server):
+    from concurrent.futures import ThreadPoolExecutor
+
+    server.default = server.reply(200, ok_body(kind, "x"))
+    backend = make(server.url, rpm=600)  # one request start per 0.1 s, whichever thread sends it
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(2) as pool:
+        texts = list(pool.map(lambda _: backend.chat(REQUEST).text, range(4)))
+    assert texts == ["x"] * 4
+    assert time.perf_counter() - t0 >= 0.29
