@@ -6,9 +6,10 @@ Two grids share one geometry (`GridGeometry`, 0.05 m square cells over the scena
   *occupied* when its centre lies within half a cell of a shape (so thin shapes are never lost) and
   *blocked* when its centre lies within the robot radius + a margin of a shape or of the bounds — the
   classic configuration-space inflation that lets a planner treat the robot as a point.
-- `LidarMap` is the explorer's map (unknown / free / occupied). Each scan is ray cast into the grid by
-  sampling points along every ray (vectorised numpy, half-cell steps): cells a ray crosses become free,
-  the cell where it ends becomes occupied. The world is static, so an occupied cell never turns free again.
+- `LidarMap` is the explorer's map (unknown / free / occupied). Each scan is cast into the grid, vectorised
+  over the cells in range: a cell nearer than both rays bracketing its bearing becomes free (the wedges
+  between rays, so no specks stay unknown between diverging rays), the cell where a ray ends becomes
+  occupied. The world is static, so an occupied cell never turns free again.
 
 Cells are indexed `(row, col)` = `(iy, ix)`; row 0 is the southern edge (`y = bounds.y[0]`).
 Reference: H. Moravec and A. Elfes, "High resolution maps from wide angle sonar", ICRA 1985 (occupancy
@@ -174,6 +175,30 @@ def build_grid(
     return OccupancyGrid(geometry, occupied, blocked, inflation)
 
 
+def nearest_free_cell(
+    blocked: np.ndarray, geometry: GridGeometry, x: float, y: float, reach_m: float
+) -> Cell | None:
+    """The cell of (x, y) if free, else the free cell nearest to (x, y) within `reach_m` [m] (None: none).
+
+    Lets a planner start from a pose that lies inside the inflation (the robot brushed past a corner).
+    """
+    cell = geometry.world_to_cell(x, y)
+    if not geometry.contains(cell):
+        return None
+    if not blocked[cell]:
+        return cell
+    reach = math.ceil(reach_m / geometry.resolution)
+    row0, col0 = max(0, cell[0] - reach), max(0, cell[1] - reach)
+    row1, col1 = min(geometry.rows, cell[0] + reach + 1), min(geometry.cols, cell[1] + reach + 1)
+    xs, ys = geometry.centres(slice(row0, row1), slice(col0, col1))
+    distance = np.hypot(xs - x, ys - y)
+    distance[blocked[row0:row1, col0:col1] | (distance > reach_m)] = np.inf
+    if not np.isfinite(distance).any():
+        return None
+    r, c = np.unravel_index(int(np.argmin(distance)), distance.shape)
+    return (row0 + int(r), col0 + int(c))
+
+
 def inflate(mask: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
     """Cells whose centre lies within `radius_m` of a set cell's centre (Euclidean distance transform)."""
     from scipy.ndimage import distance_transform_edt
@@ -203,42 +228,63 @@ class LidarMap:
     FREE: ClassVar[int] = 0
     OCCUPIED: ClassVar[int] = 1
 
-    def __init__(self, geometry: GridGeometry, *, sample_step_m: float | None = None) -> None:
+    def __init__(self, geometry: GridGeometry) -> None:
         self.geometry = geometry
         self.state = np.full(geometry.shape, self.UNKNOWN, dtype=np.int8)
-        # [m] spacing of the points sampled along each ray; half a cell misses no crossed cell in practice
-        self.sample_step_m = sample_step_m if sample_step_m is not None else geometry.resolution / 2
         self.scans = 0
 
     def integrate(self, pose: Pose2D, scan: ScanLike) -> None:
-        """Ray cast one scan taken at `pose` (LiDAR at the robot centre) into the map."""
-        angles = np.asarray(scan.angles, dtype=float) + pose.yaw
-        ranges = np.asarray(scan.ranges, dtype=float)
-        hit = np.isfinite(ranges) & (ranges < scan.range_max)
-        # A ray that hit nothing still proves the space up to its maximum range free.
-        free_len = np.where(hit, ranges - self.geometry.resolution / 2, scan.range_max)
-        free_len = np.clip(free_len, 0.0, scan.range_max)
-        steps = np.arange(0.0, float(free_len.max(initial=0.0)) + 1e-9, self.sample_step_m)
-        cos_a, sin_a = np.cos(angles), np.sin(angles)
-        # [rays, samples] grid of sample distances, masked past each ray's free length.
-        valid = steps[None, :] <= free_len[:, None]
-        xs = pose.x + cos_a[:, None] * steps[None, :]
-        ys = pose.y + sin_a[:, None] * steps[None, :]
-        rows, cols = self.geometry.world_to_cells(xs[valid], ys[valid])
-        self._set(rows, cols, self.FREE, keep_occupied=True)
-        hit_x = pose.x + cos_a[hit] * ranges[hit]
-        hit_y = pose.y + sin_a[hit] * ranges[hit]
-        rows, cols = self.geometry.world_to_cells(hit_x, hit_y)
-        self._set(rows, cols, self.OCCUPIED, keep_occupied=False)
-        self.scans += 1
+        """Add one scan taken at `pose` (LiDAR at the robot centre): free wedges, occupied end points.
 
-    def _set(self, rows: np.ndarray, cols: np.ndarray, value: int, *, keep_occupied: bool) -> None:
-        inside = (rows >= 0) & (rows < self.geometry.rows) & (cols >= 0) & (cols < self.geometry.cols)
-        rows, cols = rows[inside], cols[inside]
-        if keep_occupied:
-            keep = self.state[rows, cols] != self.OCCUPIED
-            rows, cols = rows[keep], cols[keep]
-        self.state[rows, cols] = value
+        A cell is free when it lies inside the scan's field of view and nearer than *both* rays that
+        bracket its bearing (less half a cell); taking the smaller of the two never frees space behind an
+        obstacle's edge, and filling between rays leaves no unobserved specks far from the robot, which
+        would otherwise show up as false frontiers. A ray that hit nothing proves free space up to the
+        maximum range. The cell at each hit point becomes occupied.
+        """
+        angles = np.asarray(scan.angles, dtype=float)
+        ranges = np.asarray(scan.ranges, dtype=float)
+        if angles.size < 2:
+            raise BadInputError("a LiDAR scan needs at least two rays")
+        hit = np.isfinite(ranges) & (ranges < scan.range_max)
+        half_cell = self.geometry.resolution / 2
+        free_len = np.clip(np.where(hit, ranges - half_cell, scan.range_max), 0.0, scan.range_max)  # [m]
+
+        # The window of cells the scan can reach.
+        geometry = self.geometry
+        reach = scan.range_max + geometry.resolution
+        col0 = max(0, math.floor((pose.x - reach - geometry.origin_x) / geometry.resolution))
+        col1 = min(geometry.cols, math.ceil((pose.x + reach - geometry.origin_x) / geometry.resolution) + 1)
+        row0 = max(0, math.floor((pose.y - reach - geometry.origin_y) / geometry.resolution))
+        row1 = min(geometry.rows, math.ceil((pose.y + reach - geometry.origin_y) / geometry.resolution) + 1)
+        if col0 < col1 and row0 < row1:
+            xs, ys = geometry.centres(slice(row0, row1), slice(col0, col1))
+            dx, dy = xs - pose.x, ys - pose.y
+            distance = np.hypot(dx, dy)
+            bearing = np.mod(np.arctan2(dy, dx) - pose.yaw - angles[0], 2.0 * math.pi)  # [rad] from ray 0
+            relative = angles - angles[0]  # [rad] ascending from 0
+            step = float(relative[1] - relative[0])
+            full_circle = relative[-1] + step >= 2.0 * math.pi - 1e-6
+            upper = np.searchsorted(relative, bearing, side="right")  # first ray beyond the bearing
+            n = angles.size
+            if full_circle:
+                bound = np.minimum(free_len[(upper - 1) % n], free_len[upper % n])
+                inside = np.ones_like(distance, dtype=bool)
+            else:
+                inside = bearing <= relative[-1]
+                bound = np.minimum(free_len[np.clip(upper - 1, 0, n - 1)], free_len[np.clip(upper, 0, n - 1)])
+            free = inside & (distance <= bound)
+            window = self.state[row0:row1, col0:col1]
+            window[free & (window != self.OCCUPIED)] = self.FREE
+            self.state[geometry.world_to_cell(pose.x, pose.y)] = self.FREE  # the robot stands on free floor
+
+        world_angles = angles[hit] + pose.yaw
+        rows, cols = geometry.world_to_cells(
+            pose.x + np.cos(world_angles) * ranges[hit], pose.y + np.sin(world_angles) * ranges[hit]
+        )
+        inside_grid = (rows >= 0) & (rows < geometry.rows) & (cols >= 0) & (cols < geometry.cols)
+        self.state[rows[inside_grid], cols[inside_grid]] = self.OCCUPIED
+        self.scans += 1
 
     def mark_occupied(self, x: float, y: float, radius_m: float) -> None:
         """Mark a disc occupied (a bump into something the LiDAR cannot see)."""

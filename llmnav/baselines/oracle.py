@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from llmnav.baselines.astar import GridPath, astar, densify, polyline_length, shortcut
-from llmnav.baselines.grid import Cell, GridConfig, OccupancyGrid, build_grid
+from llmnav.baselines.grid import Cell, GridConfig, OccupancyGrid, build_grid, nearest_free_cell
 from llmnav.errors import BadInputError
 from llmnav.geometry import Pose2D
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, StepInfo
@@ -102,26 +102,6 @@ def _approach_goal(grid: OccupancyGrid, target: Target, point: Point, config: Or
     return _Goal(target, point, mask, high)
 
 
-def _snap_start(grid: OccupancyGrid, x: float, y: float, snap_m: float) -> Cell | None:
-    """The start cell, or the nearest free cell within `snap_m` when the start lies in the inflation."""
-    geometry = grid.geometry
-    cell = geometry.world_to_cell(x, y)
-    if not geometry.contains(cell):
-        return None
-    if not grid.blocked[cell]:
-        return cell
-    reach = math.ceil(snap_m / geometry.resolution)
-    row0, col0 = max(0, cell[0] - reach), max(0, cell[1] - reach)
-    row1, col1 = min(geometry.rows, cell[0] + reach + 1), min(geometry.cols, cell[1] + reach + 1)
-    xs, ys = geometry.centres(slice(row0, row1), slice(col0, col1))
-    distance = np.hypot(xs - x, ys - y)
-    distance[grid.blocked[row0:row1, col0:col1] | (distance > snap_m)] = np.inf
-    if not np.isfinite(distance).any():
-        return None
-    r, c = np.unravel_index(int(np.argmin(distance)), distance.shape)
-    return (row0 + int(r), col0 + int(c))
-
-
 def plan_to_targets(
     grid: OccupancyGrid,
     scenario: Scenario,
@@ -140,7 +120,7 @@ def plan_to_targets(
     union = np.zeros(geometry.shape, dtype=bool)
     for goal in goals:
         union |= goal.mask
-    start_cell = _snap_start(grid, start[0], start[1], config.start_snap_m)
+    start_cell = nearest_free_cell(grid.blocked, geometry, start[0], start[1], config.start_snap_m)
     if start_cell is None or not union.any():
         return None
 

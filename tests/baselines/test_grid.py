@@ -131,8 +131,24 @@ def test_lidar_map_ray_casting() -> None:
 def test_lidar_map_max_range_rays_clear_space() -> None:
     geometry = GridGeometry(0.0, 0.0, 0.05, 100, 100)
     lidar_map = LidarMap(geometry)
-    scan = FakeScan(np.array([0.0]), np.array([np.inf]), 2.0)
-    lidar_map.integrate(Pose2D(1.0, 2.5, 0.0), scan)
+    # A narrow fan (+-5 deg) of rays that hit nothing within 2 m.
+    angles = np.radians(np.linspace(-5.0, 5.0, 11))
+    lidar_map.integrate(Pose2D(1.0, 2.5, 0.0), FakeScan(angles, np.full(11, np.inf), 2.0))
     assert lidar_map.free[geometry.world_to_cell(2.9, 2.5)]
     assert lidar_map.unknown[geometry.world_to_cell(3.1, 2.5)]
+    assert lidar_map.unknown[geometry.world_to_cell(2.5, 3.0)]  # outside the fan
+    assert lidar_map.unknown[geometry.world_to_cell(0.5, 2.5)]  # behind the sensor
     assert not lidar_map.occupied.any()
+
+
+def test_lidar_map_does_not_free_space_behind_an_edge() -> None:
+    geometry = GridGeometry(0.0, 0.0, 0.05, 100, 100)
+    lidar_map = LidarMap(geometry)
+    angles = np.linspace(-math.pi, math.pi, 360, endpoint=False)
+    ranges = np.full(360, np.inf)
+    ranges[(angles > 0.0) & (angles < 0.3)] = 1.0  # a short obstacle edge to the left of straight ahead
+    lidar_map.integrate(Pose2D(2.5, 2.5, 0.0), FakeScan(angles, ranges, 2.0))
+    # Behind the obstacle (bearing 0.15 rad, 1.5 m) stays unknown; the far side of the edge is free.
+    assert lidar_map.unknown[geometry.world_to_cell(2.5 + 1.5 * math.cos(0.15), 2.5 + 1.5 * math.sin(0.15))]
+    assert lidar_map.free[geometry.world_to_cell(2.5 + 1.5 * math.cos(-0.1), 2.5 + 1.5 * math.sin(-0.1))]
+    assert lidar_map.occupied[geometry.world_to_cell(2.5 + math.cos(0.15), 2.5 + math.sin(0.15))]

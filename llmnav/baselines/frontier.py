@@ -1,0 +1,372 @@
+"""Frontier exploration + shortest path: explore with the robot's own LiDAR until a target is seen, then A*.
+
+The robot starts knowing nothing but the extent of the world. It keeps a `grid.LidarMap` (unknown / free
+/ occupied) filled by its LiDAR scans and repeats:
+
+1. *Look*: integrate a scan, then turn in place in steps of ~90 % of the camera's horizontal field of view
+   and run `Detector.detect()` after each turn, until an acceptable target of the task is detected
+   (a `point` target counts as found once its cell is observed free in the map).
+2. *Frontiers*: free cells next to unknown ones (4-neighbourhood), clustered 8-connected; clusters smaller
+   than `min_cluster_cells` are noise; cells near earlier frontier goals are struck off.
+3. *Nearest*: one A* (Dijkstra, heuristic 0) from the robot over the known map settles the frontier cell
+   with the shortest path. Unknown cells are treated as *blocked* (the robot plans only through space it
+   has seen free; obstacles are inflated by robot radius + margin), so a frontier goal is always
+   reachable through known space.
+4. *Drive*: follow the line-of-sight-shortcut path with `Motion.go_to`, integrating LiDAR samples on the
+   way (every `rescan_every_m`), with the LiDAR obstacle stop armed (the path may border unknown space);
+   detections are checked after each waypoint.
+
+Once a target is detected, the final leg is the oracle's A* on the *true* grid from the current pose to
+that target's approach point (`oracle.plan_to_targets`), driven the same way; then the robot faces it.
+The run fails with its reason when no reachable frontier is left, or the frontier or sim-time budget is
+spent. Reported `frontier_length_m`: the distance actually driven (exploration + final leg, ground truth).
+
+Reference: B. Yamauchi, "A frontier-based approach for autonomous exploration", IEEE CIRA 1997.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from llmnav.baselines.astar import astar, densify, shortcut
+from llmnav.baselines.grid import GridConfig, GridGeometry, LidarMap, inflate, nearest_free_cell
+from llmnav.baselines.oracle import (
+    Drive,
+    OracleConfig,
+    Point,
+    drive_waypoints,
+    face_point,
+    failure_reason,
+    plan_to_targets,
+    pose_logging,
+    rotate_by,
+    run_untargeted,
+    scenario_grid,
+    with_added_obstacles,
+)
+from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
+
+if TYPE_CHECKING:
+    from llmnav.geometry import Pose2D
+    from llmnav.scenario import Target
+    from llmnav.sim.sensors import LidarScan
+
+
+@dataclass(frozen=True)
+class FrontierConfig:
+    """Exploration knobs and budgets."""
+
+    min_cluster_cells: int = 8  # [cells] smaller frontier clusters are ignored (0.4 m at 0.05 m cells)
+    min_goal_distance_m: float = 0.6  # [m] frontier cells closer than this to the robot are not goals
+    visited_radius_m: float = 1.0  # [m] frontier cells this close to an earlier goal are struck off
+    start_snap_m: float = 0.5  # [m] how far the planner may snap the robot out of the inflation
+    waypoint_spacing_m: float = 1.0  # [m] longest go_to leg while exploring (detections run after each)
+    rescan_every_m: float = 0.5  # [m] integrate a LiDAR sample into the map after this much travel
+    rescan_every_rad: float = math.radians(30.0)  # [rad] ... or this much turning
+    sweep_fov_fraction: float = 0.9  # share of the camera's horizontal FOV turned per sweep step
+    obstacle_clearance_m: float = 0.15  # [m] go_to stops when something is this close beyond the body
+    bump_backoff_m: float = 0.15  # [m] reverse this far after a collision
+    max_frontiers: int = 40  # frontier goals before giving up
+    max_sim_time_s: float = 900.0  # [s] sim-time budget for the whole episode
+    max_replans: int = 3  # [count] obstacle stops / bumps tolerated on the way to one frontier
+    grid: GridConfig = field(default_factory=GridConfig)
+    oracle: OracleConfig = field(default_factory=OracleConfig)
+
+
+@dataclass
+class _Found:
+    """A detected acceptable target."""
+
+    target: Target
+    how: str  # "camera" or "map"
+
+
+class _Explorer:
+    """The state of one exploration episode (the planner itself stays stateless)."""
+
+    def __init__(self, ctx: EpisodeContext, config: FrontierConfig) -> None:
+        self.ctx = ctx
+        self.config = config
+        self.world = ctx.world
+        self.robot = ctx.world.robot
+        self.geometry = GridGeometry.from_bounds(ctx.scenario.bounds, config.grid.resolution_m)
+        self.map = LidarMap(self.geometry)
+        self.visited = np.zeros(self.geometry.shape, dtype=bool)
+        self.inflation_m = self.robot.spec.radius_m + config.grid.margin_m  # [m]
+        self.drive = Drive()
+        self.frontiers = 0  # frontier goals chosen
+        self.bumps = 0
+        self.obstacle_stops = 0
+        self._last_scan_pose: Pose2D | None = None
+        self.target_ids = {t.object for t in ctx.task.targets if t.object is not None}
+
+    # --- sensing ------------------------------------------------------------------------------
+    def integrate(self, pose: Pose2D, scan: LidarScan) -> None:
+        """Add a scan to the map."""
+        self.map.integrate(pose, scan)
+        self._last_scan_pose = pose
+
+    def scan_now(self) -> None:
+        """Take and integrate one scan at the current pose."""
+        self.integrate(self.robot.pose(), self.world.lidar.scan())
+
+    def on_sample(self, pose: Pose2D, scan: LidarScan) -> None:
+        """go_to's LiDAR samples: integrate every `rescan_every_m` of travel or `rescan_every_rad` of turn."""
+        last = self._last_scan_pose
+        if (
+            last is None
+            or math.hypot(pose.x - last.x, pose.y - last.y) >= self.config.rescan_every_m
+            or abs(math.remainder(pose.yaw - last.yaw, 2 * math.pi)) >= self.config.rescan_every_rad
+        ):
+            self.integrate(pose, scan)
+
+    def detect(self) -> _Found | None:
+        """An acceptable target in view (camera), or a point target already seen free in the map."""
+        for detection in self.world.detector.detect():
+            if detection.object_id in self.target_ids:
+                target = next(t for t in self.ctx.task.targets if t.object == detection.object_id)
+                self.ctx.log.event(
+                    "planner",
+                    kind="frontier_detection",
+                    object=detection.object_id,
+                    distance_m=round(detection.distance_m, 3),
+                    bearing_deg=round(detection.bearing_deg, 2),
+                    pose=self.robot.pose().as_list(),
+                )
+                return _Found(target, "camera")
+        for target in self.ctx.task.targets:
+            if target.point is not None:
+                cell = self.geometry.world_to_cell(*target.point)
+                if self.geometry.contains(cell) and self.map.free[cell]:
+                    return _Found(target, "map")
+        return None
+
+    def look(self) -> _Found | None:
+        """Scan, then sweep the camera round in place, detecting after each turn."""
+        self.scan_now()
+        found = self.detect()
+        if found is not None:
+            return found
+        camera = self.world.camera.config
+        vertical = math.radians(camera.fov_deg)
+        horizontal = 2.0 * math.atan(math.tan(vertical / 2.0) * camera.width / camera.height)  # [rad]
+        turns = math.ceil(2.0 * math.pi / (self.config.sweep_fov_fraction * horizontal))
+        for _ in range(turns - 1):  # the last turn would face the starting heading again
+            rotate_by(self.ctx, 2.0 * math.pi / turns, self.drive)
+            if not self.drive.ok:
+                return None
+            found = self.detect()
+            if found is not None:
+                return found
+        self.scan_now()
+        return None
+
+    # --- planning -----------------------------------------------------------------------------
+    def planning_grid(self) -> np.ndarray:
+        """Blocked cells of the known map: inflated occupied cells, unknown cells and the bounds margin."""
+        blocked = inflate(self.map.occupied, self.inflation_m, self.geometry.resolution) | self.map.unknown
+        xs, ys = self.geometry.centres()
+        bounds = self.ctx.scenario.bounds
+        blocked |= (xs - bounds.x[0] < self.inflation_m) | (bounds.x[1] - xs < self.inflation_m)
+        blocked |= (ys - bounds.y[0] < self.inflation_m) | (bounds.y[1] - ys < self.inflation_m)
+        return np.asarray(blocked)
+
+    def frontier_cells(self, blocked: np.ndarray, pose: Pose2D) -> np.ndarray:
+        """Goal-worthy frontier cells: clustered, large enough, not visited, not under the robot, free."""
+        from scipy.ndimage import binary_dilation, label
+
+        cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool)
+        frontier = self.map.free & binary_dilation(self.map.unknown, structure=cross)
+        labels, count = label(frontier, structure=np.ones((3, 3), dtype=bool))
+        if count == 0:
+            return np.zeros(self.geometry.shape, dtype=bool)
+        sizes = np.bincount(labels.ravel())
+        big = sizes >= self.config.min_cluster_cells
+        big[0] = False
+        frontier = big[labels]
+        xs, ys = self.geometry.centres()
+        near = np.hypot(xs - pose.x, ys - pose.y) < self.config.min_goal_distance_m
+        return np.asarray(frontier & ~self.visited & ~near & ~blocked)
+
+    def mark_visited(self, point: Point) -> None:
+        """Strike off frontier cells around a goal the robot has been sent to."""
+        xs, ys = self.geometry.centres()
+        self.visited |= np.hypot(xs - point[0], ys - point[1]) <= self.config.visited_radius_m
+
+    def next_frontier(self) -> tuple[Point, list[Point]] | None:
+        """The nearest frontier goal by path length on the known map and the waypoints to it."""
+        pose = self.robot.pose()
+        blocked = self.planning_grid()
+        goals = self.frontier_cells(blocked, pose)
+        if not goals.any():
+            return None
+        start = nearest_free_cell(blocked, self.geometry, pose.x, pose.y, self.config.start_snap_m)
+        if start is None:
+            return None
+        path = astar(blocked, start, goals, resolution_m=self.geometry.resolution)
+        if path is None:
+            return None
+        corners = [self.geometry.cell_to_world(*cell) for cell in shortcut(path.cells, blocked)]
+        points = [(pose.x, pose.y), *corners[1:]] if len(corners) > 1 else [(pose.x, pose.y), *corners]
+        goal = self.geometry.cell_to_world(*path.goal)
+        return goal, densify(points, self.config.waypoint_spacing_m)[1:]
+
+    # --- acting -------------------------------------------------------------------------------
+    def bump_recovery(self) -> None:
+        """After touching something the LiDAR missed: mark it in the map and back off."""
+        self.bumps += 1
+        pose = self.robot.pose()
+        reach = self.robot.spec.radius_m + 0.05  # [m] the contact lies just beyond the body, ahead
+        self.map.mark_occupied(pose.x + reach * math.cos(pose.yaw), pose.y + reach * math.sin(pose.yaw), 0.1)
+        result = self.world.motion.drive(-self.config.bump_backoff_m)
+        self.drive.travelled_m += result.distance_m
+        self.drive.steps += 1
+
+    def explore_to(self, waypoints: list[Point]) -> _Found | None:
+        """Drive towards a frontier, checking detections after each waypoint."""
+        stop_m = self.robot.spec.radius_m + self.config.obstacle_clearance_m
+        for waypoint in waypoints:
+            result = self.world.motion.go_to(
+                *waypoint,
+                tol_m=self.config.oracle.waypoint_tol_m,
+                obstacle_stop_m=stop_m,
+                on_sample=self.on_sample,
+            )
+            self.drive.steps += 1
+            self.drive.travelled_m += result.distance_m
+            self.drive.last = result
+            self.ctx.log.sim_time = self.world.sim_time
+            self.ctx.log.event(
+                "action",
+                step=self.drive.steps,
+                command="GO_TO",
+                parameters=[round(waypoint[0], 3), round(waypoint[1], 3)],
+                pose_before=result.start.as_list(),
+                pose_after=result.end.as_list(),
+                collided=result.collided,
+                collision_with=result.collision_with,
+                stopped_reason=result.stopped_reason,
+            )
+            if result.collided:
+                self.bump_recovery()
+            elif result.stopped_reason == "obstacle":
+                self.obstacle_stops += 1
+            found = self.detect()
+            if found is not None or not result.ok:
+                return found
+        return None
+
+    def over_budget(self) -> str | None:
+        """Why the exploration must stop, if it must."""
+        if self.frontiers >= self.config.max_frontiers:
+            return f"exploration budget spent ({self.frontiers} frontiers) without detecting a target"
+        if self.world.sim_time >= self.config.max_sim_time_s:
+            return (
+                f"exploration budget spent ({self.world.sim_time:.0f} s sim time) without detecting a target"
+            )
+        return None
+
+    def metrics(self, final_leg: float | None = None) -> dict[str, float | int]:
+        """Numbers for summary.json."""
+        out: dict[str, float | int] = {
+            "frontier_length_m": round(self.drive.travelled_m, 4),
+            "frontiers_visited": self.frontiers,
+            "bumps": self.bumps,
+            "obstacle_stops": self.obstacle_stops,
+            "known_fraction": round(float(1.0 - self.map.unknown.mean()), 4),
+        }
+        if final_leg is not None:
+            out["final_leg_planned_m"] = round(final_leg, 4)
+        return out
+
+    # --- the episode --------------------------------------------------------------------------
+    def run(self) -> EpisodeOutcome:
+        """Explore until a target is detected, then drive the shortest path to it."""
+        found = self.look()
+        replans = 0
+        while found is None:
+            reason = self.over_budget()
+            if reason is not None:
+                return self.fail(reason)
+            choice = self.next_frontier()
+            if choice is None:
+                return self.fail("no reachable frontier left and no target detected")
+            goal, waypoints = choice
+            self.frontiers += 1
+            self.ctx.log.event(
+                "planner",
+                kind="frontier_goal",
+                goal=[round(goal[0], 3), round(goal[1], 3)],
+                waypoints=[[round(x, 3), round(y, 3)] for x, y in waypoints],
+                known_fraction=round(float(1.0 - self.map.unknown.mean()), 4),
+            )
+            found = self.explore_to(waypoints)
+            last = self.drive.last
+            interrupted = last is not None and not last.ok
+            if interrupted and replans < self.config.max_replans and found is None:
+                replans += 1  # stopped short (obstacle, bump): rescan and choose again, same goal may remain
+                self.scan_now()
+                continue
+            replans = 0
+            self.mark_visited(goal)
+            if found is None:
+                found = self.look()
+        return self.finish(found)
+
+    def finish(self, found: _Found) -> EpisodeOutcome:
+        """Final leg: A* on the true grid to the detected target's approach point, then face it."""
+        ctx = self.ctx
+        scenario = with_added_obstacles(ctx.scenario, ctx.options.obstacles)
+        grid = scenario_grid(scenario, self.config.grid)
+        pose = self.robot.pose()
+        path = plan_to_targets(grid, scenario, [found.target], (pose.x, pose.y), self.config.oracle)
+        if path is None:
+            return self.fail(f"target {found.target.object or found.target.point} detected but unreachable")
+        ctx.log.event(
+            "planner",
+            kind="frontier_final_leg",
+            target=found.target.object or list(found.target.point or ()),
+            found_by=found.how,
+            length_m=round(path.length_m, 3),
+            waypoints=[[round(x, 3), round(y, 3)] for x, y in path.waypoints],
+        )
+        self.drive.last = None
+        drive_waypoints(
+            ctx,
+            path.waypoints,
+            self.drive,
+            tol_m=self.config.oracle.waypoint_tol_m,
+            final_tol_m=self.config.oracle.final_tol_m,
+        )
+        if self.drive.ok:
+            face_point(ctx, path.target_point, self.drive)
+        if not self.drive.ok:
+            return self.fail(failure_reason(self.drive.last), path.length_m)
+        return EpisodeOutcome(
+            "completed", "reached target", iterations=self.drive.steps, metrics=self.metrics(path.length_m)
+        )
+
+    def fail(self, reason: str, final_leg: float | None = None) -> EpisodeOutcome:
+        """End the episode as failed."""
+        return EpisodeOutcome("failed", reason, iterations=self.drive.steps, metrics=self.metrics(final_leg))
+
+
+class FrontierPlanner(Planner):
+    """Frontier exploration on the robot's own LiDAR map, then the shortest path to the detected target."""
+
+    name: ClassVar[str] = "frontier"
+    needs_backend: ClassVar[bool] = False
+
+    def __init__(self, config: FrontierConfig | None = None) -> None:
+        self.config = config or FrontierConfig()
+
+    def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
+        """Explore, detect, drive; tasks without targets behave as for the oracle."""
+        with pose_logging(ctx):
+            if not ctx.task.targets:
+                return run_untargeted(ctx, Drive())
+            return _Explorer(ctx, self.config).run()
