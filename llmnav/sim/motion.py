@@ -167,10 +167,17 @@ class Motion:
         steps = 0
         stop_reason: str | None = None
 
+        # Without a sample consumer only the half plane ahead, out to the larger stop distance, matters.
+        reach = max(d for d in (obstacle_stop_m, emergency_stop_m, 0.0) if d is not None) + 0.5  # [m]
+
         def check_lidar(driving: bool) -> str | None:
-            scan = world.lidar.scan()
+            if on_sample is None and not driving:
+                return None
             if on_sample is not None:
+                scan = world.lidar.scan()
                 on_sample(robot.pose(), scan)
+            else:
+                scan = world.lidar.scan(half_angle=EMERGENCY_HALF_ANGLE, max_range=reach)
             if not driving:
                 return None
             ahead = scan.min_in(-EMERGENCY_HALF_ANGLE, EMERGENCY_HALF_ANGLE)  # [m]

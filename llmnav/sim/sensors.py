@@ -66,29 +66,36 @@ class Lidar:
         """Restart the noise stream."""
         self._rng = np.random.default_rng(seed)
 
-    def scan(self) -> LidarScan:
-        """Cast all rays from the current ground-truth pose."""
+    def scan(self, *, half_angle: float | None = None, max_range: float | None = None) -> LidarScan:
+        """Cast the rays from the current ground-truth pose.
+
+        `half_angle` [rad] casts only the rays with |angle| <= it, `max_range` [m] shortens them: cheap
+        partial scans for stop checks (ray cost grows with count and length).
+        """
         cfg = self.config
+        range_m = cfg.range_m if max_range is None else min(max_range, cfg.range_m)  # [m]
+        angles, cos, sin, z = self.angles, self._cos, self._sin, self._z
+        if half_angle is not None:
+            keep = np.abs(angles) <= half_angle
+            angles, cos, sin, z = angles[keep], cos[keep], sin[keep], z[keep]
         pose = self._robot.pose()
         cy, sy = math.cos(pose.yaw), math.sin(pose.yaw)
         # Ray directions in the world frame: the fixed body-frame fan rotated by the heading.
-        dx = self._cos * cy - self._sin * sy
-        dy = self._sin * cy + self._cos * sy
-        n = len(self.angles)
+        dx = cos * cy - sin * sy
+        dy = sin * cy + cos * sy
+        n = len(angles)
         start = self._start
-        starts = np.column_stack((pose.x + start * dx, pose.y + start * dy, self._z))
-        ends = np.column_stack((pose.x + cfg.range_m * dx, pose.y + cfg.range_m * dy, self._z))
+        starts = np.column_stack((pose.x + start * dx, pose.y + start * dy, z))
+        ends = np.column_stack((pose.x + range_m * dx, pose.y + range_m * dy, z))
         hits = self._p.rayTestBatch(
             starts.tolist(), ends.tolist(), numThreads=0, physicsClientId=self._client
         )
         fractions = np.fromiter((h[2] if h[0] >= 0 else np.inf for h in hits), dtype=float, count=n)
-        ranges = start + fractions * (cfg.range_m - start)  # inf where nothing was hit
+        ranges = start + fractions * (range_m - start)  # inf where nothing was hit
         if cfg.noise_std_m > 0.0:
             ranges = ranges + self._rng.normal(0.0, cfg.noise_std_m, n)  # inf stays inf
-            ranges = np.where(np.isfinite(ranges), np.clip(ranges, cfg.min_range_m, cfg.range_m), np.inf)
-        return LidarScan(
-            angles=self.angles.copy(), ranges=ranges, range_max=cfg.range_m, range_min=cfg.min_range_m
-        )
+            ranges = np.where(np.isfinite(ranges), np.clip(ranges, cfg.min_range_m, range_m), np.inf)
+        return LidarScan(angles=angles.copy(), ranges=ranges, range_max=range_m, range_min=cfg.min_range_m)
 
 
 @dataclass

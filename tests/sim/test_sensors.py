@@ -125,3 +125,12 @@ def test_lidar_fov_config(make_room) -> None:
 def test_camera_rejects_oversized_frames(world: World) -> None:
     with pytest.raises(ValueError):
         world.camera.capture(width=1280, height=720)
+
+
+def test_partial_scan(world: World) -> None:
+    world.reset(Pose2D(0.5, 0.0, 0.0))
+    near = world.lidar.scan(half_angle=math.radians(45), max_range=2.0)
+    assert len(near.angles) == 91 and near.range_max == 2.0
+    assert np.all(np.abs(near.angles) <= math.radians(45) + 1e-9) and np.isinf(_ray(near, 0.0))
+    far = world.lidar.scan(half_angle=math.radians(45))
+    assert abs(_ray(far, 0.0) - 2.4) < 0.02
