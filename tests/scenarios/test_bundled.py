@@ -80,13 +80,17 @@ def test_factory_tasks_match_the_source() -> None:
 
 def test_factory_t4_point_lies_in_the_gap_between_stairs_and_barrels() -> None:
     scenario = load_scenario("factory")
-    (x, y), = scenario.target_points(scenario.task("T4"))
+    ((x, y),) = scenario.target_points(scenario.task("T4"))
     stairs = scenario.object("S")
     barrels = [scenario.object(i) for i in ("OB1", "OB2", "OB3")]
     radius = ROBOT_SPECS["pr2"].radius_m
     # The robot fits there, and the point is closer to the stairs and the barrels than to anything else.
     assert min(s.distance_to(x, y) for s in scenario.solid_shapes()) > radius
-    assert stairs.half_extents()[1] + stairs.center[1] < y < min(b.center[1] - b.half_extents()[1] for b in barrels)
+    assert (
+        stairs.half_extents()[1] + stairs.center[1]
+        < y
+        < min(b.center[1] - b.half_extents()[1] for b in barrels)
+    )
     near = sorted(scenario.solid_shapes(), key=lambda s: s.distance_to(x, y))[:2]
     assert {getattr(s, "id", None) for s in near} <= {"S", "OB1", "OB2", "OB3"}
 
@@ -148,15 +152,24 @@ def test_corridor_sizes_match_the_source() -> None:
     assert dims("corridor_a") == {"main": (15.0, 4.0)}
     assert dims("corridor_b") == {"main": (10.0, 4.0), "side": (4.0, 18.0)}
     assert dims("corridor_c") == {"main": (18.0, 5.0), "corridor1": (5.0, 29.5), "corridor2": (5.0, 29.5)}
-    assert [load_scenario(n).waypoint_rules.max_waypoints for n in ("corridor_a", "corridor_b", "corridor_c")] == [
-        3, 4, 6,
+    assert [
+        load_scenario(n).waypoint_rules.max_waypoints for n in ("corridor_a", "corridor_b", "corridor_c")
+    ] == [
+        3,
+        4,
+        6,
     ]
-    rooms = {n: sorted(o.label for o in load_scenario(n).objects if o.label.startswith("room ")) for n in
-             ("corridor_a", "corridor_b", "corridor_c")}
+    rooms = {
+        n: sorted(o.label for o in load_scenario(n).objects if o.label.startswith("room "))
+        for n in ("corridor_a", "corridor_b", "corridor_c")
+    }
     assert rooms["corridor_a"] == [f"room {n}" for n in range(101, 111)]
     assert rooms["corridor_b"] == [f"room {n}" for n in range(101, 111)]
     assert rooms["corridor_c"] == [f"room {n}" for n in [*range(101, 115), *range(201, 219)]]
-    assert (load_scenario("corridor_c").default_start.x, load_scenario("corridor_c").default_start.y) == (0.0, -3.0)
+    assert (load_scenario("corridor_c").default_start.x, load_scenario("corridor_c").default_start.y) == (
+        0.0,
+        -3.0,
+    )
 
 
 def _ray_to_wall(scenario: Scenario, x: float, y: float, yaw: float) -> float:
@@ -185,7 +198,10 @@ def test_following_the_maze_signs_reaches_the_stop_sign() -> None:
                 s
                 for s in signs
                 if abs(math.hypot(s.center[0] - x, s.center[1] - y) - 0.5) < 0.1
-                and abs(math.degrees(math.atan2(s.center[1] - y, s.center[0] - x) - yaw + math.pi) % 360 - 180) < 45
+                and abs(
+                    math.degrees(math.atan2(s.center[1] - y, s.center[0] - x) - yaw + math.pi) % 360 - 180
+                )
+                < 45
             ]
             assert len(facing) == 1, f"at ({x:.2f}, {y:.2f}) facing {math.degrees(yaw):.0f} deg: {facing}"
             sign = facing[0]

@@ -1,4 +1,4 @@
-"""`llmnav scenarios` through the real CLI app: listing, showing, plotting, and one-line errors for bad files."""
+"""`llmnav scenarios` through the CLI app: list, show, plot, and one-line errors for bad files."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ def wide_console(monkeypatch: pytest.MonkeyPatch) -> None:
     """Tables as on a wide terminal, so cell text is not wrapped mid-phrase."""
     monkeypatch.setattr(console, "_width", 240)  # restored exactly afterwards (None = follow the terminal)
 
+
 # A small valid scenario the bad variants below break one thing at a time.
 GOOD: dict = {
     "name": "tiny",
@@ -27,7 +28,12 @@ GOOD: dict = {
     "obstacles": [{"center": [2.0, 2.0], "size": [0.5, 0.5]}],
     "objects": [{"id": "door", "label": "door", "center": [3.5, 3.5], "size": [0.4, 0.1], "solid": False}],
     "tasks": [
-        {"id": "X1", "text": "Go to the door", "targets": [{"object": "door"}], "start_poses": [{"x": 0.5, "y": 0.5}]}
+        {
+            "id": "X1",
+            "text": "Go to the door",
+            "targets": [{"object": "door"}],
+            "start_poses": [{"x": 0.5, "y": 0.5}],
+        }
     ],
 }
 
@@ -47,12 +53,24 @@ def _variant(path: str, value: object) -> dict:
 BAD_FILES = [
     ("unknown_key", yaml.safe_dump(_variant("objects.0.colour", [1, 0, 0, 1])), "objects[0].colour", "extra"),
     ("wrong_type", yaml.safe_dump(_variant("bounds.x", "wide")), "bounds.x", "valid"),
-    ("outside_bounds", yaml.safe_dump(_variant("objects.0.center", [7.0, 1.0])), "objects[0].center",
-     "outside bounds"),
-    ("start_overlaps", yaml.safe_dump(_variant("tasks.0.start_poses.0", {"x": 2.1, "y": 1.8})), "tasks[0].start_poses[0]",
-     "overlaps an obstacle"),
-    ("unknown_target", yaml.safe_dump(_variant("tasks.0.targets.0.object", "window")), "tasks[0].targets[0].object",
-     "unknown target id 'window'"),
+    (
+        "outside_bounds",
+        yaml.safe_dump(_variant("objects.0.center", [7.0, 1.0])),
+        "objects[0].center",
+        "outside bounds",
+    ),
+    (
+        "start_overlaps",
+        yaml.safe_dump(_variant("tasks.0.start_poses.0", {"x": 2.1, "y": 1.8})),
+        "tasks[0].start_poses[0]",
+        "overlaps an obstacle",
+    ),
+    (
+        "unknown_target",
+        yaml.safe_dump(_variant("tasks.0.targets.0.object", "window")),
+        "tasks[0].targets[0].object",
+        "unknown target id 'window'",
+    ),
     ("invalid_yaml", "name: tiny\nbounds: {x: [0, 4], y: [0, 4]\ntasks: []\n", "line ", "expected"),
 ]
 
@@ -66,8 +84,9 @@ def test_good_fixture_is_valid(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("case", "text", "where", "problem"), BAD_FILES, ids=[b[0] for b in BAD_FILES])
-def test_bad_file_gives_one_line_and_exit_code_2(tmp_path: Path, case: str, text: str, where: str,
-                                                 problem: str) -> None:
+def test_bad_file_gives_one_line_and_exit_code_2(
+    tmp_path: Path, case: str, text: str, where: str, problem: str
+) -> None:
     path = tmp_path / f"{case}.yaml"
     path.write_text(text)
     result = runner.invoke(app, ["scenarios", "show", str(path)])
