@@ -1,7 +1,7 @@
 """A physics-stepped differential-drive base: one cylinder body driven by its base velocity.
 
-Design: the base is a single cylinder with mass, floating a millimetre above the floor in a gravity-free
-world (its collision mask leaves out the floor, so no floor contacts accumulate). Before every physics
+Design: the base is a single cylinder with mass, floating a millimetre above the floor plane in a
+gravity-free world (there is no floor body, so no floor contacts accumulate). Before every physics
 step its velocity is set from the commanded (v, w), limited by the wheel-speed and acceleration limits;
 walls and obstacles are static bodies, so the solver stops it at them and nothing passes through.
 Roll, pitch and height are pinned back whenever a contact disturbs them.

@@ -26,6 +26,8 @@ if TYPE_CHECKING:
 LIDAR_CLEARANCE = 0.01  # [m] rays start this far outside the robot's body so they never hit it
 CAMERA_NEAR = 0.05  # [m] near clipping plane
 DETECTOR_SIZE = (160, 120)  # [px] the detector's own low-resolution segmentation capture
+FLOOR_SHADE = 238.0  # TinyRenderer's brightness of a lit upward face, per unit of colour
+BACKGROUND_DEPTH = 0.99999  # depth-buffer value from which a pixel counts as empty background
 
 
 @dataclass
@@ -133,16 +135,29 @@ class CameraFrame:
 
 
 class Camera:
-    """A forward-looking RGB camera at the robot's camera height (TinyRenderer, never shadows)."""
+    """A forward-looking RGB camera at the robot's camera height (TinyRenderer, never shadows).
+
+    The floor is not a body: it is painted into the empty background below the horizon, which looks
+    the same as a rendered floor and costs nothing (a floor box doubled the render time).
+    """
 
     def __init__(
-        self, p: Any, client: int, robot: Robot, config: CameraConfig, *, mount_height_m: float | None = None
+        self,
+        p: Any,
+        client: int,
+        robot: Robot,
+        config: CameraConfig,
+        *,
+        mount_height_m: float | None = None,
+        floor_color: tuple[float, float, float, float] = (0.55, 0.55, 0.5, 1.0),
     ) -> None:
         self._p = p
         self._client = client
         self._robot = robot
         self.config = config
         self.mount_height_m = mount_height_m if mount_height_m is not None else config.mount_height_m  # [m]
+        # The floor as TinyRenderer would shade a lit, upward face of this colour.
+        self._floor_rgb = np.array([round(FLOOR_SHADE * c) for c in floor_color[:3]], dtype=np.uint8)
 
     def capture(
         self, *, segmentation: bool = False, width: int | None = None, height: int | None = None
@@ -164,7 +179,7 @@ class Camera:
             cfg.fov_deg, width / height, CAMERA_NEAR, cfg.far_m, physicsClientId=self._client
         )
         flags = 0 if segmentation else p.ER_NO_SEGMENTATION_MASK
-        _w, _h, rgba, _depth, seg = p.getCameraImage(
+        _w, _h, rgba, depth, seg = p.getCameraImage(
             width,
             height,
             viewMatrix=view,
@@ -175,6 +190,10 @@ class Camera:
             physicsClientId=self._client,
         )
         rgb = np.ascontiguousarray(np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3])
+        # The camera looks level, so the horizon is the middle row: empty background below it is floor.
+        half = height // 2
+        below = np.asarray(depth, dtype=np.float32).reshape(height, width)[half:] >= BACKGROUND_DEPTH
+        rgb[half:][below] = self._floor_rgb
         mask = None
         if segmentation:
             raw = np.asarray(seg, dtype=np.int64).reshape(height, width)

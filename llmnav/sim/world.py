@@ -1,4 +1,4 @@
-"""A PyBullet world built from a `Scenario`: floor, static scenery, the robot, its sensors and motion.
+"""A PyBullet world built from a `Scenario`: static scenery, the robot, its sensors and motion.
 
 Each `World` owns its own DIRECT physics client (several may coexist in one process) and steps at
 240 Hz. Gravity is off: every body but the robot is static, and the robot's base is driven by
@@ -14,7 +14,7 @@ import pybullet as p
 
 from llmnav.geometry import Pose2D
 from llmnav.scenario import CameraConfig, DetectorConfig, LabelledObject, LidarConfig, Obstacle, Scenario
-from llmnav.sim.bodies import create_floor, create_shape
+from llmnav.sim.bodies import create_shape
 from llmnav.sim.motion import Motion
 from llmnav.sim.robot import Robot
 from llmnav.sim.robot_specs import ROBOT_SPECS
@@ -30,7 +30,7 @@ class World:
 
     Fields: `scenario`; `robot` (Robot); `lidar` (Lidar); `camera` (Camera); `detector` (Detector);
     `motion` (Motion); `sim_time` [s] since reset; `step_count`; `dt` [s] physics step; `seed`;
-    `client` (the PyBullet physicsClientId); `floor` (body id); `body_names` (body id -> wall/obstacle
+    `client` (the PyBullet physicsClientId); `body_names` (body id -> wall/obstacle
     name or object id); `object_bodies` (object id -> body id); `labelled` (body id -> LabelledObject).
     `odom_noise` is the relative std of each odometry increment (0: odometry equals ground truth).
     """
@@ -73,7 +73,6 @@ class World:
         self.body_names: dict[int, str] = {}  # every scenery body -> a name for contact reports
         self.object_bodies: dict[str, int] = {}  # labelled object id -> body id
         self.labelled: dict[int, LabelledObject] = {}  # body id -> labelled object
-        self.floor = create_floor(p, client, scenario.bounds, scenario.floor_color)
         for i, wall in enumerate(scenario.walls):
             self._add_scenery(wall, wall.id or f"wall:{i}")
         for i, obstacle in enumerate(scenario.obstacles):
@@ -101,7 +100,9 @@ class World:
             else spec.camera_height_m
         )
         self.lidar = Lidar(p, client, self.robot, lidar_cfg, mount_height_m=lidar_h)
-        self.camera = Camera(p, client, self.robot, camera_cfg, mount_height_m=camera_h)
+        self.camera = Camera(
+            p, client, self.robot, camera_cfg, mount_height_m=camera_h, floor_color=scenario.floor_color
+        )
         self.detector = Detector(self.camera, self.robot, self.labelled, detector or sensors.detector)
         self.motion = Motion(self)
         self.reset(scenario.default_start.pose())

@@ -15,7 +15,7 @@ def test_bodies_and_names(world: World) -> None:
     assert set(world.object_bodies) == {"ball", "ghost"}
     for object_id, body in world.object_bodies.items():
         assert world.object_at_body(body) == object_id
-    assert world.object_at_body(world.floor) is None
+    assert world.object_at_body(-1) is None
     assert sorted(n for n in world.body_names.values() if n not in world.object_bodies) == [
         "east",
         "north",
