@@ -164,3 +164,18 @@ def test_worlds_do_not_interfere(make_room) -> None:
         assert abs(a.lidar.scan().ranges[180] - 1.8) < 0.02
         b.motion.drive(1.0)
         assert abs(a.robot.pose().x + 1.0) < 0.03
+
+
+def test_back_into_wall_collides(world: World) -> None:
+    world.reset(Pose2D(2.0, 0.0, math.pi))  # facing west, the east wall behind
+    result = world.motion.drive(-2.0)
+    assert result.collided and result.collision_with == "east" and world.motion.collisions == 1
+    assert world.robot.pose().x <= 2.9 - world.robot.spec.radius_m + 0.01
+
+
+def test_timeouts_end_motions(world: World) -> None:
+    world.reset(Pose2D(0.0, 0.0, 0.0))
+    result = world.motion.go_to(-3.0, 3.0, timeout_s=1.0)
+    assert not result.ok and result.stopped_reason == "timeout" and abs(result.duration_s - 1.0) < 0.01
+    assert world.robot.velocity() == (0.0, 0.0)  # halted
+    assert world.motion.drive(2.0, timeout_s=0.5).stopped_reason == "timeout"
