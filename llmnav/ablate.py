@@ -505,7 +505,8 @@ def _run_ray(
     except ImportError:
         raise BadInputError("--ray needs Ray: pip install 'llmnav[ray]'") from None
     try:
-        ray.init(address=address or "auto", ignore_reinit_error=True, log_to_driver=False)
+        if not ray.is_initialized():  # a caller (or a test) may have connected already
+            ray.init(address=address or "auto", log_to_driver=False)
     except (ConnectionError, RuntimeError, ValueError) as err:
         raise BadInputError(
             f"--ray {address or 'auto'}: cannot connect: {str(err).splitlines()[0]}"

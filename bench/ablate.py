@@ -1,0 +1,119 @@
+"""Ablation throughput: episodes per minute with 1 and 2 worker processes, and the full protocol's time.
+
+A 40-episode ablation on the factory (LiDAR sectors 3 vs 8 × all 10 tasks × start poses 1–2), stepwise
+planner with LiDAR + 640×480 camera, driven by a deterministic scripted backend that answers at once (a
+fixed plan of turns and moves, then COMPLETE), so the numbers are llmnav's own cost: simulation, sensors,
+prompts, guard, logs, summaries and the process pool. Targets: speed-up of 2 workers over 1 ≥ 1.8×, and the
+full factory protocol (10 tasks × 5 poses × 4 trials = 200 episodes) projected ≤ 5 min with 2 workers.
+Set BENCH_ABLATE_REPEATS (default 1) for medians over several sweeps.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from llmnav.ablate import grid_from_mapping, plan, run
+from llmnav.backends.base import Backend, ChatRequest, ChatResult
+from llmnav.runner import EpisodeSpec, run_episode
+
+TARGET_SPEEDUP = 1.8
+TARGET_PROTOCOL_S = 300.0  # [s] 200 episodes with 2 workers
+PROTOCOL_EPISODES = 200
+GRID: dict[str, Any] = {
+    "scenario": "factory",
+    "tasks": "all",
+    "poses": [1, 2],
+    "trials": 1,
+    "lidar_sectors": [3, 8],
+    "planner": ["stepwise"],
+    "sensing": ["lidar+image"],
+    "options": {"max_iterations": 12, "max_vetoes": 5},
+}
+
+# The scripted plan: (command, parameter); a vetoed move is answered with the next entry.
+_PLAN: tuple[tuple[str, float], ...] = (
+    ("ROTATE_LEFT", 45.0),
+    ("FRONT", 1.0),
+    ("ROTATE_RIGHT", 30.0),
+    ("FRONT", 1.0),
+    ("ROTATE_LEFT", 60.0),
+    ("FRONT", 0.5),
+    ("COMPLETE", 0.0),
+)
+
+
+class ScriptedBackend(Backend):
+    """Plays `_PLAN` in order, one entry per call, then keeps answering COMPLETE; zero latency."""
+
+    name = "scripted"
+    deterministic = True
+
+    def __init__(self) -> None:
+        super().__init__(None)
+        self.calls = 0
+
+    def chat(self, request: ChatRequest) -> ChatResult:
+        """The next planned action as the stepwise JSON answer."""
+        command, parameter = _PLAN[min(self.calls, len(_PLAN) - 1)]
+        self.calls += 1
+        text = (
+            '{"goal": "bench", "reasoning": "scripted", "scene_description": "-", '
+            f'"action": {{"command": "{command}", "parameters": {parameter}}}}}'
+        )
+        return ChatResult(text=text, latency_s=0.0, model="scripted")
+
+
+def scripted_episode(spec: EpisodeSpec) -> dict[str, Any]:
+    """The ablation's runner: the real episode runner with a fresh scripted backend (picklable)."""
+    return run_episode(spec, backend_obj=ScriptedBackend())
+
+
+def _sweep(workers: int) -> tuple[float, int, int]:
+    """Wall time [s], episodes and successes of one sweep of the grid in a fresh folder."""
+    with tempfile.TemporaryDirectory() as tmp:
+        ablation = plan(grid_from_mapping(GRID, "bench"), Path(tmp) / "ab")
+        start = time.perf_counter()
+        run(ablation, workers=workers, runner=scripted_episode)
+        wall = time.perf_counter() - start
+        entries = list(ablation.entries.values())
+        errors = [e for e in entries if e.status == "error"]
+        if errors:
+            raise RuntimeError(f"{len(errors)} episode(s) failed, first: {errors[0].key}: {errors[0].error}")
+        return wall, len(entries), sum(1 for e in entries if e.success)
+
+
+def main() -> None:
+    """Print the throughput table."""
+    repeats = int(os.environ.get("BENCH_ABLATE_REPEATS", "1"))
+    walls: dict[int, list[float]] = {1: [], 2: []}
+    size = successes = 0
+    for _ in range(repeats):
+        for workers in (1, 2):
+            wall, size, successes = _sweep(workers)
+            walls[workers].append(wall)
+    serial, parallel = statistics.median(walls[1]), statistics.median(walls[2])
+    speedup = serial / parallel
+    projected = parallel / size * PROTOCOL_EPISODES
+    print(
+        f"\nbench.ablate — {size}-episode factory ablation (stepwise, LiDAR + 640×480 camera, scripted model)"
+    )
+    print(f"(median of {repeats} sweep(s); {successes}/{size} scripted episodes ended as successes)")
+    print(f"{'workers':>8} {'wall (s)':>9} {'episodes/min':>13}")
+    for workers, wall in ((1, serial), (2, parallel)):
+        print(f"{workers:>8} {wall:>9.1f} {size / wall * 60:>13.1f}")
+    verdict = "ok" if speedup >= TARGET_SPEEDUP else "BELOW TARGET"
+    print(f"speed-up 2 vs 1 workers: {speedup:.2f}× (target ≥ {TARGET_SPEEDUP}×) {verdict}")
+    verdict = "ok" if projected <= TARGET_PROTOCOL_S else "ABOVE TARGET"
+    print(
+        f"projected {PROTOCOL_EPISODES}-episode protocol with 2 workers: {projected / 60:.1f} min "
+        f"(target ≤ {TARGET_PROTOCOL_S / 60:.0f} min) {verdict}"
+    )
+
+
+if __name__ == "__main__":
+    main()
