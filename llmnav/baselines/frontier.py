@@ -8,10 +8,11 @@ The robot starts knowing nothing but the extent of the world. It keeps a `grid.L
    (a `point` target counts as found once its cell is observed free in the map).
 2. *Frontiers*: free cells next to unknown ones (4-neighbourhood), clustered 8-connected; clusters smaller
    than `min_cluster_cells` are noise; cells near earlier frontier goals are struck off.
-3. *Nearest*: one A* (Dijkstra, heuristic 0) from the robot over the known map settles the frontier cell
-   with the shortest path. Unknown cells are treated as *blocked* (the robot plans only through space it
-   has seen free; obstacles are inflated by robot radius + margin), so a frontier goal is always
-   reachable through known space.
+3. *Nearest*: one A* (Dijkstra, heuristic 0) from the robot over the known map settles the goal cell
+   with the shortest path. Unknown cells are treated as *blocked* and inflated like obstacles (robot
+   radius + margin): the robot plans only through space it has seen free and keeps its clearance from
+   whatever may hide in the unknown, so its goals are the free cells just outside that inflation, next to
+   a frontier.
 4. *Drive*: follow the line-of-sight-shortcut path with `Motion.go_to`, integrating LiDAR samples on the
    way (every `rescan_every_m`), with the LiDAR obstacle stop armed (the path may border unknown space);
    detections are checked after each waypoint.
@@ -62,13 +63,17 @@ class FrontierConfig:
 
     min_cluster_cells: int = 8  # [cells] smaller frontier clusters are ignored (0.4 m at 0.05 m cells)
     min_goal_distance_m: float = 0.6  # [m] frontier cells closer than this to the robot are not goals
-    visited_radius_m: float = 1.0  # [m] frontier cells this close to an earlier goal are struck off
+    visited_radius_m: float = 1.2  # [m] frontier cells this close to an earlier goal are struck off
+    goal_band_m: float = 0.2  # [m] goals lie within inflation + this of a frontier cell
     start_snap_m: float = 0.5  # [m] how far the planner may snap the robot out of the inflation
     waypoint_spacing_m: float = 1.0  # [m] longest go_to leg while exploring (detections run after each)
     rescan_every_m: float = 0.5  # [m] integrate a LiDAR sample into the map after this much travel
     rescan_every_rad: float = math.radians(30.0)  # [rad] ... or this much turning
     sweep_fov_fraction: float = 0.9  # share of the camera's horizontal FOV turned per sweep step
-    obstacle_clearance_m: float = 0.15  # [m] go_to stops when something is this close beyond the body
+    obstacle_clearance_m: float = (
+        0.15  # [m] go_to stops when something ahead (+-15 deg) is this close to the body
+    )
+    emergency_clearance_m: float = 0.05  # [m] ... or anything in the front half plane is this close
     bump_backoff_m: float = 0.15  # [m] reverse this far after a collision
     max_frontiers: int = 40  # frontier goals before giving up
     max_sim_time_s: float = 900.0  # [s] sim-time budget for the whole episode
@@ -167,33 +172,46 @@ class _Explorer:
 
     # --- planning -----------------------------------------------------------------------------
     def planning_grid(self) -> np.ndarray:
-        """Blocked cells of the known map: inflated occupied cells, unknown cells and the bounds margin."""
-        blocked = inflate(self.map.occupied, self.inflation_m, self.geometry.resolution) | self.map.unknown
+        """Blocked cells of the known map: occupied *and unknown* cells inflated, plus the bounds margin.
+
+        Unknown space is inflated like an obstacle: whatever hides there, the robot keeps the same
+        clearance from it as from a seen wall.
+        """
+        unseen_or_solid = self.map.occupied | self.map.unknown
+        blocked = inflate(unseen_or_solid, self.inflation_m, self.geometry.resolution)
         xs, ys = self.geometry.centres()
         bounds = self.ctx.scenario.bounds
         blocked |= (xs - bounds.x[0] < self.inflation_m) | (bounds.x[1] - xs < self.inflation_m)
         blocked |= (ys - bounds.y[0] < self.inflation_m) | (bounds.y[1] - ys < self.inflation_m)
         return np.asarray(blocked)
 
-    def frontier_cells(self, blocked: np.ndarray, pose: Pose2D) -> np.ndarray:
-        """Goal-worthy frontier cells: clustered, large enough, not visited, not under the robot, free."""
-        from scipy.ndimage import binary_dilation, label
+    def frontier_goals(self, blocked: np.ndarray, pose: Pose2D) -> np.ndarray:
+        """Cells the robot may drive to in order to look past a frontier.
+
+        Frontier cells are known-free cells 4-adjacent to unknown ones, clustered 8-connected; small
+        clusters and cells near earlier goals are dropped. Since unknown space is inflated, the robot
+        cannot stand on a frontier cell itself: its goals are the free cells within inflation +
+        `goal_band_m` of a kept frontier cell (and not right under the robot).
+        """
+        from scipy.ndimage import binary_dilation, distance_transform_edt, label
 
         cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool)
         frontier = self.map.free & binary_dilation(self.map.unknown, structure=cross)
         labels, count = label(frontier, structure=np.ones((3, 3), dtype=bool))
         if count == 0:
             return np.zeros(self.geometry.shape, dtype=bool)
-        sizes = np.bincount(labels.ravel())
-        big = sizes >= self.config.min_cluster_cells
+        big = np.bincount(labels.ravel()) >= self.config.min_cluster_cells
         big[0] = False
-        frontier = big[labels]
+        kept = big[labels] & ~self.visited
+        if not kept.any():
+            return np.zeros(self.geometry.shape, dtype=bool)
+        reach_m = distance_transform_edt(~kept) * self.geometry.resolution
         xs, ys = self.geometry.centres()
         near = np.hypot(xs - pose.x, ys - pose.y) < self.config.min_goal_distance_m
-        return np.asarray(frontier & ~self.visited & ~near & ~blocked)
+        return np.asarray((reach_m <= self.inflation_m + self.config.goal_band_m) & ~blocked & ~near)
 
     def mark_visited(self, point: Point) -> None:
-        """Strike off frontier cells around a goal the robot has been sent to."""
+        """Strike off frontier cells around a goal the robot has been sent to (it looked from there)."""
         xs, ys = self.geometry.centres()
         self.visited |= np.hypot(xs - point[0], ys - point[1]) <= self.config.visited_radius_m
 
@@ -201,7 +219,7 @@ class _Explorer:
         """The nearest frontier goal by path length on the known map and the waypoints to it."""
         pose = self.robot.pose()
         blocked = self.planning_grid()
-        goals = self.frontier_cells(blocked, pose)
+        goals = self.frontier_goals(blocked, pose)
         if not goals.any():
             return None
         start = nearest_free_cell(blocked, self.geometry, pose.x, pose.y, self.config.start_snap_m)
@@ -253,7 +271,7 @@ class _Explorer:
             )
             if result.collided:
                 self.bump_recovery()
-            elif result.stopped_reason == "obstacle":
+            elif result.stopped_reason in ("obstacle", "emergency"):
                 self.obstacle_stops += 1
             found = self.detect()
             if found is not None or not result.ok:
