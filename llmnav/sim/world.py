@@ -126,9 +126,10 @@ class World:
         if seed is not None:
             self.seed = seed
         self.step_count = 0
-        self.robot._reset(start, seed=self.seed * 1000 + 1)
-        self.lidar.reseed(self.seed * 1000 + 2)
-        self.detector.reseed(self.seed * 1000 + 3)
+        base = (self.seed % 2**32) * 8  # one independent stream per noise source; any int seed works
+        self.robot._reset(start, seed=base + 1)
+        self.lidar.reseed(base + 2)
+        self.detector.reseed(base + 3)
         self.motion._reset()
 
     def step(self, n: int = 1) -> None:
