@@ -16,7 +16,7 @@ from llmnav.scenario import Scenario, Shape, Task, load_scenario
 
 HALF_FOV_DEG = 45.0  # [deg] wider than the camera's 37.6 deg, for margin
 RAYS = 361
-OCCLUDER_HEIGHT = 1.8  # [m] shorter objects are treated as see-through (conservative)
+OCCLUDER_HEIGHT = 1.8  # [m] shorter objects, and objects lower than the target, count as see-through
 POINT_RADIUS = 0.3  # [m] a point target is seen if a ray passes this close
 # A point target between landmarks also counts as seen when its landmarks are.
 LANDMARKS = {"T4": ("S", "OB1", "OB2", "OB3")}
@@ -55,11 +55,15 @@ def seen_targets(scenario: Scenario, x: float, y: float, yaw: float, targets: di
     """Names of the target shapes a camera at (x, y) looking along yaw would see."""
     angles = yaw + np.radians(np.linspace(-HALF_FOV_DEG, HALF_FOV_DEG, RAYS))
     dx, dy = np.cos(angles), np.sin(angles)
-    blocked = np.full(RAYS, np.inf)
-    for shape in scenario.solid_shapes():
-        if shape.height >= OCCLUDER_HEIGHT and shape not in targets.values():
-            blocked = np.minimum(blocked, ray_distances(shape, x, y, dx, dy))
-    return [name for name, shape in targets.items() if np.any(ray_distances(shape, x, y, dx, dy) < blocked)]
+    seen = []
+    for name, target in targets.items():
+        blocked = np.full(RAYS, np.inf)
+        for shape in scenario.solid_shapes():
+            if shape.height >= max(OCCLUDER_HEIGHT, target.height) and shape != target:
+                blocked = np.minimum(blocked, ray_distances(shape, x, y, dx, dy))
+        if np.any(ray_distances(target, x, y, dx, dy) < blocked):
+            seen.append(name)
+    return seen
 
 
 def target_shapes(scenario: Scenario, task: Task) -> dict[str, Shape]:
@@ -78,11 +82,11 @@ def target_shapes(scenario: Scenario, task: Task) -> dict[str, Shape]:
 
 def test_ray_caster_sees_what_is_in_front_and_not_behind_walls() -> None:
     scenario = load_scenario("factory")
-    stairs = {"S": scenario.object("S")}
-    assert seen_targets(scenario, 5.0, -1.3, 0.0, stairs) == ["S"]  # straight ahead in the open
-    assert seen_targets(scenario, 5.0, -1.3, math.pi, stairs) == []  # behind the camera
-    assert seen_targets(scenario, 5.0, -1.3, math.radians(75), stairs) == []  # just outside the field of view
-    assert seen_targets(scenario, 5.0, -1.3, math.radians(40), stairs) == ["S"]  # at the edge of the field
+    cabinet = {"CC": scenario.object("CC")}  # 2 m wide, its near corners 77 and 103 deg from (1.5, -1)
+    assert seen_targets(scenario, 1.5, -1.0, math.radians(90), cabinet) == ["CC"]  # straight ahead
+    assert seen_targets(scenario, 1.5, -1.0, math.radians(-90), cabinet) == []  # behind the camera
+    assert seen_targets(scenario, 1.5, -1.0, math.radians(160), cabinet) == []  # just outside the view
+    assert seen_targets(scenario, 1.5, -1.0, math.radians(135), cabinet) == ["CC"]  # at the edge of the field
     # The 3 m pallet stack hides the 0.9 m one directly behind it (seen from the east along the row).
     stack = {"PS1": scenario.object("PS1")}
     assert seen_targets(scenario, -3.0, -11.75, math.pi, stack) == []
