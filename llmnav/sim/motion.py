@@ -121,13 +121,15 @@ class Motion:
         spec = robot.spec
         brake = BRAKE_FRACTION * robot.max_angular_acc  # [rad/s^2]
         timeout = timeout_s if timeout_s is not None else abs(angle_rad) / spec.max_angular * 2.0 + 5.0
-        state = {"turned": 0.0, "yaw": robot.odom().yaw}
+        turned = 0.0  # [rad] unwrapped odometry rotation so far
+        last_yaw = robot.odom().yaw
 
         def control() -> tuple[float, float] | None:
+            nonlocal turned, last_yaw
             yaw = robot.odom().yaw
-            state["turned"] += wrap_angle(yaw - state["yaw"])
-            state["yaw"] = yaw
-            remaining = angle_rad - state["turned"]  # [rad]
+            turned += wrap_angle(yaw - last_yaw)
+            last_yaw = yaw
+            remaining = angle_rad - turned  # [rad]
             if abs(remaining) <= ROTATE_TOL:
                 return None
             rate = max(MIN_ANGULAR, min(spec.max_angular, math.sqrt(2.0 * brake * abs(remaining))))
