@@ -6,7 +6,7 @@ until the end. `print_result` shows the outcome, score, path length and run fold
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -20,6 +20,15 @@ if TYPE_CHECKING:
 
 MAX_ROWS = 12  # rows kept on screen; older steps scroll away
 REASONING_CHARS = 70
+COLUMNS: list[tuple[str, Literal["left", "right"]]] = [
+    ("step", "right"),
+    ("action", "left"),
+    ("reasoning", "left"),
+    ("front", "right"),
+    ("latency", "right"),
+    ("vetoes", "right"),
+    ("JSON retries", "right"),
+]
 
 
 def _fmt(value: float | None, unit: str, digits: int = 2) -> str:
@@ -42,16 +51,9 @@ class LiveView:
         self._live = Live(self._render(), console=console, refresh_per_second=8, transient=False)
 
     def _render(self) -> Group:
-        table = Table(title=self.title, title_justify="left", expand=False, show_lines=False)
-        table.add_column("step", justify="right")
-        table.add_column("action")
-        table.add_column("reasoning", overflow="ellipsis", max_width=REASONING_CHARS)
-        table.add_column("front", justify="right")
-        table.add_column("latency", justify="right")
-        table.add_column("vetoes", justify="right")
-        table.add_column("JSON retries", justify="right")
-        for info in self.rows[-MAX_ROWS:]:
-            table.add_row(
+        rows = self.rows[-MAX_ROWS:]
+        cells = [
+            (
                 str(info.step),
                 info.action,
                 _first_line(info.reasoning),
@@ -60,6 +62,16 @@ class LiveView:
                 str(info.vetoes) if info.vetoes else "",
                 str(info.json_retries) if info.json_retries else "",
             )
+            for info in rows
+        ]
+        # A column no planner fills (no reasoning from the oracle, no latency without a model) is left out.
+        shown = [i for i in range(len(COLUMNS)) if i < 2 or any(c[i] not in ("", "–") for c in cells)]
+        table = Table(title=self.title, title_justify="left", expand=False)
+        for i in shown:
+            name, justify = COLUMNS[i]
+            table.add_column(name, justify=justify, overflow="fold")
+        for row in cells:
+            table.add_row(*(row[i] for i in shown))
         return Group(table)
 
     def on_step(self, info: StepInfo) -> None:
@@ -72,7 +84,10 @@ class LiveView:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._live.stop()
+        if self._live.is_started:
+            self._live.stop()
+            if not self.console.is_terminal:  # a redirected live view ends without a line break
+                self.console.line()
 
 
 class ProgressView:

@@ -30,8 +30,10 @@ def _oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[t
         path = oracle_path(scenario, task, Pose2D.from_list(start))
     except (ImportError, LlmnavError):
         return None
-    points = getattr(path, "points", path)
-    return [(float(p[0]), float(p[1])) for p in points] if points else None
+    if path is None:
+        return None
+    # The shortcut path (what a robot following the oracle drives), not the raw grid staircase.
+    return [(start[0], start[1]), *((float(x), float(y)) for x, y in path.waypoints)]
 
 
 def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Path) -> Path:
@@ -52,7 +54,9 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
         if start is not None:
             oracle = _oracle_points(scenario, task, start)
             if oracle:
-                ax.plot(*zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=4)
+                ax.plot(
+                    *zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=5.5
+                )
         if poses:
             xs, ys = [p[0] for p in poses], [p[1] for p in poses]
             ax.plot(xs, ys, "-", color="tab:blue", lw=2.0, label="robot path", zorder=5)
@@ -64,7 +68,7 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
             f"{scenario.name} · {task.id}: {task.text} · {record.config.get('planner')} · {outcome}",
             fontsize=9,
         )
-        ax.legend(loc="upper right", fontsize=7, framealpha=0.8)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
         out_path = Path(out_path)
         fig.savefig(out_path, dpi=DPI, bbox_inches="tight")
     finally:
