@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from llmnav.scenario import Scenario, Shape, Task
+from llmnav.scenario import LabelledObject, Scenario, Shape, Task
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -86,6 +86,7 @@ def draw_scenario(ax: Axes, scenario: Scenario, *, labels: bool = True) -> None:
     # Small labels for dense worlds (corridor_c has ~40 objects); big worlds get a smaller font.
     extent = max(bx[1] - bx[0], by[1] - by[0])
     fontsize = 6.5 if extent > 12 else 7.5
+    placed: list[tuple[float, float, str]] = []  # labels so far (anchor, text), to keep neighbours apart
     for obj in scenario.objects:
         face = obj.color if obj.solid else (*obj.color[:3], _NON_SOLID_ALPHA)
         patch = ax.add_patch(_patch(obj, color=face, edge=(0.1, 0.1, 0.1, 1.0), dashed=not obj.solid))
@@ -93,24 +94,47 @@ def draw_scenario(ax: Axes, scenario: Scenario, *, labels: bool = True) -> None:
         if obj.goal is not None:
             ax.plot(*obj.goal, marker="x", markersize=3, color=(0.3, 0.3, 0.3), zorder=5)
         if labels:
-            top = (obj.center[0], obj.center[1] + obj.half_extents()[1])  # label just above the footprint
-            ax.annotate(
-                obj.label,
-                top,
-                textcoords="offset points",
-                xytext=(0, 1.5),
-                ha="center",
-                va="bottom",
-                fontsize=fontsize,
-                color=(0.1, 0.1, 0.1),
-                zorder=6,
-            )
+            _label(ax, obj, placed, extent=extent, fontsize=fontsize)
     ax.set_xlim(bx[0] - 0.3, bx[1] + 0.3)
     ax.set_ylim(by[0] - 0.3, by[1] + 0.3)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.grid(True, linewidth=0.3, alpha=0.4)
+
+
+def _label(
+    ax: Axes, obj: LabelledObject, placed: list[tuple[float, float, str]], *, extent: float, fontsize: float
+) -> None:
+    """Label an object above its footprint, or below when a neighbour's label is close by.
+
+    When both spots are taken by a label with the same text (a cluster of barrels), one label is enough.
+    """
+    half_y = obj.half_extents()[1]
+    spots = [
+        ((obj.center[0], obj.center[1] + half_y), False),
+        ((obj.center[0], obj.center[1] - half_y), True),
+    ]
+
+    def near(x: float, y: float) -> list[str]:
+        return [t for px, py, t in placed if abs(px - x) < 0.12 * extent and abs(py - y) < 0.03 * extent]
+
+    free = [(anchor, below) for anchor, below in spots if not near(*anchor)]
+    if not free and any(obj.label in near(*anchor) for anchor, _ in spots):
+        return
+    anchor, below = free[0] if free else spots[0]
+    placed.append((anchor[0], anchor[1], obj.label))
+    ax.annotate(
+        obj.label,
+        anchor,
+        textcoords="offset points",
+        xytext=(0, -1.5 if below else 1.5),
+        ha="center",
+        va="top" if below else "bottom",
+        fontsize=fontsize,
+        color=(0.1, 0.1, 0.1),
+        zorder=6,
+    )
 
 
 def _draw_start_poses(ax: Axes, scenario: Scenario, task: Task | None) -> None:
