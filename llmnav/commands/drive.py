@@ -6,13 +6,16 @@ import json
 import re
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from pydantic import ValidationError
 
 from llmnav.commands.common import cli_errors, console
 from llmnav.errors import BadInputError
+
+if TYPE_CHECKING:
+    from llmnav.runner import EpisodeSpec
 
 
 def _option_error(err: ValidationError) -> BadInputError:
@@ -103,19 +106,21 @@ def drive(
     if any(SEQUENCE_JOIN in t for t in texts):
         raise BadInputError(f"--task: a task text may not contain {SEQUENCE_JOIN!r}; repeat --task instead")
     try:
-        options = DriveOptions(
-            planner=planner,  # type: ignore[arg-type]
-            sensing=tuple(s.strip() for s in sensing.split(",") if s.strip()),  # type: ignore[arg-type]
-            lidar_sectors=lidar_sectors,
-            lidar_fov_deg=lidar_fov,
-            prompt=prompt,
-            history=history,  # type: ignore[arg-type]
-            self_check=self_check,
-            max_iterations=max_iterations,
-            seed=seed,
-            realtime=realtime,
-            assist=assist,  # type: ignore[arg-type]
-            obstacles=tuple(_parse_obstacle(o) for o in obstacle or []),
+        options = DriveOptions.model_validate(
+            {
+                "planner": planner,
+                "sensing": tuple(s.strip() for s in sensing.split(",") if s.strip()),
+                "lidar_sectors": lidar_sectors,
+                "lidar_fov_deg": lidar_fov,
+                "prompt": prompt,
+                "history": history,
+                "self_check": self_check,
+                "max_iterations": max_iterations,
+                "seed": seed,
+                "realtime": realtime,
+                "assist": assist,
+                "obstacles": tuple(_parse_obstacle(o) for o in obstacle or []),
+            }
         )
     except ValidationError as err:
         raise _option_error(err) from None
@@ -150,7 +155,7 @@ def _with_replay_mode(backend: str, loose: bool) -> str:
     return backend + ("&" if "?" in backend else "?") + "loose"
 
 
-def _run_with_view(spec: Any, *, quiet: bool, json_output: bool) -> dict[str, Any]:
+def _run_with_view(spec: EpisodeSpec, *, quiet: bool, json_output: bool) -> dict[str, Any]:
     from llmnav.planners.base import NullView
     from llmnav.reporting.live import LiveView, ProgressView
     from llmnav.runner import run_episode
