@@ -66,13 +66,13 @@ class LiveView:
         ]
         # A column no planner fills (no reasoning from the oracle, no latency without a model) is left out.
         shown = [i for i in range(len(COLUMNS)) if i < 2 or any(c[i] not in ("", "–") for c in cells)]
-        table = Table(title=self.title, title_justify="left", expand=False)
+        table = Table(expand=False)
         for i in shown:
             name, justify = COLUMNS[i]
             table.add_column(name, justify=justify, overflow="fold")
         for row in cells:
             table.add_row(*(row[i] for i in shown))
-        return Group(table)
+        return Group(Text(self.title, style="bold"), table)
 
     def on_step(self, info: StepInfo) -> None:
         """Add a row and redraw (the display starts with the first step, so bad input prints no table)."""
