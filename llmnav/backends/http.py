@@ -355,6 +355,7 @@ class HttpBackend(Backend):
         super().__init__(arg, **options)
         self.settings = parse_options(self.options_model, self.name, options)
         self._client: JsonHttpClient | None = None
+        self._client_lock = threading.Lock()  # the FSM assist may call chat from a worker thread
 
     def _make_client(self) -> JsonHttpClient:
         """Build this backend's client (base URL, auth headers, secrets to redact)."""
@@ -363,15 +364,17 @@ class HttpBackend(Backend):
     @property
     def client(self) -> JsonHttpClient:
         """The backend's HTTP client, built on first use."""
-        if self._client is None:
-            self._client = self._make_client()
-        return self._client
+        with self._client_lock:
+            if self._client is None:
+                self._client = self._make_client()
+            return self._client
 
     def close(self) -> None:
         """Close the HTTP connection pool."""
-        if self._client is not None:
-            self._client.close()
-            self._client = None
+        with self._client_lock:
+            if self._client is not None:
+                self._client.close()
+                self._client = None
 
 
 def probe(
