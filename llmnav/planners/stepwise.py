@@ -21,15 +21,15 @@ within their step.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
 
 from llmnav.backends.base import ChatRequest, ChatResult, Message
 from llmnav.guard.parse import GuardResult, correction_message, parse_answer
 from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, response_schema
 from llmnav.guard.veto import VetoResult, check_motion, veto_message
 from llmnav.observe import Observation, call_model, observe
-from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Outcome, Planner, StepInfo
 
 if TYPE_CHECKING:
     from llmnav.sim.motion import MotionResult
@@ -59,7 +59,6 @@ class _Counters:
     self_checks: int = 0
     revisions: int = 0  # self-checks that revised the answer
     collisions: int = 0
-    exchanges: list[tuple[Message, Message]] = field(default_factory=list)
 
 
 class StepwisePlanner(Planner):
@@ -129,6 +128,7 @@ class _Episode:
         )
         self.self_check_text = prompting.render(SELF_CHECK_TEMPLATE) if _self_check_on(self.options) else None
         self.counters = _Counters()
+        self.exchanges: list[tuple[Message, Message]] = []  # (user turn, accepted answer) per past step
         self.feedback = ""  # what went wrong with the last action, told with the next observation
 
     # --- the loop ---------------------------------------------------------------------------------
@@ -141,7 +141,7 @@ class _Episode:
                 obs = observe(ctx.world, options, ctx.log, step)
                 state = _StepState([obs.message(self._preface())])
                 answer, text = self._decide(step, obs, state)
-                self.counters.exchanges.append((state.turn[0], Message("assistant", text)))
+                self.exchanges.append((state.turn[0], Message("assistant", text)))
                 if answer.action.command is ActionCommand.COMPLETE:
                     self._log_action(step, answer, None)
                     self._show(step, answer, obs, state)
@@ -157,7 +157,7 @@ class _Episode:
 
     def _preface(self) -> str:
         """The task line, on the first turn or whenever the history window has dropped it."""
-        n = len(self.counters.exchanges)
+        n = len(self.exchanges)
         parts = []
         if not _task_in_window(n, self.options.history):
             parts.append(f"Task: {self.ctx.task.text}")
@@ -165,7 +165,7 @@ class _Episode:
             parts.append(self.feedback)
         return "\n".join(parts)
 
-    def _outcome(self, outcome: Any, reason: str, step: int) -> EpisodeOutcome:
+    def _outcome(self, outcome: Outcome, reason: str, step: int) -> EpisodeOutcome:
         c = self.counters
         metrics = {
             "corrections": c.corrections,
@@ -179,7 +179,7 @@ class _Episode:
     # --- one decision ---------------------------------------------------------------------------
     def _ask(self, step: int, state: _StepState, purpose: str, *, constrained: bool = True) -> str:
         options = self.options
-        messages = (self.system, *history_window(self.counters.exchanges, options.history), *state.turn)
+        messages = (self.system, *history_window(self.exchanges, options.history), *state.turn)
         request = ChatRequest(
             messages=messages,
             json_schema=self.schema if constrained else None,
