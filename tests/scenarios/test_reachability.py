@@ -59,10 +59,10 @@ def test_every_target_is_reachable_from_every_start(name: str) -> None:
 
 
 def test_blocked_target_is_detected() -> None:
-    """The check can fail: wall off the maze's last lane and the stop sign becomes unreachable."""
+    """The check can fail: wall off the maze's last lane and the stop sign is out of reach."""
     scenario = load_scenario("maze_arena")
     data = scenario.model_dump()
-    data["walls"].append({"id": "plug", "center": [4.15, 2.5], "size": [1.7, 0.1], "height": 0.5})
+    data["walls"].append({"id": "plug", "center": [4.45, 4.0], "size": [1.1, 0.1], "height": 0.5})
     blocked = Scenario.model_validate(data)
     labels, xs, ys = free_space(blocked)
     start = blocked.task("M1").start_poses[0]
