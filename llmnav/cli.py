@@ -22,6 +22,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("score", "score", "score"),
     ("ablate", "ablate", "ablate"),
     ("backends", "backends", "backends"),
+    ("transcribe", "transcribe", "transcribe"),
 ]
 _GROUPS: list[tuple[str, str]] = [("scenarios", "scenarios")]
 

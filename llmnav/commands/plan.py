@@ -14,7 +14,15 @@ from llmnav.errors import BadInputError
 
 @cli_errors
 def plan(
-    task: Annotated[str, typer.Option("--task", help="Command naming a target, e.g. 'Go to room 101'.")],
+    task: Annotated[
+        str | None, typer.Option("--task", help="Command naming a target, e.g. 'Go to room 101'.")
+    ] = None,
+    task_audio: Annotated[
+        Path | None, typer.Option("--task-audio", help="A spoken command (WAV) instead of --task.")
+    ] = None,
+    asr_free: Annotated[
+        bool, typer.Option("--asr-free", help="Voice: open language model, no grammar.")
+    ] = False,
     scenario: Annotated[
         str | None, typer.Option(help="Scenario (default: the corridor the task names).")
     ] = None,
@@ -33,6 +41,13 @@ def plan(
     from llmnav.planners.waypoints import generate_plan, ground_target, plan_summary
     from llmnav.tasks import resolve_task
 
+    if (task is None) == (task_audio is None):
+        raise BadInputError("give exactly one of --task TEXT or --task-audio FILE.wav")
+    if task_audio is not None:
+        from llmnav.commands.transcribe import audio_task
+
+        task = audio_task(task_audio, scenario, asr_free)
+    assert task is not None
     if max_generations < 1:
         raise BadInputError(f"--max-generations {max_generations}: must be at least 1")
     resolved = resolve_task(scenario, [task], None, start_pose)
