@@ -52,3 +52,9 @@ class VetoedMotionError(LlmnavError):
 
 class PromptTemplateError(BadInputError):
     """A prompt template is unknown or malformed, or a value it needs was not given (the message names it)."""
+
+
+def one_line(err: BaseException) -> str:
+    """An error's message as one line for logs and the terminal (its class name when it has no message)."""
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from llmnav.backends.base import ChatRequest, ChatResult, Image, Message
-from llmnav.errors import LlmnavError
+from llmnav.errors import LlmnavError, one_line
 
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
@@ -127,12 +127,7 @@ def call_model(ctx: EpisodeContext, request: ChatRequest, purpose: str, step: in
     try:
         result = ctx.backend.chat(request)
     except LlmnavError as err:
-        ctx.log.event("llm_call", step=step, purpose=purpose, request=request.to_log(), error=_one_line(err))
+        ctx.log.event("llm_call", step=step, purpose=purpose, request=request.to_log(), error=one_line(err))
         raise
     ctx.log.event("llm_call", step=step, purpose=purpose, request=request.to_log(), reply=result.to_log())
     return result
-
-
-def _one_line(err: BaseException) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
-from llmnav.errors import LlmnavError
+from llmnav.errors import LlmnavError, one_line
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, NullView, View
 from llmnav.scenario import resolve_scenario_path
 
@@ -128,12 +128,6 @@ def _summarize(log: RunLog, scenario: Scenario, outcome: EpisodeOutcome) -> dict
     return summary
 
 
-def _reason(err: BaseException) -> str:
-    """An error's one-line message (its class name when it has none)."""
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
-
-
 def run_episode(
     spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None
 ) -> dict[str, Any]:
@@ -202,13 +196,13 @@ def _run_logged(
     try:
         outcome = planner.run(ctx)
     except LlmnavError as err:
-        outcome = EpisodeOutcome("aborted", _reason(err))
+        outcome = EpisodeOutcome("aborted", one_line(err))
     except BaseException as err:  # a bug or Ctrl-C: keep the log valid, then let it propagate
         crash = err
         reason = (
             "interrupted"
             if isinstance(err, KeyboardInterrupt)
-            else f"crash: {type(err).__name__}: {_reason(err)}"
+            else f"crash: {type(err).__name__}: {one_line(err)}"
         )
         outcome = EpisodeOutcome("aborted", reason)
     finally:
@@ -231,7 +225,7 @@ def _run_logged(
         summary["trajectory"] = str(plot_run(log.run_dir, scenario, task, log.run_dir / TRAJECTORY_FILE))
     except Exception as err:  # noqa: BLE001
         summary["trajectory"] = None
-        summary["trajectory_error"] = f"{type(err).__name__}: {_reason(err)}"
+        summary["trajectory_error"] = f"{type(err).__name__}: {one_line(err)}"
     if crash is not None:
         raise crash
     return summary
