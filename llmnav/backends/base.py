@@ -138,11 +138,21 @@ class Backend(ABC):
         return f"<{type(self).__name__} {self.spec}>"
 
 
+def _entry_points() -> dict[str, Any]:
+    return {ep.name: ep for ep in entry_points(group="llmnav.backends")}
+
+
 def registry() -> dict[str, type[Backend]]:
-    """All backends registered under the `llmnav.backends` entry-point group, by name."""
+    """Every backend under the `llmnav.backends` entry-point group that imports; broken ones are left out.
+
+    `llmnav backends` loads them one by one to show the broken ones with their reason.
+    """
     found: dict[str, type[Backend]] = {}
-    for ep in entry_points(group="llmnav.backends"):
-        found[ep.name] = ep.load()
+    for name, ep in _entry_points().items():
+        try:
+            found[name] = ep.load()
+        except Exception:  # noqa: BLE001 - a broken third-party plugin must not hide the others
+            continue
     return found
 
 
@@ -153,10 +163,14 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
 
 
 def get_backend(spec: str, **options: Any) -> Backend:
-    """Instantiate the backend a spec string names."""
+    """Instantiate the backend a spec string names (only that backend's module is imported)."""
     name, arg = parse_spec(spec)
-    backends = registry()
-    if name not in backends:
-        known = ", ".join(sorted(backends))
+    points = _entry_points()
+    if name not in points:
+        known = ", ".join(sorted(points))
         raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {known})")
-    return backends[name](arg, **options)
+    try:
+        cls: type[Backend] = points[name].load()
+    except Exception as err:  # noqa: BLE001
+        raise BackendSpecError(f"backend '{name}' failed to load: {type(err).__name__}: {err}") from None
+    return cls(arg, **options)
