@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from llmnav.planners.base import Planner
     from llmnav.runlog import RunLog
     from llmnav.scenario import Scenario, Task
+    from llmnav.sim.world import World
 
 TRAJECTORY_FILE = "trajectory.png"
 
@@ -119,15 +120,6 @@ def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
     return {"lidar": scenario.sensors.lidar, "camera": camera}
 
 
-def _summarize(log: RunLog, scenario: Scenario, outcome: EpisodeOutcome) -> dict[str, Any]:
-    from llmnav.metrics import summarize_run
-    from llmnav.runlog import read_run
-
-    summary = summarize_run(read_run(log.run_dir), scenario, outcome)
-    summary["run_dir"] = str(log.run_dir)
-    return summary
-
-
 def run_episode(
     spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None
 ) -> dict[str, Any]:
@@ -174,7 +166,7 @@ def run_episode(
 
 def _run_logged(
     planner: Planner,
-    world: Any,
+    world: World,
     scenario: Scenario,
     task: Task,
     backend: Backend | None,
@@ -216,13 +208,18 @@ def _run_logged(
         iterations=outcome.iterations,
         metrics=outcome.metrics,
     )
-    summary = _summarize(log, scenario, outcome)
+    from llmnav.metrics import summarize_run
+    from llmnav.runlog import read_run
+
+    record = read_run(log.run_dir)
+    summary = summarize_run(record, scenario, outcome)
+    summary["run_dir"] = str(log.run_dir)
     log.write_summary(summary)
     # The figure is a convenience: a plotting failure must not cost the episode its result.
     try:
-        from llmnav.reporting.trajectory import plot_run
+        from llmnav.reporting.trajectory import plot_record
 
-        summary["trajectory"] = str(plot_run(log.run_dir, scenario, task, log.run_dir / TRAJECTORY_FILE))
+        summary["trajectory"] = str(plot_record(record, scenario, task, log.run_dir / TRAJECTORY_FILE))
     except Exception as err:  # noqa: BLE001
         summary["trajectory"] = None
         summary["trajectory_error"] = f"{type(err).__name__}: {one_line(err)}"

@@ -92,10 +92,3 @@ def _number_steps(ax: Any, actions: list[dict[str, Any]]) -> None:
             color="tab:blue",
             zorder=7,
         )
-
-
-def plot_run(run_dir: Path, scenario: Scenario, task: Task, out_path: Path) -> Path:
-    """Read a run folder and draw its trajectory figure."""
-    from llmnav.runlog import read_run
-
-    return plot_record(read_run(run_dir), scenario, task, out_path)
