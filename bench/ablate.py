@@ -11,6 +11,7 @@ Set BENCH_ABLATE_REPEATS (default 1) for medians over several sweeps.
 from __future__ import annotations
 
 import os
+import resource
 import statistics
 import tempfile
 import time
@@ -73,46 +74,62 @@ def scripted_episode(spec: EpisodeSpec) -> dict[str, Any]:
     return run_episode(spec, backend_obj=ScriptedBackend())
 
 
-def _sweep(workers: int) -> tuple[float, int, int]:
-    """Wall time [s], episodes and successes of one sweep of the grid in a fresh folder."""
+def _cpu_s() -> float:
+    """CPU time [s] of this process plus its finished children (the pool's workers, once shut down)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def _sweep(workers: int) -> tuple[float, float, int, int]:
+    """Wall time [s], CPU time [s], episodes and successes of one sweep of the grid in a fresh folder."""
     with tempfile.TemporaryDirectory() as tmp:
         ablation = plan(grid_from_mapping(GRID, "bench"), Path(tmp) / "ab")
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), _cpu_s()
         run(ablation, workers=workers, runner=scripted_episode)
-        wall = time.perf_counter() - start
+        wall, cpu = time.perf_counter() - start, _cpu_s() - cpu_start
         entries = list(ablation.entries.values())
         errors = [e for e in entries if e.status == "error"]
         if errors:
             raise RuntimeError(f"{len(errors)} episode(s) failed, first: {errors[0].key}: {errors[0].error}")
-        return wall, len(entries), sum(1 for e in entries if e.success)
+        return wall, cpu, len(entries), sum(1 for e in entries if e.success)
 
 
 def main() -> None:
     """Print the throughput table."""
     repeats = int(os.environ.get("BENCH_ABLATE_REPEATS", "1"))
     walls: dict[int, list[float]] = {1: [], 2: []}
+    cpus: dict[int, list[float]] = {1: [], 2: []}
     size = successes = 0
     for _ in range(repeats):
         for workers in (1, 2):
-            wall, size, successes = _sweep(workers)
+            wall, cpu, size, successes = _sweep(workers)
             walls[workers].append(wall)
+            cpus[workers].append(cpu)
     serial, parallel = statistics.median(walls[1]), statistics.median(walls[2])
     speedup = serial / parallel
     projected = parallel / size * PROTOCOL_EPISODES
+    # On a machine shared with other work the wall times stretch; the CPU time per episode does not.
+    cpu_per_episode = statistics.median(cpus[2]) / size
+    projected_idle = cpu_per_episode * PROTOCOL_EPISODES / 2
+    load = os.getloadavg()[0]
     print(
         f"\nbench.ablate — {size}-episode factory ablation (stepwise, LiDAR + 640×480 camera, scripted model)"
     )
-    print(f"(median of {repeats} sweep(s); {successes}/{size} scripted episodes ended as successes)")
-    print(f"{'workers':>8} {'wall (s)':>9} {'episodes/min':>13}")
+    print(
+        f"(median of {repeats} sweep(s); {successes}/{size} scripted episodes succeeded; load avg {load:.1f})"
+    )
+    print(f"{'workers':>8} {'wall (s)':>9} {'episodes/min':>13} {'CPU/episode (s)':>16}")
     for workers, wall in ((1, serial), (2, parallel)):
-        print(f"{workers:>8} {wall:>9.1f} {size / wall * 60:>13.1f}")
+        cpu = statistics.median(cpus[workers]) / size
+        print(f"{workers:>8} {wall:>9.1f} {size / wall * 60:>13.1f} {cpu:>16.2f}")
     verdict = "ok" if speedup >= TARGET_SPEEDUP else "BELOW TARGET"
     print(f"speed-up 2 vs 1 workers: {speedup:.2f}× (target ≥ {TARGET_SPEEDUP}×) {verdict}")
-    verdict = "ok" if projected <= TARGET_PROTOCOL_S else "ABOVE TARGET"
-    print(
-        f"projected {PROTOCOL_EPISODES}-episode protocol with 2 workers: {projected / 60:.1f} min "
-        f"(target ≤ {TARGET_PROTOCOL_S / 60:.0f} min) {verdict}"
-    )
+    for label, value in (("measured", projected), ("CPU-bound, 2 idle cores", projected_idle)):
+        verdict = "ok" if value <= TARGET_PROTOCOL_S else "ABOVE TARGET"
+        print(
+            f"projected {PROTOCOL_EPISODES}-episode protocol, 2 workers, {label}: {value / 60:.1f} min "
+            f"(target ≤ {TARGET_PROTOCOL_S / 60:.0f} min) {verdict}"
+        )
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """Ablation sweeps: a grid of conditions → episodes, run resumably and in parallel, with a manifest.
 
 A grid is the cartesian product of the ablated factors (`lidar_sectors`, `prompt`, `history`, `sensing`,
-`backend`, `assist`, `planner`) over tasks × start poses × trials. Each episode has a key naming it, one run
+`backend`, `assist`, `planner`) over tasks × start poses × trials. Each episode has a key naming it
+(`T8-p1-t2-lidar_sectors=3`: task, start pose, trial and the factors with several values), one run
 folder under the ablation folder named from that key, and a seed derived from (base seed, task, pose,
 trial): every condition sees the same seeds, so differences between conditions come from the factor, not
 from the noise, and results never depend on the order or the process that ran an episode.
@@ -201,7 +202,7 @@ def episode_seed(base_seed: int, task_id: str, start_pose: int, trial: int) -> i
 
 
 def episode_key(task_id: str, start_pose: int, trial: int, factors: dict[str, Any]) -> str:
-    """`T8-p1-t2` plus `-lidar_sectors=3` per ablated factor."""
+    """`T8-p1-t2` plus `-lidar_sectors=3` per factor given (callers pass the ones that vary)."""
     parts = [f"{task_id}-p{start_pose}-t{trial}"]
     parts += [f"{name}={value}" for name, value in factors.items()]
     return "-".join(parts)
@@ -251,6 +252,8 @@ def expand(grid: GridSpec) -> list[Episode]:
     factors = grid.factors()
     names = list(factors)
     combos = [dict(zip(names, values, strict=True)) for values in itertools.product(*factors.values())]
+    # Keys name only the factors that vary; one-value factors are checked against the logged options.
+    varying = {name for name, values in factors.items() if len(values) > 1}
     episodes: list[Episode] = []
     for task_id in tasks:
         available = len(scenario.start_poses(scenario.task(task_id)))
@@ -267,7 +270,7 @@ def expand(grid: GridSpec) -> list[Episode]:
                 )
             except ValidationError as err:
                 raise BadInputError(f"grid value: {_validation_message(err)}") from None
-            key = episode_key(task_id, pose, trial, combo)
+            key = episode_key(task_id, pose, trial, {k: v for k, v in combo.items() if k in varying})
             backend = str(combo.get("backend", (grid.backend or [DEFAULT_BACKEND])[0]))
             episodes.append(Episode(key, _dir_name(key), task_id, pose, trial, seed, combo, backend, options))
     return episodes

@@ -53,6 +53,9 @@ def test_expand_keys_seeds_and_options(scenario_file: Path, tmp_path: Path) -> N
     assert first.seed == lib.episode_seed(7, "T1", 1, 1) != lib.episode_seed(7, "T1", 1, 2)
     assert lib.episode_seed(8, "T1", 1, 1) != first.seed
     assert first.options.seed == first.seed and first.backend == "local"
+    # a factor with one value is not part of the key, but still sets the options
+    single = lib.plan(_grid(scenario_file, prompt=["short"], lidar_sectors=[5]), tmp_path / "s").episodes[0]
+    assert single.key == "T1-p1-t1" and single.options.prompt == "short" and single.options.lidar_sectors == 5
     # all tasks, all poses
     assert lib.plan(lib.grid_from_mapping({"scenario": str(scenario_file)}, "t"), tmp_path).size == 5
 
