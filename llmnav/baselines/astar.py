@@ -8,8 +8,8 @@ for a set the caller passes an admissible heuristic array (0 turns A* into Dijks
 
 `shortcut` then removes grid zig-zags by line of sight on the same blocked mask; its result is still
 collision-free and never longer. Which length to report is the caller's choice: `GridPath.length_m` is
-the raw grid length (an honest, slightly pessimistic shortest path: 8-connected paths can be up to ≈ 8 %
-longer than the true Euclidean one), `polyline_length` gives the shortcut length.
+the raw grid length (8-connected paths can be up to ≈ 8 % longer than the true Euclidean shortest path),
+`polyline_length` of the shortcut corners is closer to it (the oracle reports that one).
 
 Reference: P. E. Hart, N. J. Nilsson, B. Raphael, "A formal basis for the heuristic determination of
 minimum cost paths", IEEE Trans. SSC 4(2), 1968.

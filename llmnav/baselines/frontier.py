@@ -13,9 +13,11 @@ The robot starts knowing nothing but the extent of the world. It keeps a `grid.L
    radius + margin): the robot plans only through space it has seen free and keeps its clearance from
    whatever may hide in the unknown, so its goals are the free cells just outside that inflation, next to
    a frontier.
-4. *Drive*: follow the line-of-sight-shortcut path with `Motion.go_to`, integrating LiDAR samples on the
-   way (every `rescan_every_m`), with the LiDAR obstacle stop armed (the path may border unknown space);
-   detections are checked after each waypoint.
+4. *Drive*: follow the line-of-sight-shortcut path with `Motion.go_to` in legs of at most
+   `waypoint_spacing_m`; after each leg a scan goes into the map and the detector looks for targets.
+   The path runs through seen-free space only, so no LiDAR stop is armed (it would cost a scan every
+   0.1 s); a bump into something the LiDAR cannot see (lower than its mount) is marked in the map, the
+   robot backs off and plans again.
 
 Once a target is detected, the final leg is the oracle's A* on the *true* grid from the current pose to
 that target's approach point (`oracle.plan_to_targets`), driven the same way; then the robot faces it.
@@ -67,14 +69,9 @@ class FrontierConfig:
     goal_band_m: float = 0.2  # [m] goals lie within inflation + this of a frontier cell
     start_snap_m: float = 0.5  # [m] how far the planner may snap the robot out of the inflation
     waypoint_spacing_m: float = 1.0  # [m] longest go_to leg while exploring (detections run after each)
-    rescan_every_m: float = 0.5  # [m] integrate a LiDAR sample into the map after this much travel
-    rescan_every_rad: float = math.radians(30.0)  # [rad] ... or this much turning
     sweep_fov_fraction: float = 0.9  # share of the camera's horizontal FOV turned per sweep step
-    obstacle_clearance_m: float = (
-        0.15  # [m] go_to stops when something ahead (+-15 deg) is this close to the body
-    )
-    emergency_clearance_m: float = 0.05  # [m] ... or anything in the front half plane is this close
-    bump_backoff_m: float = 0.15  # [m] reverse this far after a collision
+    bump_backoff_m: float = 0.15  # [m] move this far away from a collision
+    bump_mark_radius_m: float = 0.2  # [m] disc marked occupied just beyond the body where it touched
     max_frontiers: int = 40  # frontier goals before giving up
     max_sim_time_s: float = 900.0  # [s] sim-time budget for the whole episode
     max_replans: int = 3  # [count] obstacle stops / bumps tolerated on the way to one frontier
@@ -105,29 +102,16 @@ class _Explorer:
         self.drive = Drive()
         self.frontiers = 0  # frontier goals chosen
         self.bumps = 0
-        self.obstacle_stops = 0
-        self._last_scan_pose: Pose2D | None = None
         self.target_ids = {t.object for t in ctx.task.targets if t.object is not None}
 
     # --- sensing ------------------------------------------------------------------------------
     def integrate(self, pose: Pose2D, scan: LidarScan) -> None:
         """Add a scan to the map."""
         self.map.integrate(pose, scan)
-        self._last_scan_pose = pose
 
     def scan_now(self) -> None:
         """Take and integrate one scan at the current pose."""
         self.integrate(self.robot.pose(), self.world.lidar.scan())
-
-    def on_sample(self, pose: Pose2D, scan: LidarScan) -> None:
-        """go_to's LiDAR samples: integrate every `rescan_every_m` of travel or `rescan_every_rad` of turn."""
-        last = self._last_scan_pose
-        if (
-            last is None
-            or math.hypot(pose.x - last.x, pose.y - last.y) >= self.config.rescan_every_m
-            or abs(math.remainder(pose.yaw - last.yaw, 2 * math.pi)) >= self.config.rescan_every_rad
-        ):
-            self.integrate(pose, scan)
 
     def detect(self) -> _Found | None:
         """An acceptable target in view (camera), or a point target already seen free in the map."""
@@ -235,44 +219,34 @@ class _Explorer:
 
     # --- acting -------------------------------------------------------------------------------
     def bump_recovery(self) -> None:
-        """After touching something the LiDAR missed: mark it in the map and back off."""
+        """After touching something the LiDAR missed (lower than its mount): map it, then back off."""
         self.bumps += 1
         pose = self.robot.pose()
-        reach = self.robot.spec.radius_m + 0.05  # [m] the contact lies just beyond the body, ahead
-        self.map.mark_occupied(pose.x + reach * math.cos(pose.yaw), pose.y + reach * math.sin(pose.yaw), 0.1)
-        result = self.world.motion.drive(-self.config.bump_backoff_m)
+        contacts = self.robot.contact_points()
+        if contacts:  # the contact normal points from the obstacle at the robot
+            _body, nx, ny, _dist = contacts[0]
+            norm = math.hypot(nx, ny) or 1.0
+            ux, uy = -nx / norm, -ny / norm
+        else:
+            ux, uy = math.cos(pose.yaw), math.sin(pose.yaw)
+        reach = self.robot.spec.radius_m + self.config.bump_mark_radius_m
+        self.map.mark_occupied(pose.x + reach * ux, pose.y + reach * uy, self.config.bump_mark_radius_m)
+        ahead = ux * math.cos(pose.yaw) + uy * math.sin(pose.yaw) >= 0.0
+        backoff = -self.config.bump_backoff_m if ahead else self.config.bump_backoff_m
+        result = self.world.motion.drive(backoff)
         self.drive.travelled_m += result.distance_m
         self.drive.steps += 1
 
     def explore_to(self, waypoints: list[Point]) -> _Found | None:
-        """Drive towards a frontier, checking detections after each waypoint."""
-        stop_m = self.robot.spec.radius_m + self.config.obstacle_clearance_m
+        """Drive towards a frontier; after each waypoint add a scan to the map and look for targets."""
+        tol = self.config.oracle.waypoint_tol_m
         for waypoint in waypoints:
-            result = self.world.motion.go_to(
-                *waypoint,
-                tol_m=self.config.oracle.waypoint_tol_m,
-                obstacle_stop_m=stop_m,
-                on_sample=self.on_sample,
-            )
-            self.drive.steps += 1
-            self.drive.travelled_m += result.distance_m
-            self.drive.last = result
-            self.ctx.log.sim_time = self.world.sim_time
-            self.ctx.log.event(
-                "action",
-                step=self.drive.steps,
-                command="GO_TO",
-                parameters=[round(waypoint[0], 3), round(waypoint[1], 3)],
-                pose_before=result.start.as_list(),
-                pose_after=result.end.as_list(),
-                collided=result.collided,
-                collision_with=result.collision_with,
-                stopped_reason=result.stopped_reason,
-            )
+            drive_waypoints(self.ctx, [waypoint], self.drive, tol_m=tol, final_tol_m=tol)
+            result = self.drive.last
+            assert result is not None
             if result.collided:
                 self.bump_recovery()
-            elif result.stopped_reason in ("obstacle", "emergency"):
-                self.obstacle_stops += 1
+            self.scan_now()
             found = self.detect()
             if found is not None or not result.ok:
                 return found
@@ -294,7 +268,6 @@ class _Explorer:
             "frontier_length_m": round(self.drive.travelled_m, 4),
             "frontiers_visited": self.frontiers,
             "bumps": self.bumps,
-            "obstacle_stops": self.obstacle_stops,
             "known_fraction": round(float(1.0 - self.map.unknown.mean()), 4),
         }
         if final_leg is not None:
@@ -325,8 +298,10 @@ class _Explorer:
             found = self.explore_to(waypoints)
             last = self.drive.last
             interrupted = last is not None and not last.ok
+            if last is not None and last.collided:
+                self.mark_visited(goal)  # something unseen lies there: do not insist on this goal
             if interrupted and replans < self.config.max_replans and found is None:
-                replans += 1  # stopped short (obstacle, bump): rescan and choose again, same goal may remain
+                replans += 1  # stopped short (bump, timeout): choose again; the same goal may remain
                 self.scan_now()
                 continue
             replans = 0

@@ -14,9 +14,11 @@ The heuristic is the octile distance to the nearest target's goal point minus th
 (stretched to octile), a lower bound of the remaining cost, so the first approach cell A* settles is the
 nearest by path length.
 
-Reported length: `OraclePath.length_m` is the raw 8-connected grid length from the start pose through the
-cell centres (what `oracle_length` and the metric `oracle_length_m` give); `smoothed_length_m` is the
-line-of-sight shortcut of the same path (never longer, also collision-free), kept for reference.
+Reported length: `OraclePath.length_m` (what `oracle_length` and the metric `oracle_length_m` give) is
+the length of the line-of-sight shortcut of the A* path, itself a collision-free path on the inflated
+grid, and the one the robot drives. The raw 8-connected grid length (`grid_length_m`, metric
+`oracle_grid_length_m`) is kept beside it: it overstates the true shortest path by up to ~8 % (grid
+zig-zags), so with it the oracle's own drives would come out *shorter* than the "shortest" path.
 
 `OraclePlanner` drives that path in the simulator with `Motion.go_to`, waypoint by waypoint, then turns
 to face the target. Tasks without targets: a `rotate` task turns 360°, an `explore` task ends at once.
@@ -73,10 +75,11 @@ class OraclePath:
     target_point: Point  # [m] the target's goal point (what the robot finally faces)
     approach: Point  # [m] where the path ends
     cells: list[Cell]
-    points: list[Point]  # [m] start pose, then cell centres
-    waypoints: list[Point]  # [m] shortcut and densified; excludes the start, ends at `approach`
-    length_m: float  # [m] raw grid length (the value reported)
-    smoothed_length_m: float  # [m] line-of-sight shortcut length
+    points: list[Point]  # [m] the shortcut polyline: start pose, corners, approach point
+    grid_points: list[Point]  # [m] the raw grid path: start pose, then cell centres
+    waypoints: list[Point]  # [m] `points` densified for go_to; excludes the start, ends at `approach`
+    length_m: float  # [m] length of `points` (the value reported)
+    grid_length_m: float  # [m] length of `grid_points` (raw 8-connected length)
 
 
 @dataclass(frozen=True)
@@ -140,21 +143,21 @@ def plan_to_targets(
         return None
     goal = next(g for g in goals if g.mask[path.goal])
     centres = [geometry.cell_to_world(*cell) for cell in path.cells]
-    points: list[Point] = [(start[0], start[1]), *centres[1:]] if len(centres) > 1 else [(start[0], start[1])]
-    if len(centres) == 1 and math.dist(points[0], centres[0]) > 1e-9:
-        points.append(centres[0])  # a snapped start: the step out of the inflation counts
+    # The exact start pose replaces its cell's centre; a path of one cell still steps to that centre.
+    grid_points = [(start[0], start[1]), *(centres[1:] if len(centres) > 1 else centres)]
     corners = [geometry.cell_to_world(*cell) for cell in shortcut(path.cells, grid.blocked)]
-    smoothed = [(start[0], start[1]), *corners[1:]] if len(corners) > 1 else [(start[0], start[1]), *corners]
-    waypoints = densify(smoothed, config.waypoint_spacing_m)[1:]
+    points = [(start[0], start[1]), *(corners[1:] if len(corners) > 1 else corners)]
+    waypoints = densify(points, config.waypoint_spacing_m)[1:]
     return OraclePath(
         target=goal.target,
         target_point=goal.point,
         approach=centres[-1],
         cells=path.cells,
         points=points,
+        grid_points=grid_points,
         waypoints=waypoints,
         length_m=polyline_length(points),
-        smoothed_length_m=polyline_length(smoothed),
+        grid_length_m=polyline_length(grid_points),
     )
 
 
@@ -214,7 +217,7 @@ def _cached_length(key: _ScenarioKey, task_id: str, x: float, y: float) -> float
 def oracle_length(
     scenario: Scenario, task: Task | str, start_pose_index_or_pose: int | Pose2D
 ) -> float | None:
-    """The oracle's path length [m] (raw grid length), cached; None for tasks without targets or no path.
+    """The oracle's path length [m] (`OraclePath.length_m`), cached; None without targets or path.
 
     An int is a 1-based index into the task's start poses (as `llmnav drive --start-pose`); a Pose2D is
     used as is.
@@ -380,12 +383,12 @@ class OraclePlanner(Planner):
                 target=path.target.object or list(path.target.point or ()),
                 approach=[round(v, 3) for v in path.approach],
                 length_m=round(path.length_m, 3),
-                smoothed_length_m=round(path.smoothed_length_m, 3),
+                grid_length_m=round(path.grid_length_m, 3),
                 waypoints=[[round(x, 3), round(y, 3)] for x, y in path.waypoints],
             )
             metrics = {
                 "oracle_length_m": round(path.length_m, 4),
-                "oracle_smoothed_length_m": round(path.smoothed_length_m, 4),
+                "oracle_grid_length_m": round(path.grid_length_m, 4),
             }
             drive_waypoints(
                 ctx,
