@@ -6,6 +6,7 @@ path dashed (skipped when the oracle cannot plan one). Drawn from the run log al
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,6 +18,8 @@ if TYPE_CHECKING:
 
 FIG_WIDTH_IN = 8.0  # [in]
 DPI = 120
+SAME_SPOT_M = 0.15  # [m] step ends closer than this share one label
+HEADING_ARROW_M = 0.8  # [m] length of the start and end heading arrows
 
 
 def _oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tuple[float, float]] | None:
@@ -62,6 +65,8 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
             ax.plot(xs, ys, "-", color="tab:blue", lw=2.0, label="robot path", zorder=5)
             ax.plot(xs[0], ys[0], "o", color="green", ms=9, label="start", zorder=6)
             ax.plot(xs[-1], ys[-1], "o", color="red", ms=9, label="end", zorder=6)
+            _heading(ax, poses[0], "green")
+            _heading(ax, poses[-1], "red")
         _number_steps(ax, record.of_type("action"))
         outcome = (record.of_type("end") or [{}])[-1].get("outcome", "cut short")
         ax.set_title(
@@ -77,18 +82,38 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
 
 
 def _number_steps(ax: Any, actions: list[dict[str, Any]]) -> None:
-    """Label each step's end pose with the step number (the last action of a step wins)."""
+    """Label each step's end pose with its number; steps ending at one spot (turns) share a label."""
     ends: dict[Any, list[float]] = {}
     for action in actions:
         if action.get("pose_after") is not None:
             ends[action.get("step")] = action["pose_after"]
+    spots: dict[tuple[int, int], list[str]] = {}
+    where: dict[tuple[int, int], list[float]] = {}
     for step, pose in ends.items():
+        key = (round(pose[0] / SAME_SPOT_M), round(pose[1] / SAME_SPOT_M))
+        spots.setdefault(key, []).append(str(step))
+        where.setdefault(key, pose)
+    for key, steps in spots.items():
+        pose = where[key]
+        label = ",".join(steps) if len(steps) <= 4 else f"{steps[0]}–{steps[-1]}"
         ax.annotate(
-            str(step),
+            label,
             (pose[0], pose[1]),
-            xytext=(3, 3),
+            xytext=(4, 4),
             textcoords="offset points",
             fontsize=7,
             color="tab:blue",
             zorder=7,
         )
+
+
+def _heading(ax: Any, pose: list[float], color: str) -> None:
+    """An arrow along a pose's heading."""
+    dx, dy = HEADING_ARROW_M * math.cos(pose[2]), HEADING_ARROW_M * math.sin(pose[2])
+    ax.annotate(
+        "",
+        (pose[0] + dx, pose[1] + dy),
+        (pose[0], pose[1]),
+        arrowprops={"arrowstyle": "->", "color": color, "lw": 1.5},
+        zorder=6,
+    )
