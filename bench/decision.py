@@ -105,7 +105,8 @@ def main() -> None:
         "median wall time per decision [ms]: sensors (scan, camera, JPEG, observation log), decide (prompt,"
     )
     print("instant model, guard, veto, call log), motion (physics of the executed action)")
-    columns = ("decision", 9), ("p90", 7), ("sensors", 9), ("decide", 8), ("motion", 8), ("target", 8), ("ratio", 7)
+    columns = [("decision", 9), ("p90", 7), ("sensors", 9), ("decide", 8), ("motion", 8)]
+    columns += [("target", 8), ("ratio", 7)]
     print(f"{'sensing':<24}" + "".join(f"{name:>{width}}" for name, width in columns))
     for label, sensing in (("lidar", ("lidar",)), ("lidar + camera 640x480", ("lidar", "image"))):
         phases = Phases()
