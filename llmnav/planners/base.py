@@ -52,7 +52,7 @@ class DriveOptions(BaseModel):
     alpha: float = Field(default=0.5, ge=0, le=1)
     beta: float = Field(default=0.5, ge=0, le=1)
     ttl_ms: float = Field(default=500.0, gt=0)
-    max_ticks: int = Field(default=6000, ge=1)
+    max_ticks: int = Field(default=15000, ge=1)  # [ticks] 300 s of sim time at 50 Hz
 
 
 @dataclass

@@ -50,8 +50,9 @@ class FsmConfig:
     publish_hz: float = 5.0  # [Hz] state-JSON rate in APPROACH (at most one request in flight)
     d_goal: float = 0.45  # [m] distance to a sign at which the FSM acts on it
     k_v: float = 0.3  # [1/s] linear gain
-    v_min: float = 0.0  # [m/s]
+    v_min: float = 0.0  # [m/s] lower edge of the admissible box (the robot never reverses)
     v_max: float = 0.06  # [m/s] the source's top setpoint
+    v_approach_min: float = 0.02  # [m/s] APPROACH floor: k_v (d - d_goal) alone fades to 0 before d_goal
     k_w: float = 1.5  # [1/s] angular gain on the bearing error
     w_max: float = 0.8  # [rad/s]
     accel_max: float = 0.1  # [m/s^2] first-order rate limit on v
@@ -302,7 +303,9 @@ class FsmPlanner(Planner):
                     target_w = cfg.search_w
                 elif state == "APPROACH" and target_id in visible:
                     seen = visible[target_id]
-                    target_v = saturate(cfg.k_v * (seen.distance_m - cfg.d_goal), cfg.v_min, cfg.v_max)
+                    target_v = saturate(
+                        cfg.k_v * (seen.distance_m - cfg.d_goal), cfg.v_approach_min, cfg.v_max
+                    )
                     target_w = saturate(cfg.k_w * math.radians(seen.bearing_deg), -cfg.w_max, cfg.w_max)
                 elif state in ("ACT_LEFT", "ACT_RIGHT"):
                     yaw = world.robot.odom().yaw
@@ -474,7 +477,7 @@ class FsmPlanner(Planner):
     def _metrics(self, ctx: EpisodeContext, stats: FsmStats, final: Any, start: Any) -> dict[str, Any]:
         from llmnav.runlog import read_run
 
-        target = ctx.scenario.target_points(ctx.task)[0] if ctx.task.targets else None
+        target = self._stop_point(ctx) if ctx.task.targets else None
         e_pos = final.distance_to(*target) if target is not None else None
         poses = read_run(ctx.log.run_dir).poses()
         real = float(sum(math.dist(a[:2], b[:2]) for a, b in zip(poses, poses[1:], strict=False)))
@@ -510,6 +513,28 @@ class FsmPlanner(Planner):
             "r_use": stats.ticks_using / ticks,
         }
 
+    def _stop_point(self, ctx: EpisodeContext) -> tuple[float, float]:
+        """p_target of e_pos: where the FSM should stop, d_goal in front of the target sign.
+
+        A sign's board is thin along one axis; its front is the side of that axis with free space.
+        A target with an explicit goal point (or a point target) is used as it is.
+        """
+        target = ctx.task.targets[0]
+        if target.object is None:
+            return ctx.scenario.target_points(ctx.task)[0]
+        obj = ctx.scenario.object(target.object)
+        if obj.goal is not None or obj.size is None:
+            return obj.goal_point
+        thin_yaw = obj.yaw + (math.pi / 2 if obj.size[0] >= obj.size[1] else 0.0)
+        solids = ctx.scenario.solid_shapes()
+        candidates = []
+        for sign in (1.0, -1.0):
+            x = obj.center[0] + sign * self.cfg.d_goal * math.cos(thin_yaw)
+            y = obj.center[1] + sign * self.cfg.d_goal * math.sin(thin_yaw)
+            clearance = min((shape.distance_to(x, y) for shape in solids), default=math.inf)
+            candidates.append((clearance, (x, y)))
+        return max(candidates)[1]
+
     @staticmethod
     def _plot_profile(ctx: EpisodeContext) -> None:
         from llmnav.reporting.velocity import plot_velocity_profile
@@ -520,7 +545,7 @@ class FsmPlanner(Planner):
 def _shortest_length(ctx: EpisodeContext, start: Any, target: tuple[float, float]) -> float | None:
     """L_opt for the trajectory efficiency: the A* length from the start to the target point."""
     try:
-        from llmnav.baselines.oracle import shortest_path_length
+        from llmnav.baselines.paths import shortest_path_length
     except ImportError:
         return None
     return shortest_path_length(ctx.scenario, (start.x, start.y), target)

@@ -354,7 +354,7 @@ class HybridPlanner(Planner):
         self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]
     ) -> list[tuple[float, float]] | None:
         """A* legs from the robot to the goal, no longer than `leg_max_m` each."""
-        from llmnav.baselines.astar import plan_path
+        from llmnav.baselines.paths import plan_path
 
         path = plan_path(grid, (start.x, start.y), goal)
         if path is None:

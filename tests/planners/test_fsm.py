@@ -1,0 +1,121 @@
+"""The FSM planner (source C) end to end on `maze_arena`: baseline run, assist modes, the acceptance rules
+applied to scripted model answers, fusion arithmetic, determinism, and independence from the backend."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from llmnav.backends.replay import ReplayBackend
+from llmnav.planners.base import DriveOptions
+from llmnav.planners.fsm import FsmConfig, project
+from llmnav.runlog import RunLog, RunRecord, read_run
+from llmnav.runner import EpisodeSpec, run_episode
+
+CFG = FsmConfig()
+
+
+def script(path: Path, replies: list[tuple[str, float]]) -> str:
+    """A run log of (answer, latency) pairs the replay backend returns in order, whatever the prompt."""
+    with RunLog(path, {"note": "scripted FSM suggestions"}) as log:
+        for text, latency in replies:
+            log.event(
+                "llm_call",
+                step=0,
+                purpose="suggestion",
+                request={"messages": []},
+                reply={"text": text, "latency_s": latency, "model": "script"},
+            )
+    return f"{path / 'run.jsonl'}?loose"
+
+
+def run_fsm(
+    tmp_path: Path, name: str, *, assist: str, backend: ReplayBackend | None = None, **options: Any
+) -> tuple[dict[str, Any], RunRecord]:
+    spec = EpisodeSpec(
+        scenario="maze_arena",
+        task_id="M1",
+        start_pose=1,
+        options=DriveOptions(planner="fsm", assist=assist, **options),  # type: ignore[arg-type]
+        backend=backend.spec if backend else "local",
+        out_dir=tmp_path / name,
+    )
+    summary = run_episode(spec, backend_obj=backend)
+    return summary, read_run(tmp_path / name)
+
+
+MIXED = [
+    ('{"linear_x": 0.05, "angular_z": 0.1}', 0.1),  # accepted
+    ('{"linear_x": 0.05, "angular_z": 0.0}', 0.8),  # stale: 800 ms > TTL 500 ms
+    ('{"linear_x": 2.0, "angular_z": 0.0}', 0.1),  # bounds: |v| > v_max
+    ("I would slow down a little.", 0.1),  # parse
+] * 150
+
+
+def test_baseline_fsm_follows_the_signs_to_the_stop_sign(tmp_path):
+    summary, record = run_fsm(tmp_path, "none", assist="none")
+    metrics = summary["planner_metrics"]
+    assert summary["outcome"] == "completed", summary["reason"]
+    assert metrics["e_pos_m"] < 0.15
+    assert 0.3 < metrics["eta"] <= 1.0
+    assert metrics["suggestions"] == 0 and metrics["r_use"] == 0.0
+    states = [e["state"] for e in record.of_type("planner") if e.get("kind") == "fsm_state"]
+    assert states.count("ACT_LEFT") >= 1 and states.count("ACT_RIGHT") >= 1 and states[-1] == "ACT_STOP"
+    assert (tmp_path / "none" / "velocity_profile.png").stat().st_size > 5000
+    assert not record.of_type("llm_call")
+
+
+def test_assist_none_is_identical_with_and_without_a_backend(tmp_path):
+    backend = ReplayBackend(script(tmp_path / "s", MIXED))
+    _, alone = run_fsm(tmp_path, "alone", assist="none", max_ticks=1200)
+    _, with_backend = run_fsm(tmp_path, "with", assist="none", backend=backend, max_ticks=1200)
+    assert alone.poses() == with_backend.poses()
+    assert backend.remaining == len(MIXED)  # the model was never asked
+
+
+def test_llm_suggestions_are_judged_fused_and_deterministic(tmp_path):
+    runs = []
+    for name in ("a", "b"):
+        backend = ReplayBackend(script(tmp_path / f"s-{name}", MIXED))
+        runs.append(run_fsm(tmp_path, name, assist="llm", backend=backend, max_ticks=2500))
+    (summary, record), (_, again) = runs
+    metrics = summary["planner_metrics"]
+    rejected = metrics["rejected"]
+    assert metrics["suggestions"] > 8
+    assert metrics["suggestions"] == metrics["accepted"] + sum(rejected.values())
+    assert (
+        metrics["accepted"] > 0 and rejected["stale"] > 0 and rejected["bounds"] > 0 and rejected["parse"] > 0
+    )
+    assert metrics["r_acc"] == pytest.approx(metrics["accepted"] / metrics["suggestions"])
+    assert 0 < metrics["r_use"] < 1
+    # The state JSON goes out only in APPROACH, with the source's fields.
+    for call in record.of_type("llm_call"):
+        state = json.loads(call["request"]["messages"][1]["text"])
+        assert state["phase"] == "APPROACH"
+        assert set(state) == {
+            "stamp",
+            "phase",
+            "class",
+            "distance",
+            "offset",
+            "base_v",
+            "base_w",
+            "deadline_ms",
+        }
+    # Every verdict is explained, and accepted answers arrive no later than the TTL after their stamp.
+    verdicts = [e for e in record.of_type("planner") if e.get("kind") == "suggestion"]
+    for event in verdicts:
+        if event["verdict"] == "accepted":
+            assert event["t_recv"] - event["stamp"] <= 0.5 + 1e-9
+    # Fusion: published = (1 - alpha) base + alpha proj(raw) whenever a suggestion is held.
+    fused = [e for e in record.of_type("planner") if e.get("kind") == "cmd" and e.get("raw") is not None]
+    assert fused
+    for event in fused:
+        proj = project(event["raw"][0], event["raw"][1], CFG)
+        for i in (0, 1):
+            assert event["fused"][i] == pytest.approx(0.5 * event["base"][i] + 0.5 * proj[i], abs=2e-4)
+    # Same scripted answers and latencies -> the same trajectory (latency is charged to sim time).
+    assert record.poses() == again.poses()
