@@ -58,7 +58,7 @@ def _file_hash(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
 
-def _prompt_hashes(planner: Planner, options: DriveOptions) -> dict[str, str]:
+def prompt_hashes(planner: Planner, options: DriveOptions) -> dict[str, str]:
     """Hashes of the prompt templates a planner uses (planners list them via an optional `templates`)."""
     templates = getattr(planner, "templates", None)
     if templates is None:
@@ -85,7 +85,7 @@ def build_config(
     scenario_path: Path,
     task: Task,
     start: Pose2D,
-    planner: Planner,
+    prompts: dict[str, str],
     backend: Backend | None,
 ) -> dict[str, Any]:
     """The run's first log line: enough to reproduce the episode and to group it in tables."""
@@ -108,7 +108,7 @@ def build_config(
         "backend": backend.spec if backend is not None else None,
         "options": spec.options.model_dump(mode="json"),
         "seed": spec.options.seed,
-        "prompt_hashes": _prompt_hashes(planner, spec.options),
+        "prompt_hashes": prompts,
     }
 
 
@@ -134,6 +134,7 @@ def run_episode(
     scenario, task = resolved.scenario, resolved.task
     start = resolved.start.pose()
     planner = get_planner(spec.options.planner)
+    prompts = prompt_hashes(planner, spec.options)  # an unknown --prompt fails here, before anything loads
 
     # Backend before the run folder: a missing key or engine is bad input and leaves nothing behind.
     backend = backend_obj
@@ -154,7 +155,7 @@ def run_episode(
                 resolve_scenario_path(spec.scenario or scenario.name),
                 task,
                 start,
-                planner,
+                prompts,
                 backend,
             )
             with RunLog(spec.out_dir, config) as log:

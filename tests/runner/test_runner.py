@@ -118,3 +118,23 @@ def test_drive_command_exit_codes_and_json(tmp_path: Path) -> None:
         res = runner.invoke(app, ["drive", "--scenario", SMALL, "--planner", "oracle", *args])
         assert res.exit_code == 2, (args, res.output)
         assert len(res.output.strip().splitlines()) == 1, res.output
+
+    # an unknown prompt variant is bad input, found before any model loads or run folder exists
+    res = runner.invoke(
+        app,
+        [
+            "drive",
+            "--scenario",
+            SMALL,
+            "--task-id",
+            "T1",
+            "--planner",
+            "stepwise",
+            "--prompt",
+            "nonsense",
+            "--out",
+            str(tmp_path / "never"),
+        ],
+    )
+    assert res.exit_code == 2 and "unknown prompt template 'nonsense'" in res.output
+    assert not (tmp_path / "never").exists()
