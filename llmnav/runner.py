@@ -35,7 +35,7 @@ TRAJECTORY_FILE = "trajectory.png"
 class EpisodeSpec(BaseModel):
     """Everything that defines one episode."""
 
-    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+    model_config = ConfigDict(extra="forbid")
 
     scenario: str  # bundled name or path; "" lets the task pick it (see llmnav.tasks)
     task_id: str | None = None
