@@ -257,3 +257,34 @@ def test_a_run_killed_mid_episode_leaves_a_readable_log(tmp_path: Path) -> None:
     summary = summarize_run(record, load_scenario(SMALL))
     assert summary["cut_short"] is True and summary["outcome"] == "aborted"
     assert summary["rotation_total_rad"] > math.radians(100)
+
+
+def test_a_collision_the_lidar_cannot_see_is_reported_with_the_next_observation(tmp_path: Path) -> None:
+    # a shelf board at 0.6-1.0 m passes above the LiDAR plane (0.28 m) but not above the 1.2 m tall robot
+    import yaml
+
+    data = yaml.safe_load(Path(SMALL).read_text())
+    data["obstacles"] = [{"id": "shelf", "center": [3.0, 3.0], "size": [0.4, 2.0], "z": 0.6, "height": 0.4}]
+    scenario = tmp_path / "overhang.yaml"
+    scenario.write_text(yaml.safe_dump(data))
+    replay = ReplayBackend(script(tmp_path / "script", [answer("FRONT", 2.0), answer("COMPLETE", 0)]))
+    spec = EpisodeSpec(
+        scenario=str(scenario),
+        task_id="T1",
+        task_text=None,
+        start_pose=1,
+        options=DriveOptions(planner="stepwise", sensing=("lidar",)),
+        backend=replay.spec,
+        out_dir=tmp_path / "run",
+    )
+    summary = run_episode(spec, backend_obj=replay)
+    record = read_run(tmp_path / "run")
+    first = record.of_type("action")[0]
+    assert first["collided"] and first["collision_with"] == "shelf" and first["stopped_reason"] == "collision"
+    assert 0.3 < first["distance_m"] < 1.5
+    told = calls(record)[1]["request"]["messages"][-1]["text"]
+    assert told.startswith(
+        f"Your last action (FRONT 2 m) was stopped after {first['distance_m']:.2f} m by a "
+        "collision with shelf."
+    )
+    assert summary["collisions"] == 1 and summary["planner_metrics"]["collisions"] == 1
