@@ -82,8 +82,12 @@ def drive(
     out: Annotated[
         Path | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")
     ] = None,
-    realtime: Annotated[bool, typer.Option(help="Pace the simulation to the wall clock.")] = False,
-    quiet: Annotated[bool, typer.Option(help="One progress line instead of the live view.")] = False,
+    realtime: Annotated[
+        bool, typer.Option("--realtime", help="Pace the simulation to the wall clock.")
+    ] = False,
+    quiet: Annotated[
+        bool, typer.Option("--quiet", help="One progress line instead of the live view.")
+    ] = False,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print only one JSON summary at the end.")
     ] = False,
