@@ -44,6 +44,7 @@ from llmnav.baselines.oracle import (
     drive_waypoints,
     face_point,
     failure_reason,
+    log_action,
     plan_to_targets,
     pose_logging,
     rotate_by,
@@ -236,6 +237,7 @@ class _Explorer:
         result = self.world.motion.drive(backoff)
         self.drive.travelled_m += result.distance_m
         self.drive.steps += 1
+        log_action(self.ctx, self.drive.steps, "FRONT" if backoff > 0 else "BACK", abs(backoff), result)
 
     def explore_to(self, waypoints: list[Point]) -> _Found | None:
         """Drive towards a frontier; after each waypoint add a scan to the map and look for targets."""

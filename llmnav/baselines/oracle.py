@@ -273,9 +273,10 @@ class Drive:
         return self.last is None or self.last.ok
 
 
-def _log_action(
+def log_action(
     ctx: EpisodeContext, step: int, command: str, parameters: object, result: MotionResult
 ) -> None:
+    """One `action` event for a motion (and a line in the live view)."""
     ctx.log.sim_time = ctx.world.sim_time
     ctx.log.event(
         "action",
@@ -307,7 +308,7 @@ def drive_waypoints(
         drive.steps += 1
         drive.travelled_m += result.distance_m
         drive.last = result
-        _log_action(ctx, drive.steps, "GO_TO", [round(x, 3), round(y, 3)], result)
+        log_action(ctx, drive.steps, "GO_TO", [round(x, 3), round(y, 3)], result)
         if not result.ok:
             break
     return drive
@@ -320,7 +321,7 @@ def rotate_by(ctx: EpisodeContext, angle_rad: float, drive: Drive) -> Drive:
     drive.travelled_m += result.distance_m
     drive.last = result
     command = "ROTATE_LEFT" if angle_rad >= 0 else "ROTATE_RIGHT"
-    _log_action(ctx, drive.steps, command, round(math.degrees(abs(angle_rad)), 2), result)
+    log_action(ctx, drive.steps, command, round(math.degrees(abs(angle_rad)), 2), result)
     return drive
 
 
