@@ -139,3 +139,13 @@ def test_summarize_passes_planner_metrics_and_outcome(tmp_path: Path) -> None:
     s = summarize_run(read_run(run), tiny_scenario(), outcome)
     assert s["outcome"] == "failed" and s["iterations"] == 30 and s["planner_metrics"] == {"wgsr": 95.5}
     assert s["cut_short"] is False
+
+
+def test_summarize_without_scenario_uses_logged_points(tmp_path: Path) -> None:
+    config = config_for("T1")
+    config["task"]["targets"] = [{"point": [4.0, 0.0]}]
+    s = summarize_run(read_run(write_run(tmp_path / "r", config, [[0, 0, 0], [1.0, 0, 0]])), None)
+    assert s["distance_m"] == pytest.approx(3.0) and s["score"] == pytest.approx(0.8165, abs=1e-4)
+    config["task"]["targets"] = [{"object": "pellets"}]  # an object needs the scenario: nothing to score
+    s = summarize_run(read_run(write_run(tmp_path / "q", config, [[0, 0, 0]])), None)
+    assert s["score"] is None and s["success"] is False
