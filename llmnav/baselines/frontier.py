@@ -31,12 +31,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
 from llmnav.baselines.astar import astar, densify, shortcut
-from llmnav.baselines.grid import GridConfig, GridGeometry, LidarMap, inflate, nearest_free_cell
+from llmnav.baselines.grid import GridConfig, GridGeometry, LidarMap, inflate, near_bounds, nearest_free_cell
 from llmnav.baselines.oracle import (
     Drive,
     OracleConfig,
@@ -57,7 +57,6 @@ from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
     from llmnav.scenario import Target
-    from llmnav.sim.sensors import LidarScan
 
 
 @dataclass(frozen=True)
@@ -75,7 +74,7 @@ class FrontierConfig:
     bump_mark_radius_m: float = 0.2  # [m] disc marked occupied just beyond the body where it touched
     max_frontiers: int = 40  # frontier goals before giving up
     max_sim_time_s: float = 900.0  # [s] sim-time budget for the whole episode
-    max_replans: int = 3  # [count] obstacle stops / bumps tolerated on the way to one frontier
+    max_replans: int = 3  # [count] interrupted legs (bump, timeout) tolerated on the way to one frontier
     grid: GridConfig = field(default_factory=GridConfig)
     oracle: OracleConfig = field(default_factory=OracleConfig)
 
@@ -85,7 +84,7 @@ class _Found:
     """A detected acceptable target."""
 
     target: Target
-    how: str  # "camera" or "map"
+    how: Literal["camera", "map"]
 
 
 class _Explorer:
@@ -106,13 +105,9 @@ class _Explorer:
         self.target_ids = {t.object for t in ctx.task.targets if t.object is not None}
 
     # --- sensing ------------------------------------------------------------------------------
-    def integrate(self, pose: Pose2D, scan: LidarScan) -> None:
-        """Add a scan to the map."""
-        self.map.integrate(pose, scan)
-
     def scan_now(self) -> None:
-        """Take and integrate one scan at the current pose."""
-        self.integrate(self.robot.pose(), self.world.lidar.scan())
+        """Take one scan at the current pose and add it to the map."""
+        self.map.integrate(self.robot.pose(), self.world.lidar.scan())
 
     def detect(self) -> _Found | None:
         """An acceptable target in view (camera), or a point target already seen free in the map."""
@@ -131,7 +126,7 @@ class _Explorer:
         for target in self.ctx.task.targets:
             if target.point is not None:
                 cell = self.geometry.world_to_cell(*target.point)
-                if self.geometry.contains(cell) and self.map.free[cell]:
+                if self.geometry.contains(cell) and self.map.state[cell] == LidarMap.FREE:
                     return _Found(target, "map")
         return None
 
@@ -164,11 +159,7 @@ class _Explorer:
         """
         unseen_or_solid = self.map.occupied | self.map.unknown
         blocked = inflate(unseen_or_solid, self.inflation_m, self.geometry.resolution)
-        xs, ys = self.geometry.centres()
-        bounds = self.ctx.scenario.bounds
-        blocked |= (xs - bounds.x[0] < self.inflation_m) | (bounds.x[1] - xs < self.inflation_m)
-        blocked |= (ys - bounds.y[0] < self.inflation_m) | (bounds.y[1] - ys < self.inflation_m)
-        return np.asarray(blocked)
+        return np.asarray(blocked | near_bounds(self.geometry, self.ctx.scenario.bounds, self.inflation_m))
 
     def frontier_goals(self, blocked: np.ndarray, pose: Pose2D) -> np.ndarray:
         """Cells the robot may drive to in order to look past a frontier.

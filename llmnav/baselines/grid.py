@@ -167,12 +167,16 @@ def build_grid(
             continue
         _mark_shape(occupied, geometry, shape, geometry.resolution / 2)
         _mark_shape(blocked, geometry, shape, inflation)
-    # Beyond the bounds is treated as a wall: the robot's body must stay inside.
-    xs, ys = geometry.centres()
-    bounds = scenario.bounds
-    blocked |= (xs - bounds.x[0] < inflation) | (bounds.x[1] - xs < inflation)
-    blocked |= (ys - bounds.y[0] < inflation) | (bounds.y[1] - ys < inflation)
+    blocked |= near_bounds(geometry, scenario.bounds, inflation)
     return OccupancyGrid(geometry, occupied, blocked, inflation)
+
+
+def near_bounds(geometry: GridGeometry, bounds: Bounds, within_m: float) -> np.ndarray:
+    """Cells whose centre lies closer than `within_m` to the bounds: beyond them counts as a wall."""
+    xs, ys = geometry.centres()
+    near_x = (xs - bounds.x[0] < within_m) | (bounds.x[1] - xs < within_m)
+    near_y = (ys - bounds.y[0] < within_m) | (bounds.y[1] - ys < within_m)
+    return np.asarray(near_x | near_y)
 
 
 def nearest_free_cell(
