@@ -87,6 +87,21 @@ def test_frontier_explores_round_a_wall(tmp_path: Path) -> None:
     assert detection["pose"][1] > 2.0  # seen only after getting round the divider's open end
 
 
+def test_frontier_recovers_from_bumping_into_what_the_lidar_cannot_see(tmp_path: Path) -> None:
+    # A 0.1 m high box: below the Burger's LiDAR (0.17 m), above nothing the robot can climb.
+    data = dict(HIDDEN, obstacles=[{"center": [2.0, 2.0], "size": [0.4, 0.4], "height": 0.1}])
+    sc = parse_scenario(data, "hidden-low-box")
+    outcome, final, collisions, record = run(sc, "find", tmp_path)
+    assert outcome.outcome == "completed", outcome.reason
+    assert 1.4 <= final.distance_to(6.5, 1.0) <= 2.5
+    assert outcome.metrics["bumps"] == collisions >= 1
+    actions = record.of_type("action")
+    hit = next(i for i, a in enumerate(actions) if a["collided"])
+    assert actions[hit]["collision_with"] == "obstacle:0"
+    assert actions[hit + 1]["command"] in ("BACK", "FRONT") and not actions[hit + 1]["collided"]
+    assert collisions <= 2  # marked in the map after a bump: not hit over and over
+
+
 def test_frontier_budget_exhausted_fails_with_reason(tmp_path: Path) -> None:
     sc = parse_scenario(HIDDEN, "hidden-crate")
     outcome, _final, _collisions, _record = run(sc, "find", tmp_path, FrontierConfig(max_frontiers=0))
