@@ -146,14 +146,13 @@ class _progress:
 
 def _print_results(ablation: Ablation) -> None:
     from llmnav.ablate import results_runs, table_keys
-    from llmnav.reporting.tables import to_rich
+    from llmnav.reporting.tables import print_tables
     from llmnav.score import build_tables
 
     runs = results_runs(ablation)
     errors = [e for e in ablation.entries.values() if e.status == "error"]
     if runs:
-        for table in build_tables(runs, table_keys(ablation)):
-            console.print(to_rich(table))
+        print_tables(console, build_tables(runs, table_keys(ablation)))
     console.print(
         f"{len(runs)}/{ablation.size} episodes done, {len(errors)} error(s); "
         f"manifest: {ablation.root / 'manifest.json'}",

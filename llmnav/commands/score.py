@@ -76,11 +76,10 @@ def parse_keys(text: str) -> list[str]:
 
 def emit(tables: list[Table], fmt: OutputFormat, out: Path | None) -> None:
     """Print the tables in the chosen format, or write them to `out`."""
-    from llmnav.reporting.tables import render_text, to_rich
+    from llmnav.reporting.tables import print_tables, render_text
 
     if fmt is OutputFormat.rich and out is None:
-        for table in tables:
-            console.print(to_rich(table))
+        print_tables(console, tables)
         return
     text = render_text(tables, "md" if fmt is OutputFormat.rich else fmt.value)  # type: ignore[arg-type]
     if out is None:

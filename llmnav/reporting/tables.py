@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Literal
 
 if TYPE_CHECKING:
+    from rich.console import Console
     from rich.table import Table as RichTable
 
     from llmnav.score import Table
@@ -30,6 +31,24 @@ def to_rich(table: Table) -> RichTable:
     for row in table.rows:
         out.add_row(*row)
     return out
+
+
+PIPE_WIDTH = 240  # [characters] width of tables written to a pipe or file: never squeezed to 80 columns
+
+
+def print_tables(console: Console, tables: Sequence[Table]) -> None:
+    """Print rich tables: fitted to a terminal, at their natural width when piped."""
+    if console.is_terminal:
+        for table in tables:
+            console.print(to_rich(table))
+        return
+    previous = console.width  # print(width=...) is capped at the console's width: widen it for a moment
+    console.width = max(previous, PIPE_WIDTH)
+    try:
+        for table in tables:
+            console.print(to_rich(table))
+    finally:
+        console.width = previous
 
 
 def _md_cell(text: str) -> str:
