@@ -381,7 +381,7 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         return None
     columns = [
         "Task", "Condition", "N", "e_pos (m)", "η", "Loop (ms)", "Model (ms)", "r_acc", "r_use",
-        "Stale", "Bounds", "Parse",
+        "Accepted", "Stale", "Bounds", "Parse",
     ]  # fmt: skip
 
     def loop_ms(run: Run) -> Any:
@@ -402,20 +402,34 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         "model_latency_ms": (model_ms, 1),
         "r_acc": (_metric("r_acc"), 2),
         "r_use": (_metric("r_use"), 2),
-        "rejected_stale": (rejected("stale"), 1),
-        "rejected_bounds": (rejected("bounds"), 1),
-        "rejected_parse": (rejected("parse"), 1),
+    }
+    outcomes: dict[str, Callable[[Run], Any]] = {
+        "accepted": _metric("accepted"),
+        "stale": rejected("stale"),
+        "bounds": rejected("bounds"),
+        "parse": rejected("parse"),
     }
     rows, records = [], []
     for task, cond, group in group_runs(fsm, keys):
         vals = {name: _values(group, get) for name, (get, _) in fields.items()}
-        rows.append([task, cond, str(len(group))] + [_mean_sd(vals[n], d) for n, (_, d) in fields.items()])
+        # Validation outcomes pooled over the group's suggestions, as shares (the source's figure).
+        suggestions = sum(_values(group, _metric("suggestions")))
+        shares = {
+            name: (sum(_values(group, get)) / suggestions if suggestions else None)
+            for name, get in outcomes.items()
+        }
+        rows.append(
+            [task, cond, str(len(group))]
+            + [_mean_sd(vals[n], d) for n, (_, d) in fields.items()]
+            + [MISSING if share is None else f"{share:.0%}" for share in shares.values()]
+        )
         records.append(
-            {"task": task, "condition": cond, "n": len(group)}
+            {"task": task, "condition": cond, "n": len(group), "suggestions": suggestions}
             | {n: _stats_record(v) for n, v in vals.items()}
+            | {f"share_{n}": share for n, share in shares.items()}
         )
     title = "FSM with LLM assist (FSM source, Tables 5–6 style)"
-    return Table(title, columns, rows, records, "rejections: counts per run")
+    return Table(title, columns, rows, records, "validation outcomes: shares of all suggestions of the group")
 
 
 def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:

@@ -144,6 +144,7 @@ def test_waypoint_and_fsm_tables(tmp_path: Path) -> None:
     fsm_rows = {r[1]: r for r in titles["FSM with LLM assist"].rows}
     assert fsm_rows["planner=fsm, assist=llm"][3] == "0.160 ± 0.014"
     assert fsm_rows["planner=fsm, assist=none"][5] == "3.40 ± 0.00"
+    assert fsm_rows["planner=fsm, assist=llm"][9:13] == ["80%", "10%", "10%", "0%"]  # of 20 suggestions
     _, results = compare_groups(runs, "assist=none", "assist=llm")
     assert any(r.metric == "e_pos_m" and r.result.welch.t > 0 for r in results)
 
