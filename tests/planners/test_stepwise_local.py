@@ -14,7 +14,7 @@ from llmnav.runner import EpisodeSpec, run_episode
 SMALL = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 
 
-@pytest.mark.slow  # ≈ 20–40 s on an idle 2-core machine (model load + 2–3 decisions); minutes under load
+@pytest.mark.slow  # measured 93 s at load average 5 and 591 s at 12 on 2 cores (load + 2 decisions)
 def test_stepwise_with_the_real_local_model(tmp_path: Path) -> None:
     spec = EpisodeSpec(
         scenario=SMALL,
