@@ -54,6 +54,8 @@ class _StepState:
 
 @dataclass
 class _Counters:
+    """Episode totals reported in the summary's planner metrics."""
+
     corrections: int = 0
     vetoes: int = 0
     self_checks: int = 0
@@ -82,9 +84,11 @@ def _self_check_on(options: DriveOptions) -> bool:
 
 def history_window(exchanges: list[tuple[Message, Message]], history: str) -> list[Message]:
     """The previous exchanges re-sent under `--history` (all, or the last 0/1/2)."""
-    kept = (
-        exchanges if history == "all" else exchanges[len(exchanges) - int(history) :] if int(history) else []
-    )
+    if history == "all":
+        kept = exchanges
+    else:
+        k = int(history)
+        kept = exchanges[-k:] if k else []  # exchanges[-0:] would be all of them
     return [m for pair in kept for m in pair]
 
 
