@@ -45,6 +45,8 @@ class HybridConfig:
     veto_margin_m: float = 0.05  # [m] lateral margin of the veto's swept corridor
     obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
     max_corrections: int = 2
+    max_tokens: int = 96  # [tokens] an option number and a sentence of reasoning
+    arrived_m: float = 0.3  # [m] within this of a visited landmark's stand point the robot is "there"
 
 
 @dataclass
@@ -192,7 +194,26 @@ class HybridPlanner(Planner):
                 )
             )
         options.append(Option(0, "scan", "Turn a full circle in place to look around"))
-        options.append(Option(0, "complete", "Finish: the task is done"))
+        arrived = [
+            o
+            for o in options
+            if o.landmark_id in wanted
+            and o.landmark_id in memory.visited
+            and o.goal is not None
+            and pose.distance_to(*o.goal) <= self.cfg.arrived_m
+        ]
+        finish = Option(
+            0,
+            "complete",
+            "Finish: the task is done"
+            + (
+                f" — you are at the {ctx.scenario.object(arrived[0].landmark_id or '').label}"
+                if arrived
+                else ""
+            ),
+        )
+        # Most relevant first: small models lean heavily toward option 1.
+        options = [finish, *options] if arrived else [*options, finish]
         for number, option in enumerate(options, start=1):
             option.number = number
         return options
@@ -253,6 +274,13 @@ class HybridPlanner(Planner):
 
         model = hybrid_choice_model(tuple(o.number for o in options))
         schema = response_schema(model)
+        # The choice first: a small model that rambles in `reasoning` until the token cap has then still
+        # chosen, and the guard's repair closes the cut-off string.
+        schema["properties"] = {"option": schema["properties"]["option"]} | {
+            k: v for k, v in schema["properties"].items() if k != "option"
+        }
+        if "required" in schema:
+            schema["required"] = ["option", *[k for k in schema["required"] if k != "option"]]
         menu = "\n".join(f"{o.number}. {o.text}" for o in options)
         system = render("hybrid_system", robot=ctx.world.robot.spec.name)
         user = render(
@@ -275,7 +303,7 @@ class HybridPlanner(Planner):
                 tuple(messages),
                 schema,
                 ctx.options.temperature,
-                min(ctx.options.max_tokens, 256),
+                min(ctx.options.max_tokens, self.cfg.max_tokens),
                 ctx.options.seed,
             )
             reply = call_model(ctx, request, purpose="choice" if attempt == 0 else "correction", step=step)
