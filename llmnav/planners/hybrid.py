@@ -180,7 +180,7 @@ class HybridPlanner(Planner):
                     f"Go to the {obj.label} ({_where(pose, position)})"
                     + (f" — {'; '.join(notes)}" if notes else ""),
                     goal=goal,
-                    face=position,
+                    face=obj.center,
                     landmark_id=object_id,
                 )
             )
