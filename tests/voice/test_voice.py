@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 import wave
 from pathlib import Path
@@ -104,3 +105,30 @@ def test_plan_rejects_unknown_command_before_any_model_call():
     )
     assert result.exit_code == 2
     assert "Traceback" not in result.output
+
+
+def test_drive_with_task_audio_runs_the_spoken_task(tmp_path):
+    out = tmp_path / "run"
+    args = [
+        "drive",
+        "--task-audio",
+        str(FIXTURES / "a_window.wav"),
+        "--planner",
+        "oracle",
+        "--out",
+        str(out),
+        "--json",
+    ]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout.strip().splitlines()[-1])
+    assert summary["scenario"] == "corridor_a" and summary["task_text"] == "Take me to the window"
+    assert summary["outcome"] == "completed"
+
+
+def test_drive_with_unknown_spoken_command_moves_nothing(tmp_path):
+    out = tmp_path / "run"
+    args = ["drive", "--task-audio", str(FIXTURES / "german.wav"), "--planner", "oracle", "--out", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    assert not out.exists()
