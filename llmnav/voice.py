@@ -32,7 +32,9 @@ if TYPE_CHECKING:
 SAMPLE_RATE = 16_000  # [Hz] what the acoustic model expects
 LOG_BASE = 1.0001  # pocketsphinx's log base: scores come back as LOG_BASE ** raw
 MIN_FIT = -2.0  # [raw score / frame] grammar path vs free phone loop; below it the speech is not a command
-DITHER_LSB = 256.0  # [LSB] a microphone-like noise floor (about -42 dBFS): digital silence (exact zeros) upsets the decoder's feature normalisation
+# A microphone-like noise floor (about -42 dBFS): digital silence (exact zeros, as synthesised speech has)
+# upsets the decoder's feature normalisation.
+DITHER_LSB = 256.0  # [LSB]
 VERBS = ("go to", "drive to", "take me to", "navigate to", "head to", "move to", "find", "look for", "go")
 ARTICLES = ("the", "a")
 

@@ -131,7 +131,7 @@ class Backend(ABC):
         """The spec string that recreates this backend (never contains secrets)."""
         return f"{self.name}:{self.arg}" if self.arg else self.name
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional hook, most backends hold nothing
         """Release connections or model memory."""
 
     def __repr__(self) -> str:

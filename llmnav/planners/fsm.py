@@ -116,12 +116,12 @@ def check_suggestion(
     text: str | None, stamp: float, t_recv: float, ttl_s: float, cfg: FsmConfig
 ) -> tuple[Verdict, tuple[float, float] | None, str]:
     """Judge a model answer: (verdict, (v, w) if usable, detail). Order: parse, freshness, bounds."""
-    from llmnav.guard.parse import parse_answer
+    from llmnav.guard.parse import GuardResult, parse_answer
     from llmnav.guard.schemas import VelocitySuggestion
 
     if text is None:
         return "error", None, "model call failed"
-    result = parse_answer(text, VelocitySuggestion)
+    result: GuardResult[VelocitySuggestion] = parse_answer(text, VelocitySuggestion)
     if result.value is None:
         return "parse", None, result.error or result.outcome
     if t_recv - stamp > ttl_s:
