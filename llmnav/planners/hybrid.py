@@ -44,7 +44,6 @@ class HybridConfig:
     frontier_min_cells: int = 12  # smaller frontier clusters are noise
     veto_margin_m: float = 0.05  # [m] lateral margin of the veto's swept corridor
     obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
-    max_corrections: int = 2
     max_tokens: int = 96  # [tokens] an option number and a sentence of reasoning
     arrived_m: float = 0.3  # [m] within this of a visited landmark's stand point the robot is "there"
 
@@ -95,8 +94,7 @@ class HybridPlanner(Planner):
         memory = Memory()
         if scenario.corridors:  # a published map: every labelled object is known up front
             memory.landmarks = {o.id: o.goal_point for o in scenario.objects}
-        world.motion.on_pose = lambda pose, t: ctx.log.event("pose", pose=pose.as_list())
-        ctx.log.event("pose", pose=world.robot.pose().as_list())
+        # (The runner logs the start pose and every trajectory sample; nothing to hook here.)
         json_errors = vetoes = 0
 
         for step in range(1, ctx.options.max_iterations + 1):
@@ -104,11 +102,19 @@ class HybridPlanner(Planner):
             obs = observe(world, ctx.options, ctx.log, step)
             lidar_map.integrate(obs.pose, obs.scan)
             self._remember(memory, obs)
+            if "detections" not in ctx.options.sensing:
+                # The menu is built from what the detector sees, whether or not the model is shown it.
+                self._look(ctx, memory)
             options = self._options(ctx, grid, lidar_map, memory, obs.pose)
             choice, errors = self._choose(ctx, obs, options, memory, step)
             json_errors += errors
             if choice is None:
-                return EpisodeOutcome("aborted", "no valid choice from the model after corrections", step)
+                return EpisodeOutcome(
+                    "aborted",
+                    f"no valid choice after {ctx.options.max_corrections} correction turns",
+                    step,
+                    {"json_errors": json_errors, "vetoes": vetoes},
+                )
             option = options[choice - 1]
             ctx.view.on_step(
                 StepInfo(step, option.text, front_m=obs.front_m, json_retries=errors, vetoes=vetoes)
@@ -298,7 +304,7 @@ class HybridPlanner(Planner):
         )
         messages: list[Message] = [Message("system", system), Message("user", user, images)]
         errors = 0
-        for attempt in range(self.cfg.max_corrections + 1):
+        for attempt in range(ctx.options.max_corrections + 1):
             request = ChatRequest(
                 tuple(messages),
                 schema,
