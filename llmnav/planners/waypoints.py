@@ -27,6 +27,8 @@ from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, P
 
 if TYPE_CHECKING:
     from llmnav.baselines.grid import OccupancyGrid
+    from llmnav.guard.parse import GuardResult
+    from llmnav.guard.schemas import TargetChoice, WaypointList
     from llmnav.scenario import LabelledObject, Scenario, Task, WaypointRules
 
 Point = tuple[float, float]
@@ -43,7 +45,10 @@ class WaypointConfig:
     angle_tol_rad: float = 0.087  # [rad] rotate in place above it
     critical_m: float = 0.5  # [m] obstacle stop within ±15° ahead
     emergency_m: float = 0.35  # [m]
-    obstacle_radius_m: float = 0.35  # [m] size assumed for an obstacle seen by the LiDAR when replanning
+    # An obstacle the LiDAR stopped for is assumed a disc of this radius whose near edge is the closest
+    # return (a 0.5 m box seen head-on lies within 0.43 m of that centre).
+    obstacle_radius_m: float = 0.35  # [m]
+    obstacle_margin_m: float = 0.1  # [m] clearance kept from it beyond the robot's radius
 
 
 @dataclass
@@ -54,6 +59,7 @@ class Attempt:
     latency_s: float
     points: list[Point]
     problems: list[str]
+    outcome: str = "ok"  # guard outcome: "ok", "parse", "schema" (no usable array) or "bounds" (map rules)
 
     @property
     def valid(self) -> bool:
@@ -68,7 +74,9 @@ class PlanResult:
     target_id: str
     target: Point
     attempts: list[Attempt] = field(default_factory=list)
-    planning_time_s: float = 0.0  # [s] command -> valid waypoints received (wall)
+    # [s] command -> waypoints received: the model's reported latency plus our own work (grounding
+    # included when the caller adds it), so a replayed run reports the original's planning time
+    planning_time_s: float = 0.0
 
     @property
     def waypoints(self) -> list[Point] | None:
@@ -79,6 +87,33 @@ class PlanResult:
     def wgsr(self) -> float:
         """Waypoint generation success rate [%] = valid generations / attempts x 100."""
         return 100.0 * sum(a.valid for a in self.attempts) / len(self.attempts) if self.attempts else 0.0
+
+
+@dataclass
+class PlanningClock:
+    """Times planning as the model's reported latency plus the wall time spent outside model calls.
+
+    Wrap a `ModelCall` with it; `elapsed_s()` is then independent of how fast a replayed reply returns.
+    """
+
+    call: ModelCall
+    started: float = field(default_factory=time.perf_counter)
+    model_s: float = 0.0  # [s] latency the backend reported
+    wall_in_calls_s: float = 0.0  # [s] wall time spent waiting for it
+
+    def __call__(self, request: ChatRequest, purpose: str) -> ChatResult:
+        """Forward the call and account for its time."""
+        t0 = time.perf_counter()
+        try:
+            result = self.call(request, purpose)
+        finally:
+            self.wall_in_calls_s += time.perf_counter() - t0
+        self.model_s += result.latency_s
+        return result
+
+    def elapsed_s(self) -> float:
+        """Planning time since the clock started [s]."""
+        return time.perf_counter() - self.started - self.wall_in_calls_s + self.model_s
 
 
 # --- validation ------------------------------------------------------------------------------
@@ -112,9 +147,9 @@ def validate_waypoints(
             )
         blocked = _segment_blocked(previous, (x, y), grid, extra_obstacles or [], obstacle_radius_m)
         if blocked is not None:
-            problems.append(
-                f"the segment to {name} crosses an obstacle near ({blocked[0]:.2f}, {blocked[1]:.2f})"
-            )
+            (bx, by), seen = blocked
+            seen_text = " seen on the way" if seen else ""
+            problems.append(f"the segment to {name} crosses an obstacle near ({bx:.2f}, {by:.2f}){seen_text}")
         previous = (x, y)
     if points:
         miss = math.dist(points[-1], target)
@@ -128,34 +163,56 @@ def validate_waypoints(
 
 def _segment_blocked(
     a: Point, b: Point, grid: OccupancyGrid | None, extra: list[Point], radius: float
-) -> Point | None:
-    """First sample of segment a-b inside an inflated obstacle (true grid or obstacles seen), if any."""
+) -> tuple[Point, bool] | None:
+    """Where segment a-b first meets an obstacle, if it does.
+
+    (the first sample inside the inflated map grid, False), or (the centre of an obstacle seen on the
+    way that the segment passes within `radius` [m] of, True).
+    """
     steps = max(1, math.ceil(math.dist(a, b) / 0.05))
     for k in range(steps + 1):
         x, y = a[0] + (b[0] - a[0]) * k / steps, a[1] + (b[1] - a[1]) * k / steps
+        # the first 0.15 m are exempt: a robot stopped close to a wall may start inside its inflation
         if grid is not None and not grid.is_free(x, y) and math.dist((x, y), a) > 0.15:
-            return (x, y)
-        if any(math.dist((x, y), o) < radius for o in extra):
-            return (x, y)
+            return (x, y), False
+        for obstacle in extra:
+            if math.dist((x, y), obstacle) < radius:
+                return obstacle, True
     return None
 
 
 # --- grounding and generation ------------------------------------------------------------------
 
 
-def ground_target(scenario: Scenario, task: Task, call: ModelCall, max_tries: int = 3) -> LabelledObject:
-    """The object a command refers to: exact-name match first, else the model picks from the list."""
+def ground_target(
+    scenario: Scenario,
+    task: Task,
+    call: ModelCall,
+    max_tries: int = 3,
+    *,
+    near: Point | None = None,
+    tolerance_m: float = 0.05,
+) -> LabelledObject:
+    """The object a command refers to: exact-name match first, else the model picks from the list.
+
+    `near` (the final waypoint of a plan made already) settles an ambiguous command without a model call
+    when exactly one candidate's goal point lies within `tolerance_m` [m] of it.
+    """
     from llmnav.guard.parse import correction_message, parse_answer
     from llmnav.guard.schemas import response_schema, target_choice_model
     from llmnav.prompting import render
     from llmnav.tasks import named_objects
 
-    named = named_objects(scenario, task.text)
     if task.targets and len(task.targets) == 1 and task.targets[0].object:
         return scenario.object(task.targets[0].object)
+    named = named_objects(scenario, task.text)
     if len(named) == 1:
         return named[0]
     candidates = named or list(scenario.objects)
+    if near is not None:
+        close = [o for o in candidates if math.dist(o.goal_point, near) <= tolerance_m]
+        if len(close) == 1:
+            return close[0]
     model = target_choice_model(tuple(o.id for o in candidates))
     schema = response_schema(model)
     listing = "\n".join(
@@ -167,11 +224,21 @@ def ground_target(scenario: Scenario, task: Task, call: ModelCall, max_tries: in
     ]
     for _ in range(max_tries):
         reply = call(ChatRequest(tuple(messages), schema, 0.0, 64), "ground")
-        result = parse_answer(reply.text, model)
+        result: GuardResult[TargetChoice] = parse_answer(reply.text, model)
         if result.value is not None:
             return scenario.object(result.value.object_id)
         messages += [Message("assistant", reply.text), Message("user", correction_message(result, schema))]
     raise InvalidActionError(f"the model named no listed object for '{task.text}' after {max_tries} tries")
+
+
+def waypoint_schema(rules: WaypointRules) -> dict[str, Any]:
+    """The answer's JSON Schema, with the environment's waypoint count as `maxItems`.
+
+    A grammar-constrained model then cannot ramble on past it; the validator still checks the count.
+    """
+    from llmnav.guard.schemas import WaypointList, response_schema
+
+    return {**response_schema(WaypointList), "maxItems": rules.max_waypoints}
 
 
 def generate_plan(
@@ -185,20 +252,28 @@ def generate_plan(
     temperature: float = 0.0,
     seed: int | None = None,
     seen_obstacles: list[Point] | None = None,
+    obstacle_clearance_m: float = 0.555,
     on_attempt: Callable[[Attempt], None] | None = None,
 ) -> PlanResult:
-    """Ask for waypoints until a plan validates or `max_generations` attempts are spent."""
+    """Ask for waypoints until a plan validates or `max_generations` attempts are spent.
+
+    `seen_obstacles` are obstacle centres found on the way (replanning); every segment must keep
+    `obstacle_clearance_m` [m] from them, and the prompt says so.
+    """
     from llmnav.guard.parse import correction_message, parse_answer
-    from llmnav.guard.schemas import WaypointList, response_schema
+    from llmnav.guard.schemas import WaypointList
     from llmnav.prompting import render
 
+    clock = PlanningClock(call)
     rules = scenario.waypoint_rules
     goal = target.goal_point
     corridors = "\n".join(
         f"- {c.id}: x from {c.x[0]} to {c.x[1]}, y from {c.y[0]} to {c.y[1]}" for c in scenario.corridors
     )
     junctions = [o for o in scenario.objects if "junction" in o.label.lower()]
-    obstacles = "; ".join(f"({x:.2f}, {y:.2f})" for x, y in seen_obstacles or []) or "none"
+    obstacles = "; ".join(f"({x:.2f}, {y:.2f})" for x, y in seen_obstacles or [])
+    if obstacles:
+        obstacles += f" (keep every segment at least {obstacle_clearance_m:.2f} m from each)"
     system = render(
         "waypoints_system",
         corridors=corridors or "- (no corridors published)",
@@ -213,25 +288,32 @@ def generate_plan(
         spacing=rules.spacing_m,
         tolerance=rules.target_tolerance_m,
         max_waypoints=rules.max_waypoints,
-        obstacles=obstacles,
+        obstacles=obstacles or "none",
     )
     user = render("waypoints_user", target_name=target.label, max_waypoints=rules.max_waypoints)
-    schema = response_schema(WaypointList)
+    schema = waypoint_schema(rules)
     messages = [Message("system", system), Message("user", user)]
     plan = PlanResult(target.id, goal)
-    started = time.perf_counter()
     for number in range(1, max_generations + 1):
-        reply = call(ChatRequest(tuple(messages), schema, temperature, 512, seed), "waypoints")
-        result = parse_answer(reply.text, WaypointList)
+        reply = clock(ChatRequest(tuple(messages), schema, temperature, 512, seed), "waypoints")
+        result: GuardResult[WaypointList] = parse_answer(reply.text, WaypointList)
         if result.value is None:
-            attempt = Attempt(number, reply.latency_s, [], [f"{result.outcome}: {result.error}"])
+            problem = f"{result.outcome}: {result.error}"
+            attempt = Attempt(number, reply.latency_s, [], [problem], result.outcome)
             feedback = correction_message(result, schema)
         else:
             points = [(float(x), float(y)) for x, y in result.value.points]
             problems = validate_waypoints(
-                points, (start.x, start.y), goal, scenario, grid, rules, extra_obstacles=seen_obstacles
+                points,
+                (start.x, start.y),
+                goal,
+                scenario,
+                grid,
+                rules,
+                extra_obstacles=seen_obstacles,
+                obstacle_radius_m=obstacle_clearance_m,
             )
-            attempt = Attempt(number, reply.latency_s, points, problems)
+            attempt = Attempt(number, reply.latency_s, points, problems, "bounds" if problems else "ok")
             feedback = render("waypoints_feedback", problems="\n".join(f"- {p}" for p in problems))
         plan.attempts.append(attempt)
         if on_attempt is not None:
@@ -239,7 +321,7 @@ def generate_plan(
         if attempt.valid:
             break
         messages += [Message("assistant", reply.text), Message("user", feedback)]
-    plan.planning_time_s = time.perf_counter() - started
+    plan.planning_time_s = clock.elapsed_s()
     return plan
 
 
@@ -274,14 +356,15 @@ class WaypointPlanner(Planner):
         from llmnav.observe import call_model
         from llmnav.tasks import sequence_legs
 
-        world, scenario, opts = ctx.world, ctx.scenario, ctx.options
+        world, scenario, opts, cfg = ctx.world, ctx.scenario, ctx.options, self.cfg
         if not scenario.corridors:
             raise InvalidActionError(
                 f"scenario '{scenario.name}' publishes no corridors; the waypoint planner needs them"
             )
         grid = build_grid(scenario)
-        world.motion.on_pose = lambda pose, t: ctx.log.event("pose", pose=pose.as_list())
-        ctx.log.event("pose", pose=world.robot.pose().as_list())
+        rules = scenario.waypoint_rules
+        # a segment must clear an obstacle seen on the way by its assumed size, the robot's radius and a margin
+        clearance = cfg.obstacle_radius_m + world.robot.spec.radius_m + cfg.obstacle_margin_m  # [m]
         step = 0
         metrics: dict[str, Any] = {
             "planning_time_s": 0.0,
@@ -296,34 +379,47 @@ class WaypointPlanner(Planner):
         def call(request: ChatRequest, purpose: str) -> ChatResult:
             return call_model(ctx, request, purpose=purpose, step=step)
 
+        def note(kind: str, **fields: Any) -> None:
+            ctx.log.sim_time = world.sim_time
+            ctx.log.event("planner", kind=kind, step=step, **fields)
+
         def log_attempt(attempt: Attempt) -> None:
-            ctx.log.event(
-                "planner",
-                kind="waypoint_attempt",
-                step=step,
+            note(
+                "waypoint_attempt",
                 attempt=attempt.number,
                 points=attempt.points,
                 valid=attempt.valid,
                 problems=attempt.problems,
+                latency_s=attempt.latency_s,
+            )
+            ctx.log.event(
+                "guard",
+                step=step,
+                attempt=attempt.number,
+                outcome=attempt.outcome,
+                error="; ".join(attempt.problems)[:500] or None,
             )
 
-        last_replan = -math.inf
-        preset = [tuple(p) for p in opts.preset_waypoints]
+        last_replan = -math.inf  # [s] sim time of the previous replan
+        preset = [(float(x), float(y)) for x, y in opts.preset_waypoints]
         for leg in sequence_legs(scenario, ctx.task):
             step += 1
-            target = ground_target(scenario, leg, call)
-            ctx.log.event("planner", kind="grounding", step=step, command=leg.text, target=target.id)
+            clock = PlanningClock(call)
+            near = preset[-1] if preset else None
+            target = ground_target(scenario, leg, clock, near=near, tolerance_m=rules.target_tolerance_m)
+            grounding_s = clock.elapsed_s()  # [s] counted in this leg's first planning time
+            note("grounding", command=leg.text, target=target.id)
             seen: list[Point] = []
             replans = 0
             while True:
                 start = world.robot.pose()
                 if preset:  # `llmnav plan --execute`: the plan was made already; it is validated again
-                    plan = PlanResult(target.id, target.goal_point)
                     problems = validate_waypoints(
-                        preset, (start.x, start.y), target.goal_point, scenario, grid, scenario.waypoint_rules
+                        preset, (start.x, start.y), target.goal_point, scenario, grid, rules
                     )
-                    plan.attempts.append(Attempt(1, 0.0, list(preset), problems))
-                    log_attempt(plan.attempts[0])
+                    attempt = Attempt(1, 0.0, preset, problems, "bounds" if problems else "ok")
+                    plan = PlanResult(target.id, target.goal_point, [attempt])
+                    log_attempt(attempt)
                     preset = []
                 else:
                     plan = generate_plan(
@@ -336,20 +432,15 @@ class WaypointPlanner(Planner):
                         temperature=opts.temperature,
                         seed=opts.seed,
                         seen_obstacles=seen,
+                        obstacle_clearance_m=clearance,
                         on_attempt=log_attempt,
                     )
+                plan.planning_time_s += grounding_s
+                grounding_s = 0.0
                 self._count(metrics, plan)
-                for attempt in plan.attempts:
-                    if not attempt.valid:
-                        ctx.log.event(
-                            "guard",
-                            step=step,
-                            attempt=attempt.number,
-                            outcome="bounds",
-                            error="; ".join(attempt.problems)[:500],
-                        )
                 waypoints = plan.waypoints
                 if waypoints is None:
+                    metrics["legs"].append({"target": target.id, "reached": False, "replans": replans})
                     return self._end(
                         metrics,
                         "failed",
@@ -368,24 +459,38 @@ class WaypointPlanner(Planner):
                 if stop is None:
                     break
                 if stop == "collision":
+                    metrics["legs"].append({"target": target.id, "reached": False, "replans": replans})
                     return self._end(metrics, "failed", "collided while following waypoints", step)
-                metrics["collision_events"] += 1
-                seen.append(self._obstacle_ahead(ctx))
+                obstacle: Point | None = None
+                if stop in ("obstacle", "emergency"):  # a LiDAR reading below the stop distance
+                    metrics["collision_events"] += 1
+                    obstacle = self._obstacle_ahead(ctx, wide=stop == "emergency")
+                    if obstacle is not None:
+                        seen.append(obstacle)
                 if replans >= opts.max_replans:
+                    metrics["legs"].append({"target": target.id, "reached": False, "replans": replans})
                     return self._end(
                         metrics,
                         "failed",
-                        f"path to {target.label} still blocked after {replans} replans",
+                        f"path to {target.label} still blocked ({stop}) after {replans} replans",
                         step,
                     )
-                wait = opts.replan_cooldown_s - (world.sim_time - last_replan)
+                wait = opts.replan_cooldown_s - (world.sim_time - last_replan)  # [s]
                 if wait > 0:  # cooldown between replans, in simulated time, standing still
                     world.motion.velocity_tick(0.0, 0.0, wait)
                 replans += 1
                 metrics["replans"] += 1
                 last_replan = world.sim_time
-                ctx.log.event("planner", kind="replan", step=step, reason=stop, number=replans)
-            metrics["legs"].append({"target": target.id, "reached": True})
+                here = world.robot.pose()
+                note(
+                    "replan",
+                    reason=stop,
+                    number=replans,
+                    pose=here.as_list(),
+                    obstacle=None if obstacle is None else [round(obstacle[0], 3), round(obstacle[1], 3)],
+                    waited_s=round(max(wait, 0.0), 3),
+                )
+            metrics["legs"].append({"target": target.id, "reached": True, "replans": replans})
         return self._end(metrics, "completed", "reached every target", step)
 
     def _execute(
@@ -414,6 +519,7 @@ class WaypointPlanner(Planner):
                     obstacle_stop_m=cfg.critical_m,
                     emergency_stop_m=cfg.emergency_m,
                 )
+                ctx.log.sim_time = world.sim_time
                 ctx.log.event(
                     "action",
                     step=step,
@@ -422,6 +528,7 @@ class WaypointPlanner(Planner):
                     index=index,
                     pose_before=before.as_list(),
                     pose_after=result.end.as_list(),
+                    duration_s=round(result.duration_s, 3),
                     collided=result.collided,
                     collision_with=result.collision_with,
                     stopped_reason=result.stopped_reason,
@@ -434,18 +541,25 @@ class WaypointPlanner(Planner):
             metrics["execution_time_s"] += world.sim_time - t0
         return None
 
-    def _obstacle_ahead(self, ctx: EpisodeContext) -> Point:
-        """World position of the closest LiDAR return within ±15° ahead (what stopped the robot)."""
+    def _obstacle_ahead(self, ctx: EpisodeContext, *, wide: bool = False) -> Point | None:
+        """Estimated centre of what stopped the robot; None when the LiDAR sees nothing there.
+
+        The closest return within ±15° ahead (±90° after an emergency stop), pushed back by the assumed
+        obstacle radius.
+        """
         import numpy as np
 
         scan = ctx.world.lidar.scan()
         pose = ctx.world.robot.pose()
-        ahead = np.abs(scan.angles) <= math.radians(15)
-        ranges = np.where(ahead, scan.ranges, np.inf)
+        half = math.radians(90.0 if wide else 15.0)
+        ranges = np.where(np.abs(scan.angles) <= half, scan.ranges, np.inf)
         i = int(np.argmin(ranges))
-        r = float(ranges[i]) if math.isfinite(float(ranges[i])) else self.cfg.critical_m
+        r = float(ranges[i])  # [m]
+        if not math.isfinite(r):
+            return None
+        depth = r + self.cfg.obstacle_radius_m  # [m] from the robot to the assumed centre
         heading = pose.yaw + float(scan.angles[i])
-        return (pose.x + (r + 0.2) * math.cos(heading), pose.y + (r + 0.2) * math.sin(heading))
+        return (pose.x + depth * math.cos(heading), pose.y + depth * math.sin(heading))
 
     @staticmethod
     def _count(metrics: dict[str, Any], plan: PlanResult) -> None:
