@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from llmnav.errors import BadInputError
+from llmnav.errors import BadInputError, one_line
 from llmnav.planners.base import DriveOptions
 from llmnav.runlog import RUN_FILE, SUMMARY_FILE, write_json_atomic
 
@@ -106,8 +106,8 @@ class Episode:
     backend: str
     options: DriveOptions
 
-    def spec(self, root: Path, scenario: str) -> EpisodeSpec:
-        """The runner's input for this episode."""
+    def spec(self, root: Path, scenario: str, *, plots: bool = False) -> EpisodeSpec:
+        """The runner's input for this episode (`plots`: write each run's trajectory.png)."""
         from llmnav.runner import EpisodeSpec
 
         return EpisodeSpec(
@@ -118,6 +118,7 @@ class Episode:
             backend=self.backend,
             out_dir=root / self.dir_name,
             quiet=True,
+            plots=plots,
         )
 
 
@@ -391,7 +392,7 @@ def execute_episode(runner: Runner, spec: EpisodeSpec) -> tuple[dict[str, Any] |
     try:
         return runner(spec), None, False
     except BadInputError as err:
-        return None, str(err).splitlines()[0] if str(err) else type(err).__name__, True
+        return None, one_line(err), True
     except Exception as err:  # noqa: BLE001 — one broken episode must not end a long sweep
         text = str(err).splitlines()[0] if str(err) else ""
         return None, f"{type(err).__name__}: {text}" if text else type(err).__name__, False
@@ -412,10 +413,14 @@ def run(
     workers: int = 1,
     ray_address: str | None = None,
     runner: Runner | None = None,
+    plots: bool = False,
     on_start: Callable[[int, int, int], None] | None = None,
     on_result: ProgressCallback | None = None,
 ) -> Ablation:
     """Run every unfinished episode; the manifest is rewritten after each one.
+
+    `plots` writes each run's trajectory.png; off by default: drawing it cost more than a scripted
+    episode itself, and the tables need only the logs and summaries.
 
     `on_start(total, already_done, successes)` is called once before any episode runs, `on_result` after
     each. `runner` (default `llmnav.runner.run_episode`) must be picklable for `workers > 1` and Ray.
@@ -461,7 +466,7 @@ def run(
         if fatal:
             raise BadInputError(f"episode {ep.key}: {error}")
 
-    specs = [(ep, ep.spec(root, ablation.grid.scenario)) for ep in pending]
+    specs = [(ep, ep.spec(root, ablation.grid.scenario, plots=plots)) for ep in pending]
     if ray_address is not None:
         for ep, result in _run_ray(runner, specs, ray_address):
             settle(ep, result)

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult, Message
-from llmnav.errors import ModelUnavailableError
+from llmnav.errors import ModelUnavailableError, one_line
 
 HF_INSTALL_HINT = "pip install 'llmnav[hf]' (transformers and torch==2.13.0, the CPU wheel)"
 ROLE_PREFIX = {"system": "System", "user": "User", "assistant": "Assistant"}
@@ -71,8 +71,7 @@ class HFEngine:
             self._tokenizer = transformers.AutoTokenizer.from_pretrained(directory, local_files_only=True)
             self._model = transformers.AutoModelForCausalLM.from_pretrained(directory, local_files_only=True)
         except (OSError, ValueError) as err:
-            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            raise ModelUnavailableError(f"could not load a causal LM from {directory}: {first}") from None
+            raise ModelUnavailableError(f"could not load a causal LM from {directory}: {one_line(err)}") from None
         self._model.eval()
         self._torch = torch
         self.model_name = directory.name

@@ -9,7 +9,7 @@ from typing import ParamSpec, TypeVar
 import typer
 from rich.console import Console
 
-from llmnav.errors import LlmnavError
+from llmnav.errors import LlmnavError, one_line
 
 console = Console()
 err_console = Console(stderr=True)
@@ -32,7 +32,7 @@ def cli_errors(func: Callable[P, R]) -> Callable[P, R]:
         try:
             return func(*args, **kwargs)
         except LlmnavError as err:
-            raise fail(str(err).splitlines()[0] if str(err) else type(err).__name__, err.exit_code) from None
+            raise fail(one_line(err), err.exit_code) from None
         except KeyboardInterrupt:
             raise fail("interrupted; everything written so far is kept", 130) from None
 

@@ -93,9 +93,7 @@ class FsmStats:
     tick_latency_ms: list[float] = field(default_factory=list)
     model_latency_ms: list[float] = field(default_factory=list)
     suggestions: int = 0
-    rejected: dict[str, int] = field(
-        default_factory=lambda: {"stale": 0, "bounds": 0, "parse": 0, "error": 0}
-    )
+    rejected: dict[str, int] = field(default_factory=lambda: {"stale": 0, "bounds": 0, "parse": 0, "error": 0})
     accepted: int = 0
     ticks_using: int = 0
     missed_deadlines: int = 0
@@ -219,6 +217,17 @@ class FsmPlanner(Planner):
         log.event("pose", pose=start_pose.as_list())
         outcome: EpisodeOutcome | None = None
         wall_start = time.perf_counter()
+
+        def log_state(previous: State, new: State) -> None:
+            log.event(
+                "planner",
+                kind="fsm_state",
+                previous=previous,
+                state=new,
+                sign=target_id,
+                pose=world.robot.pose().as_list(),
+            )
+
         tick = 0
 
         try:
@@ -240,9 +249,7 @@ class FsmPlanner(Planner):
                         pending, in_flight = None, False
                         stats.suggestions += 1
                         stats.model_latency_ms.append(delivered.latency_s * 1000.0)
-                        verdict, value, detail = check_suggestion(
-                            delivered.text, delivered.stamp, now, ttl_s, cfg
-                        )
+                        verdict, value, detail = check_suggestion(delivered.text, delivered.stamp, now, ttl_s, cfg)
                         if value is not None:
                             stats.accepted += 1
                             held = HeldSuggestion(delivered.stamp, *value)
@@ -276,9 +283,7 @@ class FsmPlanner(Planner):
                     if seen is not None:
                         last_seen = now
                         if seen.distance_m <= cfg.d_goal:
-                            state = {"left": "ACT_LEFT", "right": "ACT_RIGHT"}.get(
-                                seen.sign or "", "ACT_STOP"
-                            )  # type: ignore[assignment]
+                            state = {"left": "ACT_LEFT", "right": "ACT_RIGHT"}.get(seen.sign or "", "ACT_STOP")  # type: ignore[assignment]
                     elif now - last_seen > cfg.lost_after_s:
                         state = "SEARCH"
                 if state != previous_state:
@@ -288,14 +293,7 @@ class FsmPlanner(Planner):
                         consumed.add(target_id or "")
                     if state != "APPROACH":
                         held, pending, in_flight = None, None, in_flight and worker is not None
-                    log.event(
-                        "planner",
-                        kind="fsm_state",
-                        previous=previous_state,
-                        state=state,
-                        sign=target_id,
-                        pose=world.robot.pose().as_list(),
-                    )
+                    log_state(previous_state, state)
 
                 # --- baseline command -------------------------------------------------------------
                 target_v, target_w = 0.0, 0.0
@@ -303,24 +301,15 @@ class FsmPlanner(Planner):
                     target_w = cfg.search_w
                 elif state == "APPROACH" and target_id in visible:
                     seen = visible[target_id]
-                    target_v = saturate(
-                        cfg.k_v * (seen.distance_m - cfg.d_goal), cfg.v_approach_min, cfg.v_max
-                    )
+                    target_v = saturate(cfg.k_v * (seen.distance_m - cfg.d_goal), cfg.v_approach_min, cfg.v_max)
                     target_w = saturate(cfg.k_w * math.radians(seen.bearing_deg), -cfg.w_max, cfg.w_max)
                 elif state in ("ACT_LEFT", "ACT_RIGHT"):
                     yaw = world.robot.odom().yaw
                     turned += abs(math.remainder(yaw - turn_start_yaw, math.tau))
                     turn_start_yaw = yaw
                     if turned >= cfg.turn_angle:
+                        log_state(state, "SEARCH")
                         state, state_since = "SEARCH", now
-                        log.event(
-                            "planner",
-                            kind="fsm_state",
-                            previous=previous_state,
-                            state=state,
-                            sign=target_id,
-                            pose=world.robot.pose().as_list(),
-                        )
                     else:
                         target_w = cfg.turn_w if state == "ACT_LEFT" else -cfg.turn_w
                 base_v = rate_limit(target_v, base_v, cfg.accel_max, dt)
@@ -390,9 +379,7 @@ class FsmPlanner(Planner):
                 worker.close()
 
         if outcome is None:
-            outcome = EpisodeOutcome(
-                "failed", f"tick budget exhausted ({opts.max_ticks} ticks)", opts.max_ticks
-            )
+            outcome = EpisodeOutcome("failed", f"tick budget exhausted ({opts.max_ticks} ticks)", opts.max_ticks)
         final = world.robot.pose()
         log.event("pose", pose=final.as_list())
         outcome.metrics = self._metrics(ctx, stats, final, start_pose)
