@@ -2,7 +2,7 @@
 
 `run_episode` builds the world, resolves the task, opens the run folder and its `RunLog` (first line: the
 full configuration), creates the backend when the planner needs one, runs the planner, logs the `end`
-event, and writes `summary.json` and `trajectory.png`. Whatever happens inside the planner, the log ends
+event, and writes `summary.json` and (unless `plots` is off) `trajectory.png`. Whatever happens inside the planner, the log ends
 with an `end` event: a bug ends the episode "aborted" and is re-raised after the log is closed; an
 `LlmnavError` (model failure, replay divergence) just ends it "aborted" with its one-line message.
 """
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from llmnav.backends.base import Backend
     from llmnav.geometry import Pose2D
     from llmnav.planners.base import Planner
-    from llmnav.runlog import RunLog
+    from llmnav.runlog import RunLog, RunRecord
     from llmnav.scenario import Scenario, Task
     from llmnav.sim.world import World
 
@@ -45,6 +45,7 @@ class EpisodeSpec(BaseModel):
     backend: str = "local"
     out_dir: Path
     quiet: bool = True
+    plots: bool = True  # write trajectory.png (ablations turn it off: it costs more than a short episode)
 
 
 def _package_version(name: str) -> str | None:
@@ -216,6 +217,17 @@ def _run_logged(
     summary = summarize_run(record, scenario, outcome)
     summary["run_dir"] = str(log.run_dir)
     log.write_summary(summary)
+    if not spec.plots:
+        summary["trajectory"] = None
+    else:
+        _plot(record, scenario, task, log, summary)
+    if crash is not None:
+        raise crash
+    return summary
+
+
+def _plot(record: RunRecord, scenario: Scenario, task: Task, log: RunLog, summary: dict[str, Any]) -> None:
+    """Write trajectory.png and note its path (or the error) in the summary."""
     # The figure is a convenience: a plotting failure must not cost the episode its result.
     try:
         from llmnav.reporting.trajectory import plot_record
@@ -224,9 +236,6 @@ def _run_logged(
     except Exception as err:  # noqa: BLE001
         summary["trajectory"] = None
         summary["trajectory_error"] = f"{type(err).__name__}: {one_line(err)}"
-    if crash is not None:
-        raise crash
-    return summary
 
 
 def exit_code(summary: dict[str, Any]) -> int:

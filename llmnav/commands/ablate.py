@@ -51,6 +51,9 @@ def ablate(
         str | None, typer.Option("--ray", help="Run as Ray tasks on this cluster address ('auto' for local).")
     ] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List the episodes and stop.")] = False,
+    plots: Annotated[
+        bool, typer.Option("--plots", help="Write each run's trajectory.png (slower; off by default).")
+    ] = False,
 ) -> None:
     """Run an ablation grid (resumable: run it again to finish it), then print the tables by factor."""
     from llmnav import ablate as lib
@@ -79,6 +82,7 @@ def ablate(
             ablation,
             workers=workers,
             ray_address=ray,
+            plots=plots,
             on_start=progress.start,
             on_result=progress.advance,
         )

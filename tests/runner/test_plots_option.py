@@ -1,0 +1,44 @@
+"""The trajectory plot is optional: runs without it stay complete and scorable; ablations skip it by default."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from llmnav.cli import app
+from llmnav.planners.base import DriveOptions
+from llmnav.runner import EpisodeSpec, run_episode
+
+SMALL = str(Path(__file__).with_name("small_room.yaml"))
+
+
+def test_episode_without_plot_is_complete_and_scored(tmp_path: Path) -> None:
+    spec = EpisodeSpec(
+        scenario=SMALL,
+        task_id="T1",
+        options=DriveOptions(planner="oracle"),
+        out_dir=tmp_path / "run",
+        plots=False,
+    )
+    summary = run_episode(spec)
+    run_dir = tmp_path / "run"
+    assert summary["outcome"] == "completed" and summary["trajectory"] is None
+    assert not (run_dir / "trajectory.png").exists()
+    assert json.loads((run_dir / "summary.json").read_text())["outcome"] == "completed"
+    scored = CliRunner().invoke(app, ["score", str(run_dir), "--format", "json"])
+    assert scored.exit_code == 0, scored.output
+    assert '"task": "T1"' in scored.output
+
+
+def test_ablation_plots_only_when_asked(tmp_path: Path) -> None:
+    base = ["ablate", "--scenario", SMALL, "--planner", "oracle", "--tasks", "T1", "--poses", "1"]
+    for flag, expect_png in (([], False), (["--plots"], True)):
+        out = tmp_path / ("with" if expect_png else "without")
+        result = CliRunner().invoke(app, [*base, "--out", str(out), *flag])
+        assert result.exit_code == 0, result.output
+        manifest = json.loads((out / "manifest.json").read_text())
+        assert manifest["done"] == 1
+        pngs = list(out.rglob("trajectory.png"))
+        assert len(pngs) == (1 if expect_png else 0)
