@@ -26,6 +26,8 @@ from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, P
 
 if TYPE_CHECKING:
     from llmnav.baselines.grid import LidarMap, OccupancyGrid
+    from llmnav.guard.parse import GuardResult
+    from llmnav.guard.schemas import HybridChoice
     from llmnav.observe import Observation
     from llmnav.sim.motion import MotionResult
 
@@ -43,6 +45,12 @@ class HybridConfig:
     max_frontiers: int = 3
     frontier_min_cells: int = 12  # smaller frontier clusters are noise
     veto_margin_m: float = 0.05  # [m] lateral margin of the veto's swept corridor
+    # [m] the veto's stop margin: below the grid's 0.10 m clearance, so a leg ending at a free cell that
+    # faces a known wall passes, while anything the static map lacks on the path still blocks it
+    veto_stop_margin_m: float = 0.05
+    unexpected_m: float = 0.10  # [m] LiDAR hits farther than this from every known solid are obstacles
+    # [m] extra clearance around such hits: the LiDAR sees only an obstacle's near face, not its depth
+    unseen_depth_m: float = 0.25
     obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
     max_tokens: int = 96  # [tokens] an option number and a sentence of reasoning
     arrived_m: float = 0.3  # [m] within this of a visited landmark's stand point the robot is "there"
@@ -66,6 +74,7 @@ class Memory:
 
     landmarks: dict[str, tuple[float, float]] = field(default_factory=dict)  # id -> estimated position [m]
     visited: set[str] = field(default_factory=set)
+    scans: int = 0  # full turns made so far
     last_result: str = "This is the first decision."
 
 
@@ -85,12 +94,19 @@ class HybridPlanner(Planner):
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
-        from llmnav.baselines.grid import LidarMap, build_grid
+        from llmnav.baselines.grid import GridConfig, LidarMap, build_grid, inflate
         from llmnav.observe import observe
 
         world, scenario = ctx.world, ctx.scenario
         grid = build_grid(scenario)
+        # A roomier grid whose paths and stand points the veto accepts: its swept rectangle reaches
+        # `hypot(stop + r, r + margin)` from a leg's end, more than a round robot's clearance on `grid`.
+        radius = world.robot.spec.radius_m
+        reach = math.hypot(self.cfg.veto_stop_margin_m + radius, radius + self.cfg.veto_margin_m)
+        margin = max(GridConfig().margin_m, reach - radius + grid.geometry.resolution)
+        roomy = build_grid(scenario, config=GridConfig(margin_m=margin))
         lidar_map = LidarMap(grid.geometry)
+        near_known = inflate(grid.occupied, self.cfg.unexpected_m, grid.geometry.resolution)
         memory = Memory()
         if scenario.corridors:  # a published map: every labelled object is known up front
             memory.landmarks = {o.id: o.goal_point for o in scenario.objects}
@@ -105,7 +121,8 @@ class HybridPlanner(Planner):
             if "detections" not in ctx.options.sensing:
                 # The menu is built from what the detector sees, whether or not the model is shown it.
                 self._look(ctx, memory)
-            options = self._options(ctx, grid, lidar_map, memory, obs.pose)
+            grids = [_with_seen_obstacles(g, lidar_map, near_known, self.cfg.unseen_depth_m) for g in (roomy, grid)]
+            options = self._options(ctx, grids, lidar_map, memory, obs.pose)
             choice, errors = self._choose(ctx, obs, options, memory, step)
             json_errors += errors
             if choice is None:
@@ -116,9 +133,7 @@ class HybridPlanner(Planner):
                     {"json_errors": json_errors, "vetoes": vetoes},
                 )
             option = options[choice - 1]
-            ctx.view.on_step(
-                StepInfo(step, option.text, front_m=obs.front_m, json_retries=errors, vetoes=vetoes)
-            )
+            ctx.view.on_step(StepInfo(step, option.text, front_m=obs.front_m, json_retries=errors, vetoes=vetoes))
             if option.kind == "complete":
                 ctx.log.event(
                     "action",
@@ -136,13 +151,11 @@ class HybridPlanner(Planner):
                     step,
                     {"json_errors": json_errors, "vetoes": vetoes},
                 )
-            result_text, vetoed, collided = self._execute(ctx, grid, option, memory, step)
+            result_text, vetoed, collided = self._execute(ctx, grids, lidar_map, option, memory, step)
             vetoes += vetoed
             memory.last_result = result_text
             if collided:
-                return EpisodeOutcome(
-                    "failed", result_text, step, {"json_errors": json_errors, "vetoes": vetoes}
-                )
+                return EpisodeOutcome("failed", result_text, step, {"json_errors": json_errors, "vetoes": vetoes})
         return EpisodeOutcome(
             "failed",
             f"no finish within {ctx.options.max_iterations} decisions",
@@ -159,8 +172,14 @@ class HybridPlanner(Planner):
 
     # --- the menu -------------------------------------------------------------------------------
     def _options(
-        self, ctx: EpisodeContext, grid: OccupancyGrid, lidar_map: LidarMap, memory: Memory, pose: Pose2D
+        self,
+        ctx: EpisodeContext,
+        grids: list[OccupancyGrid],
+        lidar_map: LidarMap,
+        memory: Memory,
+        pose: Pose2D,
     ) -> list[Option]:
+        """The numbered menu; `grids` are the planning grids, roomiest first."""
         from llmnav.tasks import named_objects
 
         wanted = {o.id for o in named_objects(ctx.scenario, ctx.task.text)}
@@ -171,7 +190,7 @@ class HybridPlanner(Planner):
         )
         for object_id, position in ranked[: self.cfg.max_landmarks]:
             obj = ctx.scenario.object(object_id)
-            goal = self._approach(grid, obj.goal if obj.goal is not None else None, position, pose)
+            goal = self._approach(grids, obj.goal, position, pose)
             if goal is None:
                 continue
             notes = []
@@ -179,18 +198,21 @@ class HybridPlanner(Planner):
                 notes.append("its name matches the task")
             if object_id in memory.visited:
                 notes.append("already visited")
+            # Near its stand point the bearing to the point says nothing: say where the robot is instead.
+            where = "you are there" if pose.distance_to(*goal) <= self.cfg.arrived_m else _where(pose, position)
             options.append(
                 Option(
                     0,
                     "landmark",
-                    f"Go to the {obj.label} ({_where(pose, position)})"
-                    + (f" — {'; '.join(notes)}" if notes else ""),
+                    f"Go to {_named(obj.label)} ({where})" + (f" — {'; '.join(notes)}" if notes else ""),
                     goal=goal,
                     face=obj.center,
                     landmark_id=object_id,
                 )
             )
-        for centre, size in self._frontiers(grid, lidar_map, pose)[: self.cfg.max_frontiers]:
+        # With a published map every landmark is listed already: exploring would only distract the model.
+        frontiers = [] if ctx.scenario.corridors else self._frontiers(grids[0], lidar_map, pose)
+        for centre, size in frontiers[: self.cfg.max_frontiers]:
             options.append(
                 Option(
                     0,
@@ -199,7 +221,8 @@ class HybridPlanner(Planner):
                     goal=centre,
                 )
             )
-        options.append(Option(0, "scan", "Turn a full circle in place to look around"))
+        scan = Option(0, "scan", "Turn a full circle in place to look around")
+        options.append(scan)
         arrived = [
             o
             for o in options
@@ -208,42 +231,50 @@ class HybridPlanner(Planner):
             and o.goal is not None
             and pose.distance_to(*o.goal) <= self.cfg.arrived_m
         ]
-        finish = Option(
-            0,
-            "complete",
-            "Finish: the task is done"
-            + (
-                f" — you are at the {ctx.scenario.object(arrived[0].landmark_id or '').label}"
-                if arrived
-                else ""
-            ),
-        )
+        # A task that names nothing (turn around, look around) is served by the scan, then by finishing.
+        turning_task = not wanted and ctx.task.kind in ("rotate", "explore")
+        if arrived:
+            done = f" — you are at {_named(ctx.scenario.object(arrived[0].landmark_id or '').label)}"
+        elif turning_task and memory.scans:
+            done = " — you have turned a full circle and looked around"
+        else:
+            done = ""
+        finish = Option(0, "complete", "Finish: the task is done" + done)
         # Most relevant first: small models lean heavily toward option 1.
-        options = [finish, *options] if arrived else [*options, finish]
+        if done:
+            options = [finish, *options]
+        elif turning_task:
+            options = [scan, *(o for o in options if o is not scan), finish]
+        else:
+            options = [*options, finish]
         for number, option in enumerate(options, start=1):
             option.number = number
         return options
 
     def _approach(
         self,
-        grid: OccupancyGrid,
+        grids: list[OccupancyGrid],
         goal: tuple[float, float] | None,
         position: tuple[float, float],
         pose: Pose2D,
     ) -> tuple[float, float] | None:
-        """Where to stand: the goal point if free, else the free stand-off cell nearest the robot."""
+        """Where to stand: the goal point if the robot fits there, else the nearest free stand-off cell.
+
+        The stand-off cell comes from the roomiest grid that has one.
+        """
         import numpy as np
 
-        if goal is not None and grid.is_free(*goal):
+        if goal is not None and grids[-1].is_free(*goal):
             return goal
-        xs, ys = grid.geometry.centres()
-        ring = np.hypot(xs - position[0], ys - position[1])
-        ok = (~grid.blocked) & (ring >= self.cfg.approach_min_m) & (ring <= self.cfg.approach_max_m)
-        if not ok.any():
-            return None
-        cost = np.where(ok, np.hypot(xs - pose.x, ys - pose.y), np.inf)
-        row, col = np.unravel_index(int(np.argmin(cost)), cost.shape)
-        return grid.geometry.cell_to_world(int(row), int(col))
+        for grid in grids:
+            xs, ys = grid.geometry.centres()
+            ring = np.hypot(xs - position[0], ys - position[1])
+            ok = (~grid.blocked) & (ring >= self.cfg.approach_min_m) & (ring <= self.cfg.approach_max_m)
+            if ok.any():
+                cost = np.where(ok, np.hypot(xs - pose.x, ys - pose.y), np.inf)
+                row, col = np.unravel_index(int(np.argmin(cost)), cost.shape)
+                return grid.geometry.cell_to_world(int(row), int(col))
+        return None
 
     def _frontiers(
         self, grid: OccupancyGrid, lidar_map: LidarMap, pose: Pose2D
@@ -297,11 +328,7 @@ class HybridPlanner(Planner):
             observation=obs.text(),
             options=menu,
         )
-        images = (
-            (obs.image,)
-            if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal
-            else ()
-        )
+        images = (obs.image,) if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal else ()
         messages: list[Message] = [Message("system", system), Message("user", user, images)]
         errors = 0
         for attempt in range(ctx.options.max_corrections + 1):
@@ -313,7 +340,7 @@ class HybridPlanner(Planner):
                 ctx.options.seed,
             )
             reply = call_model(ctx, request, purpose="choice" if attempt == 0 else "correction", step=step)
-            result = parse_answer(reply.text, model)
+            result: GuardResult[HybridChoice] = parse_answer(reply.text, model)
             ctx.log.event("guard", step=step, attempt=attempt, outcome=result.outcome, error=result.error)
             if result.value is not None:
                 return int(result.value.option), errors
@@ -326,7 +353,13 @@ class HybridPlanner(Planner):
 
     # --- carrying an option out ------------------------------------------------------------------
     def _execute(
-        self, ctx: EpisodeContext, grid: OccupancyGrid, option: Option, memory: Memory, step: int
+        self,
+        ctx: EpisodeContext,
+        grids: list[OccupancyGrid],
+        lidar_map: LidarMap,
+        option: Option,
+        memory: Memory,
+        step: int,
     ) -> tuple[str, int, bool]:
         """Run one option; returns (what happened, vetoes, collided)."""
         world = ctx.world
@@ -338,11 +371,12 @@ class HybridPlanner(Planner):
                 new |= self._look(ctx, memory)
                 if result.collided:
                     break
+            memory.scans += 1
             self._log_action(ctx, step, "SCAN", 360.0, before, result)
             seen = "; new objects came into view" if new else "; nothing new came into view"
             return "Turned a full circle" + seen + ".", 0, result.collided
         assert option.goal is not None
-        legs = self._plan(grid, before, option.goal)
+        legs = next((p for p in (self._plan(g, before, option.goal) for g in grids) if p is not None), None)
         if legs is None:
             return f"No collision-free path to: {option.text}.", 0, False
         for x, y in legs:
@@ -351,11 +385,16 @@ class HybridPlanner(Planner):
             if abs(turn) > 0.087:
                 world.motion.rotate(turn)
             length = world.robot.pose().distance_to(x, y)
-            verdict = self._veto(ctx, length)
+            verdict = self._veto(ctx, lidar_map, length)
             if verdict is not None:
                 ctx.log.event("guard", step=step, attempt=0, outcome="veto", error=verdict)
                 self._log_action(ctx, step, "GOTO", length, before, None, vetoed=True)
-                return f"Stopped: the safety check blocked the path ({verdict}).", 1, False
+                return (
+                    f"Stopped: the safety check found an obstacle the map did not show on the path ({verdict}). "
+                    "It is mapped now: the same option again plans a way around it.",
+                    1,
+                    False,
+                )
             result = world.motion.go_to(x, y, obstacle_stop_m=self.cfg.obstacle_stop_m)
             if result.collided:
                 self._log_action(ctx, step, "GOTO", length, before, result)
@@ -365,9 +404,7 @@ class HybridPlanner(Planner):
                 return "Stopped exploring early: a new object came into view.", 0, False
         if option.face is not None:
             pose = world.robot.pose()
-            turn = math.remainder(
-                math.atan2(option.face[1] - pose.y, option.face[0] - pose.x) - pose.yaw, math.tau
-            )
+            turn = math.remainder(math.atan2(option.face[1] - pose.y, option.face[0] - pose.x) - pose.yaw, math.tau)
             world.motion.rotate(turn)
         if option.landmark_id is not None:
             memory.visited.add(option.landmark_id)
@@ -382,11 +419,12 @@ class HybridPlanner(Planner):
             pose_after=after.as_list(),
             collided=False,
         )
+        if option.goal is not None and after.distance_to(*option.goal) > self.cfg.arrived_m:
+            short = after.distance_to(*option.goal)
+            return f"Stopped {short:.1f} m short of the goal: {option.text.split(' (')[0]}.", 0, False
         return f"Done: {option.text.split(' (')[0]}; now at {_pose_text(after)}.", 0, False
 
-    def _plan(
-        self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]
-    ) -> list[tuple[float, float]] | None:
+    def _plan(self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]) -> list[tuple[float, float]] | None:
         """A* legs from the robot to the goal, no longer than `leg_max_m` each."""
         from llmnav.baselines.paths import plan_path
 
@@ -408,15 +446,19 @@ class HybridPlanner(Planner):
             previous = point
         return legs
 
-    def _veto(self, ctx: EpisodeContext, length: float) -> str | None:
+    def _veto(self, ctx: EpisodeContext, lidar_map: LidarMap, length: float) -> str | None:
         """The safety veto on a straight leg ahead; the reason when blocked."""
         from llmnav.guard.veto import check_motion
 
+        scan = ctx.world.lidar.scan()
+        # What blocked this leg goes into the map, so the next plan can route around it.
+        lidar_map.integrate(ctx.world.robot.pose(), scan)
         verdict = check_motion(
             length,
-            ctx.world.lidar.scan(),
+            scan,
             robot_width_m=ctx.world.robot.spec.width_m,
             margin_m=self.cfg.veto_margin_m,
+            stop_margin_m=self.cfg.veto_stop_margin_m,
         )
         return None if verdict.allowed else (verdict.reason or "blocked")
 
@@ -454,6 +496,30 @@ class HybridPlanner(Planner):
         if vetoed:
             fields["vetoed"] = True
         ctx.log.event("action", **fields)
+
+
+def _with_seen_obstacles(grid: OccupancyGrid, lidar_map: LidarMap, near_known: Any, depth_m: float) -> OccupancyGrid:
+    """The grid plus the LiDAR hits away from every known solid (`near_known`), inflated alike.
+
+    The extra `depth_m` [m] stands for the obstacle's back, which the LiDAR has not seen.
+    """
+    from dataclasses import replace
+
+    from llmnav.baselines.grid import inflate
+
+    unexpected = lidar_map.occupied & ~near_known
+    if not unexpected.any():
+        return grid
+    return replace(
+        grid,
+        occupied=grid.occupied | unexpected,
+        blocked=grid.blocked | inflate(unexpected, grid.inflation_m + depth_m, grid.geometry.resolution),
+    )
+
+
+def _named(label: str) -> str:
+    """'the window', but 'room 101': a numbered name takes no article."""
+    return label if label[-1:].isdigit() else f"the {label}"
 
 
 def _estimate(pose: Pose2D, bearing_deg: float, distance_m: float) -> tuple[float, float]:
