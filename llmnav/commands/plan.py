@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from llmnav.commands.common import cli_errors, console
 from llmnav.errors import BadInputError
+
+if TYPE_CHECKING:
+    from llmnav.backends.base import Backend
+    from llmnav.planners.waypoints import PlanResult
+    from llmnav.tasks import ResolvedTask
 
 
 @cli_errors
@@ -38,7 +43,7 @@ def plan(
     """Ask the model for waypoints to a target, validate every attempt, and show the verdicts."""
     from llmnav.backends.base import ChatRequest, ChatResult, get_backend
     from llmnav.baselines.grid import build_grid
-    from llmnav.planners.waypoints import generate_plan, ground_target, plan_summary
+    from llmnav.planners.waypoints import PlanningClock, generate_plan, ground_target, plan_summary
     from llmnav.tasks import resolve_task
 
     if (task is None) == (task_audio is None):
@@ -60,67 +65,82 @@ def plan(
         return model.chat(request)
 
     try:
-        target = ground_target(sc, resolved.task, call)
+        clock = PlanningClock(call)  # command -> waypoints: grounding counts too
+        target = ground_target(sc, resolved.task, clock)
+        grounding_s = clock.elapsed_s()
         start = resolved.start.pose()
         result = generate_plan(
             sc, target, start, call, max_generations=max_generations, grid=build_grid(sc), seed=seed
         )
+        result.planning_time_s += grounding_s
+        if plot is not None:
+            from llmnav.reporting.planplot import plot_plan
+
+            plot_plan(sc, result, start, plot)
+        if json_output:
+            console.print(json.dumps(plan_summary(result)), markup=False, highlight=False, soft_wrap=True)
+        else:
+            _print_plan(result, sc.name, plot)
+        if result.waypoints is None:
+            raise typer.Exit(1)
+        if execute:
+            # the scenario as the user gave it (a file path stays a path); the same backend object, so a
+            # replay continues where planning stopped and a local model is not loaded twice
+            _execute(resolved, scenario or sc.name, model, result.waypoints, max_generations, seed, out)
     finally:
         model.close()
-    if plot is not None:
-        from llmnav.reporting.planplot import plot_plan
-
-        plot_plan(sc, result, start, plot)
-    if json_output:
-        console.print(json.dumps(plan_summary(result)), markup=False, highlight=False, soft_wrap=True)
-    else:
-        _print_plan(result, sc.name, plot)
-    if result.waypoints is None:
-        raise typer.Exit(1)
-    if execute:
-        _execute(resolved, backend, result.waypoints, seed, out)
 
 
-def _print_plan(result: object, scenario: str, plot: Path | None) -> None:
+def _print_plan(result: PlanResult, scenario: str, plot: Path | None) -> None:
     from rich.table import Table
+    from rich.text import Text
 
-    from llmnav.planners.waypoints import PlanResult
-
-    assert isinstance(result, PlanResult)
     table = Table(title=f"Waypoint attempts — target {result.target_id} in {scenario}")
     table.add_column("#", justify="right")
     table.add_column("waypoints")
     table.add_column("verdict")
     for attempt in result.attempts:
         points = " → ".join(f"({x:.2f}, {y:.2f})" for x, y in attempt.points) or "—"
-        verdict = "[green]valid[/]" if attempt.valid else "[red]" + "\n".join(attempt.problems) + "[/]"
+        # model text and validator messages may hold brackets: plain Text, never markup
+        verdict = Text("valid", style="green") if attempt.valid else Text("\n".join(attempt.problems), "red")
         table.add_row(str(attempt.number), points, verdict)
     console.print(table)
     console.print(
         f"planning time {result.planning_time_s:.2f} s · WGSR {result.wgsr:.1f} %"
-        + (f" · plot {plot}" if plot else "")
+        + (f" · plot {plot}" if plot else ""),
+        markup=False,
+        highlight=False,
     )
 
 
 def _execute(
-    resolved: object, backend: str, waypoints: list[tuple[float, float]], seed: int, out: Path | None
+    resolved: ResolvedTask,
+    scenario: str,
+    model: Backend,
+    waypoints: list[tuple[float, float]],
+    max_generations: int,
+    seed: int,
+    out: Path | None,
 ) -> None:
     from llmnav.commands.drive import default_out_dir
     from llmnav.planners.base import DriveOptions
     from llmnav.reporting.live import print_result
     from llmnav.runner import EpisodeSpec, exit_code, run_episode
-    from llmnav.tasks import ResolvedTask
 
-    assert isinstance(resolved, ResolvedTask)
-    options = DriveOptions(planner="waypoints", seed=seed, preset_waypoints=tuple(waypoints))
+    options = DriveOptions(
+        planner="waypoints",
+        seed=seed,
+        max_generations=max_generations,
+        preset_waypoints=tuple(waypoints),
+    )
     spec = EpisodeSpec(
-        scenario=resolved.scenario.name,
+        scenario=scenario,
         task_text=resolved.task.text,
         start_pose=resolved.start_pose_index,
         options=options,
-        backend=backend,
+        backend=model.spec,
         out_dir=out or default_out_dir("waypoints", resolved.task.text),
     )
-    summary = run_episode(spec)
+    summary = run_episode(spec, backend_obj=model)
     print_result(console, summary)
     raise typer.Exit(exit_code(summary))
