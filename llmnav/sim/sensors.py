@@ -115,9 +115,8 @@ class CameraFrame:
         if quality not in self._encoded:
             import cv2
 
-            ok, buf = cv2.imencode(
-                ".jpg", self.rgb[:, :, ::-1], [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)]
-            )
+            bgr = cv2.cvtColor(self.rgb, cv2.COLOR_RGB2BGR)  # contiguous: cheaper than a reversed view
+            ok, buf = cv2.imencode(".jpg", bgr, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
             if not ok:  # pragma: no cover - cv2 only fails on invalid input
                 raise RuntimeError("JPEG encoding failed")
             self._encoded[quality] = base64.b64encode(buf.tobytes()).decode("ascii")
@@ -158,6 +157,16 @@ class Camera:
         self.mount_height_m = mount_height_m if mount_height_m is not None else config.mount_height_m  # [m]
         # The floor as TinyRenderer would shade a lit, upward face of this colour.
         self._floor_rgb = np.array([round(FLOOR_SHADE * c) for c in floor_color[:3]], dtype=np.uint8)
+        self._floor_images: dict[tuple[int, int], np.ndarray] = {}  # (width, rows) -> solid floor image
+
+    def _floor_image(self, width: int, rows: int) -> np.ndarray:
+        """A rows x width image of floor colour (cached: the camera renders few resolutions)."""
+        image = self._floor_images.get((width, rows))
+        if image is None:
+            image = np.empty((rows, width, 3), dtype=np.uint8)
+            image[:] = self._floor_rgb
+            self._floor_images[(width, rows)] = image
+        return image
 
     def capture(
         self, *, segmentation: bool = False, width: int | None = None, height: int | None = None
@@ -189,11 +198,14 @@ class Camera:
             flags=flags,
             physicsClientId=self._client,
         )
-        rgb = np.ascontiguousarray(np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3])
+        import cv2
+
+        # cv2 drops the alpha channel and paints the floor ~50x faster than numpy slicing and masks.
+        rgb = cv2.cvtColor(np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4), cv2.COLOR_RGBA2RGB)
         # The camera looks level, so the horizon is the middle row: empty background below it is floor.
         half = height // 2
         below = np.asarray(depth, dtype=np.float32).reshape(height, width)[half:] >= BACKGROUND_DEPTH
-        rgb[half:][below] = self._floor_rgb
+        cv2.copyTo(self._floor_image(width, height - half), below.view(np.uint8), rgb[half:])  # in place
         mask = None
         if segmentation:
             raw = np.asarray(seg, dtype=np.int64).reshape(height, width)
