@@ -1,0 +1,243 @@
+"""The hybrid planner (the default, `make demo`) with scripted answers: a corridor task by option number,
+a factory task found by scanning and exploring, guard corrections, the safety veto on an obstacle the map
+lacks, and exact replay."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from llmnav.backends.base import Backend, ChatRequest, ChatResult
+from llmnav.backends.replay import ReplayBackend
+from llmnav.guard.parse import correction_message, parse_answer
+from llmnav.guard.schemas import hybrid_choice_model
+from llmnav.planners.base import DriveOptions
+from llmnav.runlog import RunLog, RunRecord, read_run
+from llmnav.runner import EpisodeSpec, exit_code, run_episode
+from llmnav.scenario import load_scenario
+
+
+def choice(option: int, reasoning: str = "scripted") -> str:
+    return json.dumps({"option": option, "reasoning": reasoning})
+
+
+def script(path: Path, replies: list[str]) -> str:
+    """A hand-written run log whose replies the replay backend returns in order (loose: any prompt)."""
+    with RunLog(path, {"note": "scripted replies"}) as log:
+        for text in replies:
+            log.event(
+                "llm_call",
+                step=0,
+                purpose="choice",
+                request={"messages": []},
+                reply={"text": text, "latency_s": 0.1, "model": "script"},
+            )
+    return f"{path / 'run.jsonl'}?loose"
+
+
+def options_in(user_turn: str) -> dict[int, str]:
+    """The numbered options of a decision's user turn (the LiDAR sectors above are numbered too)."""
+    listing = user_turn.split("\nOptions:\n", 1)[1]
+    return {int(n): text for n, text in re.findall(r"^(\d+)\. (.+)$", listing, re.MULTILINE)}
+
+
+def menu(request: ChatRequest) -> dict[int, str]:
+    """The numbered options of a request's decision turn."""
+    return options_in(next(m.text for m in request.messages if m.role == "user"))
+
+
+class MenuReader(Backend):
+    """Answers by reading the menu: `policy(options, decision_index)` returns the option number."""
+
+    name = "menu"
+
+    def __init__(self, policy: Callable[[dict[int, str], int], int]) -> None:
+        super().__init__("test")
+        self.policy = policy
+        self.menus: list[dict[int, str]] = []
+
+    def chat(self, request: ChatRequest) -> ChatResult:
+        options = menu(request)
+        self.menus.append(options)
+        return ChatResult(choice(self.policy(options, len(self.menus) - 1)), 0.01, "menu")
+
+
+def first(options: dict[int, str], prefix: str) -> int | None:
+    return next((n for n, text in options.items() if text.startswith(prefix)), None)
+
+
+def drive(
+    tmp_path: Path,
+    backend: Backend,
+    *,
+    scenario: str = "corridor_a",
+    task_id: str | None = None,
+    task_text: str | None = None,
+    pose: int = 1,
+    name: str = "run",
+    **options: Any,
+) -> tuple[dict[str, Any], RunRecord]:
+    options.setdefault("sensing", ("lidar",))
+    spec = EpisodeSpec(
+        scenario=scenario,
+        task_id=task_id,
+        task_text=task_text,
+        start_pose=pose,
+        options=DriveOptions(planner="hybrid", **options),
+        backend=backend.spec,
+        out_dir=tmp_path / name,
+    )
+    summary = run_episode(spec, backend_obj=backend)
+    return summary, read_run(tmp_path / name)
+
+
+def user_turns(record: RunRecord) -> list[str]:
+    """The decision prompt (first user turn) of every model call."""
+    return [
+        next(m["text"] for m in c["request"]["messages"] if m["role"] == "user") for c in record.of_type("llm_call")
+    ]
+
+
+def test_corridor_room_by_option_number_then_finish(tmp_path: Path) -> None:
+    replay = ReplayBackend(script(tmp_path / "script", [choice(1), choice(1)]))
+    summary, record = drive(tmp_path, replay, task_text="Go to room 101")
+    assert summary["outcome"] == "completed" and summary["success"] and exit_code(summary) == 0
+    turns = user_turns(record)
+    assert "1. Go to room 101 (" in turns[0] and "matches the task" in turns[0]
+    assert "Explore" not in turns[0]  # the corridor map is published: no frontier options
+    assert (
+        turns[1]
+        .splitlines()[turns[1].splitlines().index("Options:") + 1]
+        .startswith("1. Finish: the task is done — you are at room 101")
+    )
+    scenario = load_scenario("corridor_a")
+    plate = scenario.object("R101")
+    x, y, yaw = record.poses()[-1]
+    assert math.dist((x, y), plate.goal_point) < 0.5 and summary["distance_m"] < 0.5
+    facing = math.atan2(plate.center[1] - y, plate.center[0] - x)
+    assert abs(math.remainder(facing - yaw, math.tau)) < math.radians(10)
+    assert [a["command"] for a in record.of_type("action")] == ["GOTO", "COMPLETE"]
+    assert summary["collisions"] == 0 and summary["iterations"] == 2
+    # pose events carry sim time (the runner's hook stays in place)
+    times = [e["t_sim"] for e in record.of_type("pose")]
+    assert times == sorted(times) and times[-1] > 3.0
+
+
+def wanting(target: str, *, scan_first: bool) -> Callable[[dict[int, str], int], int]:
+    """A policy: finish at the target, else go to it when listed, else scan (once) or explore."""
+    scanned: list[bool] = []
+
+    def policy(options: dict[int, str], index: int) -> int:
+        for prefix in ("Finish: the task is done — you are at", f"Go to {target}"):
+            number = first(options, prefix)
+            if number is not None:
+                return number
+        if scan_first and not scanned:
+            scanned.append(True)
+            return first(options, "Turn a full circle") or 0
+        return first(options, "Explore") or first(options, "Turn a full circle") or 0
+
+    return policy
+
+
+@pytest.mark.parametrize(("pose", "scan_first"), [(4, True), (3, False)])
+def test_factory_target_appears_only_after_scanning_or_exploring(tmp_path: Path, pose: int, scan_first: bool) -> None:
+    target = "the dark brown wooden boxes"
+    reader = MenuReader(wanting(target, scan_first=scan_first))
+    summary, record = drive(
+        tmp_path,
+        reader,
+        scenario="factory",
+        task_id="T8",
+        pose=pose,
+        sensing=("lidar", "detections"),
+        max_iterations=12,
+    )
+    assert summary["outcome"] == "completed" and summary["success"], summary["reason"]
+    assert summary["distance_m"] <= 2.5 and summary["collisions"] == 0
+    listed = [any(t.startswith(f"Go to {target}") for t in m.values()) for m in reader.menus]
+    assert not listed[0] and listed[-2]  # hidden at the start, listed once seen
+    revealing = reader.menus[listed.index(True) - 1]
+    chosen = [json.loads(c["reply"]["text"])["option"] for c in record.of_type("llm_call")]
+    kind = revealing[chosen[listed.index(True) - 1]]
+    assert kind.startswith("Turn a full circle" if scan_first else "Explore")
+    commands = [a["command"] for a in record.of_type("action")]
+    assert commands[-1] == "COMPLETE" and commands[-2] == "GOTO"
+    assert ("SCAN" in commands) == scan_first
+    # with detections sensed, the model's perception text names the boxes once they are in view
+    perceived = [turn.split("\nOptions:\n")[0] for turn in user_turns(record)]
+    assert "dark brown wooden boxes" not in perceived[0]
+    assert any("dark brown wooden boxes" in text for text in perceived[1:])
+
+
+def test_malformed_and_out_of_range_answers_get_corrections(tmp_path: Path) -> None:
+    replies = ["I would go to the room", choice(42), choice(1), choice(1)]
+    replay = ReplayBackend(script(tmp_path / "script", replies))
+    summary, record = drive(tmp_path, replay, task_text="Go to room 101")
+    assert summary["outcome"] == "completed" and summary["success"]
+    calls = record.of_type("llm_call")
+    assert [c["purpose"] for c in calls] == ["choice", "correction", "correction", "choice"]
+    guards = [(g["step"], g["attempt"], g["outcome"]) for g in record.of_type("guard")]
+    assert guards == [(1, 0, "parse"), (1, 1, "schema"), (1, 2, "ok"), (2, 0, "ok")]
+    count = len(menu_of(calls[0]))
+    model = hybrid_choice_model(tuple(range(1, count + 1)))
+    schema = calls[0]["request"]["json_schema"]
+    assert list(schema["properties"])[0] == "option" and schema["properties"]["option"]["enum"] == list(
+        range(1, count + 1)
+    )
+    for call, bad in zip(calls[1:3], replies[:2], strict=True):
+        messages = call["request"]["messages"]
+        assert messages[-2] == {"role": "assistant", "text": bad}
+        assert messages[-1]["text"] == correction_message(parse_answer(bad, model), schema)
+    assert "42" in calls[2]["request"]["messages"][-1]["text"]
+    assert summary["json_errors"] == 2
+
+
+def menu_of(call: dict[str, Any]) -> dict[int, str]:
+    return options_in(next(m["text"] for m in call["request"]["messages"] if m["role"] == "user"))
+
+
+def test_exhausted_corrections_abort_with_the_reason(tmp_path: Path) -> None:
+    replay = ReplayBackend(script(tmp_path / "script", ["no", choice(0), "unused"]))
+    summary, record = drive(tmp_path, replay, task_text="Go to room 101", max_corrections=1)
+    assert summary["outcome"] == "aborted" and exit_code(summary) == 1
+    assert summary["reason"] == "no valid choice after 1 correction turns"
+    assert [g["outcome"] for g in record.of_type("guard")] == ["parse", "schema"]
+    assert record.of_type("action") == [] and record.poses()[-1] == record.poses()[0]
+
+
+def test_an_obstacle_the_map_lacks_is_vetoed_then_avoided(tmp_path: Path) -> None:
+    # The box at x = 11 m is beyond the 10 m LiDAR range at the start: the plan runs straight into it, the
+    # veto stops the robot before the leg that would hit it, and the same option then detours.
+    replay = ReplayBackend(script(tmp_path / "script", [choice(1), choice(1), choice(1)]))
+    summary, record = drive(tmp_path, replay, task_text="Go to the window", obstacles=((11.0, 0.0),))
+    assert [g["outcome"] for g in record.of_type("guard")] == ["ok", "veto", "ok", "ok"]
+    veto = record.of_type("guard")[1]
+    assert veto["step"] == 1 and "would collide with an obstacle" in veto["error"]
+    vetoed = [a for a in record.of_type("action") if a.get("vetoed")]
+    assert len(vetoed) == 1 and vetoed[0]["pose_after"][0] < 10.75 - 0.105
+    second = user_turns(record)[1]
+    assert "Last result: Stopped: the safety check found an obstacle the map did not show" in second
+    assert veto["error"] in second
+    assert summary["outcome"] == "completed" and summary["success"]
+    assert summary["collisions"] == 0 and summary["safety_vetoes"] == 1
+    # the detour keeps the robot's body clear of the box (0.25 m half size, 0.105 m robot radius)
+    assert all(max(abs(x - 11.0), abs(y)) > 0.25 + 0.105 for x, y, _ in record.poses())
+
+
+def test_replaying_a_hybrid_run_reproduces_its_poses_exactly(tmp_path: Path) -> None:
+    reader = MenuReader(wanting("the dark brown wooden boxes", scan_first=True))
+    opts: dict[str, Any] = {"scenario": "factory", "task_id": "T8", "pose": 4, "sensing": ("lidar", "detections")}
+    first_summary, original = drive(tmp_path, reader, name="original", **opts)
+    replay = ReplayBackend(str(tmp_path / "original"))  # strict: every request must match the recorded one
+    second_summary, replayed = drive(tmp_path, replay, name="replayed", **opts)
+    assert first_summary["outcome"] == second_summary["outcome"] == "completed"
+    assert original.poses() == replayed.poses() and len(original.poses()) > 20
+    requests = [c["request"] for c in original.of_type("llm_call")]
+    assert requests == [c["request"] for c in replayed.of_type("llm_call")] and len(requests) >= 3
