@@ -72,17 +72,25 @@ class TargetScore:
     index: int  # which acceptable target
 
 
-def score_pose(pose: Pose2D, target: Point, index: int = 0) -> TargetScore:
-    """S = distance_score * heading_score of a pose against one target point."""
+def score_pose(pose: Pose2D, target: Point, index: int = 0, face: Point | None = None) -> TargetScore:
+    """S = distance_score * heading_score of a pose against one target.
+
+    d is measured to the target's goal point; alpha to `face`, the object itself when its goal point is a
+    separate stand point (a room plate on a wall), else to the goal point too.
+    """
     distance = pose.distance_to(*target)
+    look = face if face is not None else target
     # At the target itself the direction is undefined: count that as facing it.
-    alpha = abs(pose.bearing_to(*target)) if distance > 1e-9 else 0.0
+    alpha = abs(pose.bearing_to(*look)) if pose.distance_to(*look) > 1e-9 else 0.0
     return TargetScore(distance_score(distance) * heading_score(alpha), distance, alpha, index)
 
 
-def best_target(pose: Pose2D, targets: Sequence[Point]) -> TargetScore | None:
+def best_target(
+    pose: Pose2D, targets: Sequence[Point], faces: Sequence[Point | None] | None = None
+) -> TargetScore | None:
     """The acceptable target with the largest S (ties: the nearer one); None without targets."""
-    scored = [score_pose(pose, t, i) for i, t in enumerate(targets)]
+    faces = faces if faces is not None else [None] * len(targets)
+    scored = [score_pose(pose, t, i, f) for i, (t, f) in enumerate(zip(targets, faces, strict=True))]
     if not scored:
         return None
     return max(scored, key=lambda s: (s.score, -s.distance_m))
@@ -156,7 +164,24 @@ def _target_point(target: Any, scenario: Scenario | None) -> Point | None:
     return None
 
 
-def _task_info(config: dict[str, Any], scenario: Scenario | None) -> tuple[dict[str, Any], list[Point]]:
+def _face_point(target: Any, scenario: Scenario | None) -> Point | None:
+    """The object a target names, when its goal point is a separate stand point (else None).
+
+    Stand points exist in corridor worlds (source B): the robot stops on the point in front of a plate and
+    faces the plate. Elsewhere the goal point is simply where distances are measured to.
+    """
+    if not isinstance(target, dict) or target.get("object") is None or scenario is None or not scenario.corridors:
+        return None
+    try:
+        obj = scenario.object(str(target["object"]))
+    except KeyError:
+        return None
+    return obj.center if obj.goal is not None else None
+
+
+def _task_info(
+    config: dict[str, Any], scenario: Scenario | None
+) -> tuple[dict[str, Any], list[Point], list[Point | None]]:
     """The task as logged (falling back to the scenario's task of that id) and its target points."""
     logged = config.get("task")
     task: dict[str, Any] = dict(logged) if isinstance(logged, dict) else {"text": logged}
@@ -172,9 +197,11 @@ def _task_info(config: dict[str, Any], scenario: Scenario | None) -> tuple[dict[
         task.setdefault("difficulty", known.difficulty)
         if not task.get("targets"):
             task["targets"] = [t.model_dump() for t in known.targets]
-    points = [p for p in (_target_point(t, scenario) for t in task.get("targets") or []) if p is not None]
+    pairs = [(_target_point(t, scenario), _face_point(t, scenario)) for t in task.get("targets") or []]
+    points = [p for p, _ in pairs if p is not None]
+    faces = [f for p, f in pairs if p is not None]
     task.setdefault("kind", "target" if points else "explore")
-    return task, points
+    return task, points, faces
 
 
 def condition_of(config: dict[str, Any]) -> dict[str, Any]:
@@ -224,7 +251,7 @@ def summarize_run(
     """
     config = record.config
     events = record.events
-    task, targets = _task_info(config, scenario)
+    task, targets, faces = _task_info(config, scenario)
     end_events = record.of_type("end")
     end = end_events[-1] if end_events else None
 
@@ -261,7 +288,7 @@ def summarize_run(
     completed = result == "completed"
     kind = task.get("kind")
     rotation = total_rotation(poses)
-    best = best_target(final, targets) if final is not None and kind == "target" else None
+    best = best_target(final, targets, faces) if final is not None and kind == "target" else None
     score: float | None
     if kind == "rotate":
         score = 1.0 if rotation_done(rotation) else 0.0

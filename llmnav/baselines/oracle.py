@@ -31,7 +31,7 @@ import hashlib
 import math
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import TYPE_CHECKING, ClassVar
 
@@ -72,7 +72,7 @@ class OraclePath:
     """A shortest path to one target's approach point."""
 
     target: Target
-    target_point: Point  # [m] the target's goal point (what the robot finally faces)
+    target_point: Point  # [m] what the robot finally faces: the object itself, or a point target
     approach: Point  # [m] where the path ends
     cells: list[Cell]
     points: list[Point]  # [m] the shortcut polyline: start pose, corners, approach point
@@ -90,11 +90,19 @@ class _Goal:
     point: Point
     mask: np.ndarray
     reach_m: float  # [m] every goal cell centre lies within this of `point`
+    face: Point | None = None  # [m] what to face on arrival when it is not `point`
 
 
-def _approach_goal(grid: OccupancyGrid, target: Target, point: Point, config: OracleConfig) -> _Goal:
+def _approach_goal(
+    grid: OccupancyGrid, target: Target, point: Point, config: OracleConfig, *, exact: bool = False
+) -> _Goal:
+    """Where the oracle may stop for one target.
+
+    The point itself when it is a stand point (a point target, or a corridor world's room plate with its
+    `goal`), else the 1.5–2.5 m band around it.
+    """
     geometry = grid.geometry
-    if target.point is not None and grid.is_free(*point):
+    if (exact or target.point is not None) and grid.is_free(*point):
         mask = np.zeros(geometry.shape, dtype=bool)
         mask[geometry.world_to_cell(*point)] = True
         return _Goal(target, point, mask, geometry.resolution * math.sqrt(0.5))
@@ -119,7 +127,13 @@ def plan_to_targets(
     for target in targets:
         point = scenario.object(target.object).goal_point if target.object is not None else target.point
         assert point is not None
-        goals.append(_approach_goal(grid, target, (float(point[0]), float(point[1])), config))
+        # In corridor worlds (source B) an object's `goal` is a stand point the robot must reach exactly.
+        obj = scenario.object(target.object) if target.object is not None else None
+        exact = bool(scenario.corridors) and obj is not None and obj.goal is not None
+        goal = _approach_goal(grid, target, (float(point[0]), float(point[1])), config, exact=exact)
+        if exact:  # standing on the stand point, face the object (a plate on the wall), not the point
+            goal = replace(goal, face=scenario.object(target.object or "").center)
+        goals.append(goal)
     union = np.zeros(geometry.shape, dtype=bool)
     for goal in goals:
         union |= goal.mask
@@ -150,7 +164,7 @@ def plan_to_targets(
     waypoints = densify(points, config.waypoint_spacing_m)[1:]
     return OraclePath(
         target=goal.target,
-        target_point=goal.point,
+        target_point=goal.face or goal.point,
         approach=centres[-1],
         cells=path.cells,
         points=points,
