@@ -106,7 +106,7 @@ def main() -> None:
     )
     print("instant model, guard, veto, call log), motion (physics of the executed action)")
     columns = [("decision", 9), ("p90", 7), ("sensors", 9), ("decide", 8), ("motion", 8)]
-    columns += [("target", 8), ("ratio", 7)]
+    columns += [("target", 8), ("ratio", 7), ("", 6)]
     print(f"{'sensing':<24}" + "".join(f"{name:>{width}}" for name, width in columns))
     for label, sensing in (("lidar", ("lidar",)), ("lidar + camera 640x480", ("lidar", "image"))):
         phases = Phases()
@@ -117,6 +117,7 @@ def main() -> None:
         print(
             f"{label:<24}{total:>9.1f}{p90:>7.0f}{_ms(phases.sensors):>9.1f}{_ms(phases.decide):>8.1f}"
             f"{_ms(phases.motion):>8.1f}{budget_ms:>8.0f}{total / budget_ms:>7.2f}"
+            f"{'ok' if total <= budget_ms else 'FAIL':>6}"
         )
     low, high = WARM_DECISION_S
     print(

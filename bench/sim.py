@@ -56,9 +56,21 @@ def _row(name: str, value: float, unit: str, target: str, cpu: bool = True) -> N
     print(f"  {name:<42} {value:>9.3f} {cpu_text} {unit:<3} {target}")
 
 
+def _verdict(value_ms: float, target_ms: float) -> str:
+    return "ok" if value_ms <= target_ms else "FAIL"
+
+
 def _target(wall_ms: float, target_ms: float) -> str:
-    """Target column: ratio of wall and CPU medians to the target (<= 1 meets it)."""
-    return f"target <= {target_ms:g} ms (wall {wall_ms / target_ms:.2f}x, cpu {_cpu[0] / target_ms:.2f}x)"
+    """Target column: ratio of wall and CPU medians to the target (<= 1 meets it) and pass/fail of each.
+
+    Wall time is what a user waits; on a machine shared with other busy processes it stretches by the
+    load, so the CPU verdict says whether the code itself meets the target on a free core.
+    """
+    cpu_ms = _cpu[0]
+    return (
+        f"target <= {target_ms:g} ms: wall {wall_ms / target_ms:.2f}x {_verdict(wall_ms, target_ms)}, "
+        f"cpu {cpu_ms / target_ms:.2f}x {_verdict(cpu_ms, target_ms)}"
+    )
 
 
 def main() -> None:

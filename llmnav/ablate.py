@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import os
 import re
 import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -481,6 +482,34 @@ def run(
 
 Result = tuple[dict[str, Any] | None, str | None, bool]
 
+# Native thread pools a worker might start (BLAS, OpenMP, OpenCV, Mesa's llvmpipe): one thread each, so
+# N workers on N cores do not oversubscribe them. Variables the user set win.
+_WORKER_THREAD_VARS = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "OPENCV_FOR_THREADS_NUM",
+    "LP_NUM_THREADS",
+)
+
+
+def worker_model_threads(workers: int) -> int:
+    """Threads for an embedded model in each of `workers` processes: the cores but one, shared out."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, (cores - 1) // workers)
+
+
+def _init_worker(model_threads: int) -> None:
+    """Pool worker start-up, before numpy, cv2 or a model is imported: cap the native thread pools."""
+    from llmnav.backends.local import THREADS_ENV
+
+    for name in _WORKER_THREAD_VARS:
+        os.environ.setdefault(name, "1")
+    os.environ.setdefault(THREADS_ENV, str(model_threads))
+
 
 def _run_pool(
     runner: Runner, specs: Sequence[tuple[Episode, EpisodeSpec]], workers: int
@@ -490,7 +519,13 @@ def _run_pool(
     from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 
     context = multiprocessing.get_context("spawn")
-    executor = ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=context)
+    count = min(workers, len(specs))
+    executor = ProcessPoolExecutor(
+        max_workers=count,
+        mp_context=context,
+        initializer=_init_worker,
+        initargs=(worker_model_threads(count),),
+    )
     futures: dict[Future[Result], Episode] = {}
     try:
         for ep, spec in specs:
