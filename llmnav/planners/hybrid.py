@@ -390,8 +390,8 @@ class HybridPlanner(Planner):
                 ctx.log.event("guard", step=step, attempt=0, outcome="veto", error=verdict)
                 self._log_action(ctx, step, "GOTO", length, before, None, vetoed=True)
                 return (
-                    f"Stopped: the safety check found an obstacle the map did not show on the path ({verdict}). "
-                    "It is mapped now: the same option again plans a way around it.",
+                    f"Stopped: the safety check blocked the next leg ({verdict}). What the LiDAR saw there "
+                    "is on the map now, so choosing the same option again plans a way around it.",
                     1,
                     False,
                 )
@@ -425,14 +425,27 @@ class HybridPlanner(Planner):
         return f"Done: {option.text.split(' (')[0]}; now at {_pose_text(after)}.", 0, False
 
     def _plan(self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]) -> list[tuple[float, float]] | None:
-        """A* legs from the robot to the goal, no longer than `leg_max_m` each."""
-        from llmnav.baselines.paths import plan_path
+        """A* legs from the robot to the goal, no longer than `leg_max_m` each.
 
-        path = plan_path(grid, (start.x, start.y), goal)
+        A robot standing inside the inflation (beside a wall) first steps out to the nearest free cell:
+        a long leg along the wall from there would graze it, and the veto would refuse it every time.
+        """
+        from llmnav.baselines.grid import nearest_free_cell
+        from llmnav.baselines.paths import SNAP_M, plan_path
+
+        first: list[tuple[float, float]] = []
+        origin = (start.x, start.y)
+        if not grid.is_free(*origin):
+            cell = nearest_free_cell(grid.blocked, grid.geometry, start.x, start.y, SNAP_M)
+            if cell is None:
+                return None
+            origin = grid.geometry.cell_to_world(*cell)
+            first = [origin]
+        path = plan_path(grid, origin, goal)
         if path is None:
             return None
-        legs: list[tuple[float, float]] = []
-        previous = (start.x, start.y)
+        legs: list[tuple[float, float]] = list(first)
+        previous = origin
         for point in path[1:]:
             span = math.dist(previous, point)
             pieces = max(1, math.ceil(span / self.cfg.leg_max_m))
