@@ -18,6 +18,7 @@ from llmnav.backends.replay import ReplayBackend
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import hybrid_choice_model
 from llmnav.planners.base import DriveOptions
+from llmnav.resources import resource_dir
 from llmnav.runlog import RunLog, RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
 from llmnav.scenario import load_scenario
@@ -223,12 +224,27 @@ def test_an_obstacle_the_map_lacks_is_vetoed_then_avoided(tmp_path: Path) -> Non
     vetoed = [a for a in record.of_type("action") if a.get("vetoed")]
     assert len(vetoed) == 1 and vetoed[0]["pose_after"][0] < 10.75 - 0.105
     second = user_turns(record)[1]
-    assert "Last result: Stopped: the safety check found an obstacle the map did not show" in second
+    assert "Last result: Stopped: the safety check blocked the next leg" in second
     assert veto["error"] in second
     assert summary["outcome"] == "completed" and summary["success"]
     assert summary["collisions"] == 0 and summary["safety_vetoes"] == 1
     # the detour keeps the robot's body clear of the box (0.25 m half size, 0.105 m robot radius)
     assert all(max(abs(x - 11.0), abs(y)) > 0.25 + 0.105 for x, y, _ in record.poses())
+
+
+def test_a_start_inside_the_wall_clearance_steps_out_first(tmp_path: Path) -> None:
+    # 0.15 m from the north wall (robot radius 0.105 m): a leg along the wall from here would graze it
+    # and be vetoed forever; the planner first steps out to the nearest free cell.
+    text = (resource_dir("scenarios") / "corridor_a.yaml").read_text()
+    near_wall = text.replace("start_poses: [{x: 0, y: 0, yaw_deg: 0}]", "start_poses: [{x: 0, y: 1.85, yaw_deg: 0}]")
+    assert near_wall != text
+    (tmp_path / "near_wall.yaml").write_text(near_wall)
+    replay = ReplayBackend(script(tmp_path / "script", [choice(1), choice(1)]))
+    summary, record = drive(tmp_path, replay, scenario=str(tmp_path / "near_wall.yaml"), task_id="A5")
+    assert record.poses()[0][:2] == pytest.approx([0.0, 1.85], abs=0.01)
+    assert [g["outcome"] for g in record.of_type("guard")] == ["ok", "ok"]
+    assert summary["outcome"] == "completed" and summary["success"] and summary["collisions"] == 0
+    assert min(2.0 - y for _, y, _ in record.poses()) > 0.15 - 0.02  # never closer to the wall than at the start
 
 
 def test_replaying_a_hybrid_run_reproduces_its_poses_exactly(tmp_path: Path) -> None:
