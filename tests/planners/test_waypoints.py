@@ -212,6 +212,24 @@ def test_obstacle_stop_then_replan_around_it_from_the_current_pose(tmp_path: Pat
     assert (metrics["generations"], metrics["valid_generations"]) == (3, 2)
 
 
+def test_emergency_stop_for_an_obstacle_beside_the_route(tmp_path: Path) -> None:
+    # the box's corner passes 0.25 m beside the robot: never within 0.5 m in the ±15° window ahead, but
+    # closer than 0.35 m in the half plane ahead -> emergency stop, then a replan away from it
+    box = (3.0, 0.5)
+    summary, record = drive(
+        tmp_path, [plan_text((5.0, 0.0), ROOM_105), plan_text((3.0, -0.8), ROOM_105)], obstacles=(box,)
+    )
+    assert summary["outcome"] == "completed", summary["reason"]
+    first = record.of_type("action")[0]
+    assert first["stopped_reason"] == "emergency"
+    assert box_distance(*first["pose_after"][:2], box) < 0.35 + 0.02
+    (replan,) = planner_events(record, "replan")
+    assert replan["reason"] == "emergency" and math.dist(replan["obstacle"], box) < 0.1
+    poses = [e["pose"] for e in record.of_type("pose")]
+    assert min(box_distance(p[0], p[1], box) for p in poses) > BURGER_RADIUS + 0.1
+    assert (summary["planner_metrics"]["collision_events"], summary["collisions"]) == (1, 0)
+
+
 def test_replans_are_bounded_and_spaced_by_the_cooldown(tmp_path: Path) -> None:
     # a wall of boxes across the corridor: every route stops in front of it
     wall = tuple((3.5, y) for y in (-1.75, -1.25, -0.75, -0.25, 0.25, 0.75, 1.25, 1.75))
