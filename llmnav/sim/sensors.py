@@ -1,6 +1,11 @@
 """The robot's sensors: a 2D LiDAR, an RGB camera and a detector reading the segmentation mask.
 
-The LiDAR is one batched ray cast, the camera PyBullet's TinyRenderer.
+The LiDAR is one batched ray cast, the camera PyBullet's TinyRenderer. TinyRenderer's cost is per
+covered pixel (a wall filling the upper half of a 640x480 view costs ~28 ms; bodies out of view or
+small ones, cylinders included, cost ~nothing), so fewer or coarser shapes do not help. The EGL plugin
+(Mesa llvmpipe) was measured and not adopted: 640x480 in 35 ms CPU against 46 ms, but only by using a
+second core (35 -> 45 ms with one llvmpipe thread, no gain for parallel workers), +245 MB and 0.3 s per
+process, C-level prints on stdout, and differently lit images (specular highlights, another background).
 
 pybullet and cv2 are imported only where used, so modules that merely need `LidarScan` (the guard's
 veto) stay light. Conventions: angles relative to the heading, counter-clockwise positive; bearings
