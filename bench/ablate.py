@@ -138,14 +138,19 @@ def main() -> None:
     print(
         f"(median of {repeats} sweep(s); {successes}/{size} scripted episodes succeeded; load avg {load:.1f})"
     )
-    print(
-        f"{'workers':>8} {'wall (s)':>9} {'episodes/min':>13} {'CPU/episode (s)':>16} {'cores free':>11}"
-    )
+    header = f"{'workers':>8} {'wall (s)':>9} {'episodes/min':>13} {'CPU/episode (s)':>16}"
+    print(f"{header} {'cores used':>11} {'cores free':>11}")
     for workers, wall in ((1, serial), (2, parallel)):
         cpu = statistics.median(cpus[workers]) / size
         free = statistics.median(cores[workers])
-        print(f"{workers:>8} {wall:>9.1f} {size / wall * 60:>13.1f} {cpu:>16.2f} {free:>11.2f}")
-    print("(cores free: CPU that as many busy-looping processes got just before the sweep)")
+        print(
+            f"{workers:>8} {wall:>9.1f} {size / wall * 60:>13.1f} {cpu:>16.2f} {cpu * size / wall:>11.2f}"
+            f" {free:>11.2f}"
+        )
+    print(
+        "(cores used: CPU time / wall time of the sweep; cores free: CPU that as many busy-looping"
+        " processes got just before it)"
+    )
     verdict = "ok" if speedup >= TARGET_SPEEDUP else "BELOW TARGET"
     print(f"speed-up 2 vs 1 workers: {speedup:.2f}× (target ≥ {TARGET_SPEEDUP}×) {verdict}")
     # Two workers cannot beat the cores the machine leaves them; this is the share of that bound reached.

@@ -2,9 +2,10 @@
 
 `run_episode` builds the world, resolves the task, opens the run folder and its `RunLog` (first line: the
 full configuration), creates the backend when the planner needs one, runs the planner, logs the `end`
-event, and writes `summary.json` and (unless `plots` is off) `trajectory.png`. Whatever happens inside the planner, the log ends
-with an `end` event: a bug ends the episode "aborted" and is re-raised after the log is closed; an
-`LlmnavError` (model failure, replay divergence) just ends it "aborted" with its one-line message.
+event, and writes `summary.json` and (unless `plots` is off) `trajectory.png`. Whatever happens inside the
+planner, the log ends with an `end` event: a bug ends the episode "aborted" and is re-raised after the log
+is closed; an `LlmnavError` (model failure, replay divergence) just ends it "aborted" with its one-line
+message.
 """
 
 from __future__ import annotations
