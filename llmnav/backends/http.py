@@ -239,10 +239,7 @@ class JsonHttpClient:
             self._respect_rate_limit()
             server_delay: float | None = None
             try:
-                if timeout is None:
-                    response = self._client.request(method, url, json=body)
-                else:
-                    response = self._client.request(method, url, json=body, timeout=timeout)
+                response = self._send(method, url, body, timeout, timeout_s or self.options.timeout_s)
             except (httpx.InvalidURL, httpx.UnsupportedProtocol) as err:
                 failure = f"bad URL: {one_line(str(err), 100)}"
                 break
@@ -288,6 +285,27 @@ class JsonHttpClient:
         raise ModelError(
             self.redact(f"{self.label}: {failure} ({attempt} {noun} in {elapsed:.1f} s, {method} {url})")
         )
+
+    def _send(
+        self, method: str, url: str, body: dict[str, Any] | None, timeout: httpx.Timeout | None, budget_s: float
+    ) -> httpx.Response:
+        """One attempt whose reply must arrive whole within `budget_s` [s] (plus the connect timeout).
+
+        httpx's read timeout bounds each read, not the reply: a server trickling a byte every second
+        would otherwise hold an attempt (and the run) for as long as it likes.
+        """
+        import httpx
+
+        deadline = time.perf_counter() + budget_s + self.options.connect_timeout_s
+        extra: dict[str, Any] = {} if timeout is None else {"timeout": timeout}
+        with self._client.stream(method, url, json=body, **extra) as response:
+            chunks: list[bytes] = []
+            for chunk in response.iter_bytes():
+                chunks.append(chunk)
+                if time.perf_counter() > deadline:
+                    raise httpx.ReadTimeout("reply not complete in time", request=response.request)
+            response._content = b"".join(chunks)  # what Response.read() would store
+        return response
 
     def _decode(self, response: httpx.Response) -> dict[str, Any]:
         try:
