@@ -54,6 +54,7 @@ class HybridConfig:
     obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
     max_tokens: int = 96  # [tokens] an option number and a sentence of reasoning
     arrived_m: float = 0.3  # [m] within this of a visited landmark's stand point the robot is "there"
+    rescan_m: float = 1.0  # [m] a full turn within this of the last one shows little new: list it lower
 
 
 @dataclass
@@ -74,7 +75,9 @@ class Memory:
 
     landmarks: dict[str, tuple[float, float]] = field(default_factory=dict)  # id -> estimated position [m]
     visited: set[str] = field(default_factory=set)
+    wanted: set[str] = field(default_factory=set)  # objects the task names
     scans: int = 0  # full turns made so far
+    scanned_at: tuple[float, float] | None = None  # [m] where the last full turn was made
     last_result: str = "This is the first decision."
 
 
@@ -96,6 +99,7 @@ class HybridPlanner(Planner):
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
         from llmnav.baselines.grid import GridConfig, LidarMap, build_grid, inflate
         from llmnav.observe import observe
+        from llmnav.tasks import named_objects
 
         world, scenario = ctx.world, ctx.scenario
         grid = build_grid(scenario)
@@ -107,7 +111,7 @@ class HybridPlanner(Planner):
         roomy = build_grid(scenario, config=GridConfig(margin_m=margin))
         lidar_map = LidarMap(grid.geometry)
         near_known = inflate(grid.occupied, self.cfg.unexpected_m, grid.geometry.resolution)
-        memory = Memory()
+        memory = Memory(wanted={o.id for o in named_objects(scenario, ctx.task.text)})
         if scenario.corridors:  # a published map: every labelled object is known up front
             memory.landmarks = {o.id: o.goal_point for o in scenario.objects}
         # (The runner logs the start pose and every trajectory sample; nothing to hook here.)
@@ -180,9 +184,7 @@ class HybridPlanner(Planner):
         pose: Pose2D,
     ) -> list[Option]:
         """The numbered menu; `grids` are the planning grids, roomiest first."""
-        from llmnav.tasks import named_objects
-
-        wanted = {o.id for o in named_objects(ctx.scenario, ctx.task.text)}
+        wanted = memory.wanted
         options: list[Option] = []
         ranked = sorted(
             memory.landmarks.items(),
@@ -240,13 +242,23 @@ class HybridPlanner(Planner):
         else:
             done = ""
         finish = Option(0, "complete", "Finish: the task is done" + done)
-        # Most relevant first: small models lean heavily toward option 1.
+        # Most relevant first: small models lean heavily toward option 1. While nothing the task names is
+        # known, looking around (once per spot) and exploring come before unrelated landmarks.
+        useful = [o for o in options if o.kind == "landmark" and o.landmark_id in wanted and o not in arrived]
+        # Going to where the robot already stands does nothing: once there, that entry only distracts.
+        others = [o for o in options if o.kind == "landmark" and o not in useful and o not in arrived]
+        frontier = [o for o in options if o.kind == "frontier"]
+        scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < self.cfg.rescan_m
         if done:
-            options = [finish, *options]
+            options = [finish, *useful, *others, *frontier, scan]
         elif turning_task:
-            options = [scan, *(o for o in options if o is not scan), finish]
+            options = [scan, *others, *frontier, finish]
+        elif useful:
+            options = [*useful, *others, *frontier, scan, finish]
+        elif scanned_here:
+            options = [*frontier, *others, scan, finish]
         else:
-            options = [*options, finish]
+            options = [scan, *frontier, *others, finish]
         for number, option in enumerate(options, start=1):
             option.number = number
         return options
@@ -368,10 +380,11 @@ class HybridPlanner(Planner):
             new = False
             for _ in range(4):
                 result = world.motion.rotate(math.pi / 2)
-                new |= self._look(ctx, memory)
+                new |= bool(self._look(ctx, memory))
                 if result.collided:
                     break
             memory.scans += 1
+            memory.scanned_at = (before.x, before.y)
             self._log_action(ctx, step, "SCAN", 360.0, before, result)
             seen = "; new objects came into view" if new else "; nothing new came into view"
             return "Turned a full circle" + seen + ".", 0, result.collided
@@ -399,9 +412,12 @@ class HybridPlanner(Planner):
             if result.collided:
                 self._log_action(ctx, step, "GOTO", length, before, result)
                 return f"Collided with {result.collision_with or 'an obstacle'}.", 0, True
-            if self._look(ctx, memory) and option.kind == "frontier":
+            came = self._look(ctx, memory)
+            # Exploring stops for what the task names (or for anything, when it names nothing): stopping
+            # for every unrelated object costs a decision each time and the search crawls.
+            if option.kind == "frontier" and (came & memory.wanted or (came and not memory.wanted)):
                 self._log_action(ctx, step, "GOTO", length, before, result)
-                return "Stopped exploring early: a new object came into view.", 0, False
+                return "Stopped exploring early: something the task may be about came into view.", 0, False
         if option.face is not None:
             pose = world.robot.pose()
             turn = math.remainder(math.atan2(option.face[1] - pose.y, option.face[0] - pose.x) - pose.yaw, math.tau)
@@ -475,14 +491,14 @@ class HybridPlanner(Planner):
         )
         return None if verdict.allowed else (verdict.reason or "blocked")
 
-    def _look(self, ctx: EpisodeContext, memory: Memory) -> bool:
-        """Run the detector; True when a landmark the planner did not know comes into view."""
+    def _look(self, ctx: EpisodeContext, memory: Memory) -> set[str]:
+        """Run the detector; the landmarks the planner did not know that came into view."""
         pose = ctx.world.robot.pose()
-        new = False
+        new: set[str] = set()
         for det in ctx.world.detector.detect():
             if det.object_id not in memory.landmarks:
                 memory.landmarks[det.object_id] = _estimate(pose, det.bearing_deg, det.distance_m)
-                new = True
+                new.add(det.object_id)
         return new
 
     @staticmethod
