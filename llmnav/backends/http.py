@@ -40,6 +40,8 @@ log = logging.getLogger(__name__)
 RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
 REASON_CHARS = 160  # longest server reason quoted in an error message
 _SECRET_QUERY = re.compile(r"([?&](?:key|api[_-]?key|access_token|token)=)[^&#\s]+", re.IGNORECASE)
+_HTML_HIDDEN = re.compile(r"<(script|style)\b.*?</\1\s*>", re.IGNORECASE | re.DOTALL)
+_HTML_TAG = re.compile(r"<[^>]*>")
 _DELAY = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*s\s*$")  # protobuf Duration as JSON: "7s", "0.5s"
 
 
@@ -149,7 +151,9 @@ def error_reason(response: httpx.Response) -> str:
             return one_line(f"{reason}: {message}" if message else reason)
         return one_line(f"{reason}: {err}")  # Ollama: {"error": "model not found"}
     text = response.text.strip()
-    return one_line(f"{reason}: {text}" if text else reason)
+    if "html" in response.headers.get("content-type", "").lower() or text.lower().startswith(("<!doctype", "<html")):
+        text = _HTML_TAG.sub(" ", _HTML_HIDDEN.sub(" ", text))  # a proxy's error page: its words, not markup
+    return one_line(f"{reason}: {text}" if text.strip() else reason)
 
 
 def backoff_delay(retry: int, base_s: float, max_s: float, rng: random.Random) -> float:
