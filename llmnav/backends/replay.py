@@ -69,6 +69,8 @@ def load_calls(file: Path) -> list[RecordedCall]:
     except (OSError, UnicodeDecodeError) as err:
         reason = err.strerror if isinstance(err, OSError) and err.strerror else type(err).__name__
         raise BadInputError(f"replay: cannot read {file}: {reason}") from None
+    if not text.strip():
+        raise BadInputError(f"replay: {file} is empty, not a run log")
     lines = text.split("\n")
     calls: list[RecordedCall] = []
     for number, line in enumerate(lines, start=1):
