@@ -97,6 +97,16 @@ def cores_available(processes: int, seconds: float = 2.0) -> float:
         return sum(pool.map(_spin, [seconds] * processes)) / seconds
 
 
+def cpu_pressure() -> str:
+    """Linux PSI: the share of the last 10 s in which some runnable task waited for a CPU."""
+    try:
+        line = Path("/proc/pressure/cpu").read_text().splitlines()[0]
+    except (OSError, IndexError):
+        return "n/a"
+    fields = dict(part.split("=") for part in line.split()[1:])
+    return f"{fields.get('avg10', '?')} %"
+
+
 def _sweep(workers: int) -> tuple[float, float, int, int]:
     """Wall time [s], CPU time [s], episodes and successes of one sweep of the grid in a fresh folder."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -136,7 +146,8 @@ def main() -> None:
         f"\nbench.ablate — {size}-episode factory ablation (stepwise, LiDAR + 640×480 camera, scripted model)"
     )
     print(
-        f"(median of {repeats} sweep(s); {successes}/{size} scripted episodes succeeded; load avg {load:.1f})"
+        f"(median of {repeats} sweep(s); {successes}/{size} scripted episodes succeeded; load avg {load:.1f};"
+        f" CPU pressure {cpu_pressure()} of the last 10 s)"
     )
     header = f"{'workers':>8} {'wall (s)':>9} {'episodes/min':>13} {'CPU/episode (s)':>16}"
     print(f"{header} {'cores used':>11} {'cores free':>11}")
