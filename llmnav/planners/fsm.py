@@ -216,6 +216,12 @@ class FsmPlanner(Planner):
         start_pose = world.robot.pose()
         log.event("pose", pose=start_pose.as_list())
         outcome: EpisodeOutcome | None = None
+        if opts.realtime:
+            # One-time costs (the renderer's first frame, the guard's imports and schema build) would
+            # otherwise land on the first ticks and the first suggestion: pay them before the clock starts.
+            world.detector.detect()
+            if use_llm:
+                check_suggestion('{"linear_x": 0.0, "angular_z": 0.0}', 0.0, 0.0, ttl_s, cfg)
         wall_start = time.perf_counter()
 
         def log_state(previous: State, new: State) -> None:
