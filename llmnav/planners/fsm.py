@@ -119,12 +119,17 @@ def check_suggestion(
 
     if text is None:
         return "error", None, "model call failed"
-    result: GuardResult[VelocitySuggestion] = parse_answer(text, VelocitySuggestion)
-    if result.value is None:
-        return "parse", None, result.error or result.outcome
+    try:  # fast path inside the 50 Hz tick: a bare, valid JSON object (what grammar-constrained models send)
+        value: VelocitySuggestion | None = VelocitySuggestion.model_validate_json(text)
+    except ValueError:  # anything else gets the full guard: fences, prose, repair, classified errors
+        result: GuardResult[VelocitySuggestion] = parse_answer(text, VelocitySuggestion)
+        if result.value is None:
+            return "parse", None, result.error or result.outcome
+        value = result.value
+    assert value is not None
     if t_recv - stamp > ttl_s:
         return "stale", None, f"{(t_recv - stamp) * 1000:.0f} ms old > TTL {ttl_s * 1000:.0f} ms"
-    v, w = float(result.value.linear_x), float(result.value.angular_z)
+    v, w = float(value.linear_x), float(value.angular_z)
     if not (math.isfinite(v) and math.isfinite(w)) or abs(v) > cfg.v_max or abs(w) > cfg.w_max:
         return "bounds", None, f"({v:.3g}, {w:.3g}) outside |v| <= {cfg.v_max}, |w| <= {cfg.w_max}"
     return "accepted", (v, w), ""
@@ -221,7 +226,10 @@ class FsmPlanner(Planner):
             # otherwise land on the first ticks and the first suggestion: pay them before the clock starts.
             world.detector.detect()
             if use_llm:
+                from llmnav.observe import call_model  # noqa: F401 - imported by the worker's first call
+
                 check_suggestion('{"linear_x": 0.0, "angular_z": 0.0}', 0.0, 0.0, ttl_s, cfg)
+                check_suggestion("```json\n{}\n```", 0.0, 0.0, ttl_s, cfg)
         wall_start = time.perf_counter()
 
         def log_state(previous: State, new: State) -> None:
