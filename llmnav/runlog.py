@@ -77,9 +77,12 @@ class RunLog:
 
     def __init__(self, run_dir: Path, config: dict[str, Any]) -> None:
         self.run_dir = Path(run_dir)
+        # The log is born under a temporary name and renamed once its first line is written: a process
+        # killed in between leaves no run.jsonl without its configuration (readers would reject it).
+        partial = self.run_dir / (RUN_FILE + ".tmp")
         try:
             (self.run_dir / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
-            self._file = open(self.run_dir / RUN_FILE, "w", encoding="utf-8")  # noqa: SIM115
+            self._file = open(partial, "w", encoding="utf-8")  # noqa: SIM115
         except OSError as err:
             raise BadInputError(f"cannot write run folder {self.run_dir}: {err.strerror or err}") from None
         self._t0 = time.perf_counter()
@@ -87,6 +90,7 @@ class RunLog:
         self._lock = threading.Lock()  # a model worker thread may log while the control loop does
         self.sim_time: float | None = None
         self._write({"type": "config", **config})
+        os.replace(partial, self.run_dir / RUN_FILE)
 
     def _write(self, record: dict[str, Any]) -> None:
         line = dumps(record) + "\n"
