@@ -1,0 +1,149 @@
+"""Secrets: with recognisable fake API keys set, drive episodes against loopback servers that work, fail,
+and even echo the key back in their error messages; no key may appear in any run file (log, summary,
+images, plot), in the CLI's output, in a backend's error or exception chain, or in log records.
+"""
+
+from __future__ import annotations
+
+import logging
+import traceback
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner
+
+import llmnav.backends.base as backends_base
+from llmnav.backends.base import ChatRequest, Message, get_backend
+from llmnav.cli import app
+from llmnav.errors import LlmnavError
+
+CATEGORY = "secrets"
+SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
+KEYS = {
+    "OPENAI_API_KEY": "sk-FAKEopenai-Zq8VtY3kLm0Rw2Xc",
+    "GEMINI_API_KEY": "AIzaFAKEgemini-Pf7Hs4Jd9Kq1Nb",
+}
+FAST = {"max_retries": 1, "backoff_base_s": 0.01, "backoff_max_s": 0.02, "timeout_s": 0.5,
+        "connect_timeout_s": 0.5}
+COMPLETE = '```json\n{"goal": "g", "reasoning": "r", "scene_description": "s", ' \
+    '"action": {"command": "COMPLETE", "parameters": 0}}\n```'
+
+
+def fragments() -> list[str]:
+    """The keys and distinctive pieces of them (a partial leak counts too)."""
+    return [piece for key in KEYS.values() for piece in (key, key[-12:], key[:14])]
+
+
+def leaks(text: str | bytes) -> list[str]:
+    data = text if isinstance(text, bytes) else text.encode("utf-8", errors="replace")
+    return [f for f in fragments() if f.encode() in data]
+
+
+def good_body(backend: str, text: str = COMPLETE) -> dict[str, Any]:
+    if backend == "openai":
+        return {"choices": [{"message": {"role": "assistant", "content": text}, "finish_reason": "stop"}]}
+    if backend == "gemini":
+        return {"candidates": [{"content": {"role": "model", "parts": [{"text": text}]}}]}
+    return {"message": {"role": "assistant", "content": text}, "done": True}
+
+
+def echo(Fault: Any, status: int, html: bool = False) -> Any:
+    """A server error that quotes the credentials it received (some real APIs do)."""
+
+    def reply(seen: Any) -> Any:
+        quoted = f"{seen.headers.get('authorization', '')} {seen.headers.get('x-goog-api-key', '')}"
+        if html:
+            return Fault("raw", status, f"<html><body>key {quoted} rejected</body></html>", "text/html")
+        return Fault("ok", status, {"error": {"message": f"API key not valid: {quoted}", "status": "DENIED"}})
+
+    return reply
+
+
+SCENARIOS = ["works", "echo 400", "echo 500 retried", "echo HTML 502", "reset"]
+
+
+def configure(backend: str, url: str, monkeypatch: pytest.MonkeyPatch) -> str:
+    for name, value in KEYS.items():
+        monkeypatch.setenv(name, value)
+    if backend == "openai":
+        return f"openai:m@{url}/v1"
+    if backend == "gemini":
+        monkeypatch.setenv("LLMNAV_GEMINI_BASE_URL", url)
+        return "gemini:gemini-2.0-flash"
+    monkeypatch.setenv("OLLAMA_HOST", url)
+    return "ollama:llama3.1"
+
+
+def scripted(fault_kit: Any, backend: str, scenario: str) -> Any:
+    Fault = fault_kit["Fault"]
+    return {
+        "works": Fault("ok", 200, good_body(backend)),
+        "echo 400": echo(Fault, 400),
+        "echo 500 retried": echo(Fault, 500),
+        "echo HTML 502": echo(Fault, 502, html=True),
+        "reset": Fault("reset"),
+    }[scenario]
+
+
+@pytest.mark.parametrize("backend", ["openai", "gemini", "ollama"])
+def test_no_key_in_runs_output_or_errors(
+    backend: str, tmp_path: Path, fault_server: Any, fault_kit: Any, monkeypatch: Any, tally: Any,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.DEBUG)
+    real = backends_base.get_backend
+    monkeypatch.setattr(backends_base, "get_backend", lambda spec, **o: real(spec, **{**FAST, **o}))
+    spec = configure(backend, fault_server.url, monkeypatch)
+    found: dict[str, list[str]] = {}
+    for scenario in SCENARIOS:
+        fault_server.default = scripted(fault_kit, backend, scenario)
+        out = tmp_path / scenario.replace(" ", "_")
+        result = CliRunner().invoke(
+            app, ["drive", "--planner", "stepwise", "--backend", spec, "--scenario", SMALL_ROOM,
+                  "--task-id", "T1", "--sensing", "lidar,image", "--out", str(out), "--json"]
+        )
+        assert result.exit_code in (0, 1), result.output
+        texts = {"cli output": result.output}
+        if result.exception is not None and not isinstance(result.exception, SystemExit):
+            texts["exception"] = "".join(traceback.format_exception(result.exception))
+        for file in out.rglob("*"):
+            if file.is_file():
+                texts[str(file.relative_to(tmp_path))] = file.read_bytes()  # type: ignore[assignment]
+        # the same failure straight from the backend: message, repr and the whole exception chain
+        client = real(spec, **FAST)
+        try:
+            client.chat(ChatRequest(messages=(Message("user", "hello"),)))
+        except LlmnavError as err:
+            texts["error"] = str(err) + repr(err) + "".join(traceback.format_exception(err))
+        finally:
+            client.close()
+        texts["repr"] = repr(client) + repr(getattr(client, "client", ""))
+        for where, text in texts.items():
+            hit = leaks(text)
+            if hit:
+                found.setdefault(scenario, []).append(f"{where}: {hit}")
+        tally.add(CATEGORY, tried=1, leaked=int(scenario in found))
+        tally.note_add(CATEGORY, "servers", scenario)
+    log_text = "\n".join(r.getMessage() for r in caplog.records)
+    if leaks(log_text):
+        found["log records"] = leaks(log_text)
+        tally.add(CATEGORY, leaked=1)
+    # the echo servers did receive the keys: the test would see a leak if redaction failed
+    received = " ".join(str(s.headers) for s in fault_server.seen)
+    if backend != "ollama":
+        assert leaks(received), "the server never saw a key; the test proves nothing"
+    assert not found, found
+
+
+def test_backends_command_shows_no_key(fault_server: Any, fault_kit: Any, monkeypatch: Any, tally: Any) -> None:
+    fault_server.default = echo(fault_kit["Fault"], 401)
+    configure("gemini", fault_server.url, monkeypatch)
+    monkeypatch.setenv("OPENAI_BASE_URL", f"{fault_server.url}/v1")
+    monkeypatch.setenv("OLLAMA_HOST", fault_server.url)
+    result = CliRunner().invoke(app, ["backends"])
+    tally.add(CATEGORY, tried=1, leaked=int(bool(leaks(result.output))))
+    assert not leaks(result.output), result.output
+    # and a backend object never shows its key
+    backend = get_backend("gemini")
+    assert not leaks(repr(backend) + backend.spec)
