@@ -151,6 +151,8 @@ def run_episode(
             world.reset(start, seed=spec.options.seed)
             for x, y in spec.options.obstacles:
                 world.add_obstacle(x, y)
+            # The FSM paces its own 50 Hz ticks; every other planner is paced by the physics steps.
+            world.realtime = spec.options.realtime and spec.options.planner != "fsm"
             config = build_config(
                 spec,
                 scenario,

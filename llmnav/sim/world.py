@@ -8,6 +8,7 @@ the same poses.
 
 from __future__ import annotations
 
+import time
 from types import TracebackType
 
 import pybullet as p
@@ -49,6 +50,8 @@ class World:
         self.seed = seed
         self.dt = 1.0 / PHYSICS_HZ  # [s]
         self.step_count = 0  # physics steps since reset (sim_time derives from it, so it never drifts)
+        self.realtime = False  # pace physics to the wall clock (`--realtime`); the FSM paces its own ticks
+        self._pace_anchor: tuple[float, float] | None = None  # (wall, sim) time pacing started from
         self.client = int(p.connect(p.DIRECT))
         try:
             self._build(scenario, lidar, camera, detector, odom_noise)
@@ -126,6 +129,7 @@ class World:
         if seed is not None:
             self.seed = seed
         self.step_count = 0
+        self._pace_anchor = None
         base = (self.seed % 2**32) * 8  # one independent stream per noise source; any int seed works
         self.robot._reset(start, seed=base + 1)
         self.lidar.reseed(base + 2)
@@ -135,11 +139,30 @@ class World:
     def step(self, n: int = 1) -> None:
         """Advance the physics `n` steps of 1/240 s, driving the robot with its current command."""
         robot, client = self.robot, self.client
+        if self.realtime and self._pace_anchor is None:
+            self._pace_anchor = (time.perf_counter(), self.sim_time)
         for _ in range(n):
             robot._before_step()
             p.stepSimulation(physicsClientId=client)
             robot._after_step()
             self.step_count += 1
+        if self.realtime:
+            self._pace()
+
+    def _pace(self) -> None:
+        """Sleep until the wall clock catches up with simulation time.
+
+        Time spent waiting for a model between motions is not made up: when the simulation has fallen
+        behind by more than 100 ms, pacing restarts from the present.
+        """
+        now = time.perf_counter()
+        assert self._pace_anchor is not None
+        wall0, sim0 = self._pace_anchor
+        ahead = (self.sim_time - sim0) - (now - wall0)
+        if ahead > 0:
+            time.sleep(ahead)
+        elif ahead < -0.1:
+            self._pace_anchor = (now, self.sim_time)
 
     def add_obstacle(self, x: float, y: float, size: float = 0.5) -> int:
         """Drop a solid box of `size` [m] (square footprint, 1 m tall) at (x, y); returns its body id."""
