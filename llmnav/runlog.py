@@ -82,7 +82,9 @@ class RunLog:
         partial = self.run_dir / (RUN_FILE + ".tmp")
         try:
             (self.run_dir / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
-            self._file = open(partial, "w", encoding="utf-8")  # noqa: SIM115
+            # A lone surrogate (a model answer may carry "\ud800" escapes) cannot be UTF-8: written as the
+            # same JSON escape it came from, the line stays valid JSON instead of the write raising.
+            self._file = open(partial, "w", encoding="utf-8", errors="backslashreplace")  # noqa: SIM115
         except OSError as err:
             raise BadInputError(f"cannot write run folder {self.run_dir}: {err.strerror or err}") from None
         self._t0 = time.perf_counter()
@@ -95,6 +97,8 @@ class RunLog:
     def _write(self, record: dict[str, Any]) -> None:
         line = dumps(record) + "\n"
         with self._lock:
+            if self._file.closed:  # a model call abandoned at the end of an episode returned late
+                return
             self._file.write(line)
             self._file.flush()  # survives SIGKILL: the line is in the kernel's page cache
 
