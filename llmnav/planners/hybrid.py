@@ -249,16 +249,22 @@ class HybridPlanner(Planner):
         others = [o for o in options if o.kind == "landmark" and o not in useful and o not in arrived]
         frontier = [o for o in options if o.kind == "frontier"]
         scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < self.cfg.rescan_m
+        # A second full turn on the same spot shows nothing new (the world is static): not offered.
+        turn = [] if scanned_here else [scan]
         if done:
-            options = [finish, *useful, *others, *frontier, scan]
+            # At what the task names (or after the asked-for turn) nothing else serves the task: a short
+            # menu keeps a weak model from wandering off (measured: it did, at random, from a full one).
+            options = [finish, *turn]
         elif turning_task:
-            options = [scan, *others, *frontier, finish]
+            options = [*turn, *others, *frontier, finish]
         elif useful:
-            options = [*useful, *others, *frontier, scan, finish]
-        elif scanned_here:
-            options = [*frontier, *others, scan, finish]
+            options = [*useful, *others, *frontier, *turn, finish]
         else:
-            options = [scan, *frontier, *others, finish]
+            options = [*turn, *frontier, *others, finish]
+        if not done and len(options) >= 3:
+            # The tiny model also favours the last entry; finishing early is the one unrecoverable
+            # mistake, so an unfinished task never lists Finish last.
+            options[-2], options[-1] = options[-1], options[-2]
         for number, option in enumerate(options, start=1):
             option.number = number
         return options
