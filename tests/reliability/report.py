@@ -31,6 +31,7 @@ def _note_text(notes: dict[str, Any]) -> str:
 def render(data: dict[str, Any], width: int = 160) -> str:
     """The table as text (rich, no colour codes when not on a terminal)."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     counts: dict[str, dict[str, int]] = data.get("counts", {})
@@ -55,10 +56,10 @@ def render(data: dict[str, Any], width: int = 160) -> str:
         for key in totals:
             totals[key] += int(row.get(key, 0))
         table.add_row(
-            category,
+            escape(category),
             f"{row.get('tried', 0):,}",
             *(str(row.get(k, 0)) for k in ("failures", "unsafe", "lost", "leaked", "crashes")),
-            _note_text(notes.get(category, {})),
+            escape(_note_text(notes.get(category, {}))),
         )
     table.add_section()
     table.add_row(

@@ -40,6 +40,38 @@ class SlowModel(Backend):
         return ChatResult('{"linear_x": 0.05, "angular_z": 0.0}', self.delay_s, "slow")
 
 
+@pytest.fixture
+def perception_ms(monkeypatch: pytest.MonkeyPatch) -> list[float]:
+    """Wall time [ms] of every detector call: simulated perception runs inline in the 50 Hz loop (outside
+    the controller's tick latency but inside its 20 ms slot), so it explains late ticks."""
+    from llmnav.sim.sensors import Detector
+
+    spent: list[float] = []
+    real = Detector.detect
+
+    def timed(self: Any, *args: Any, **kwargs: Any) -> Any:
+        started = time.perf_counter()
+        try:
+            return real(self, *args, **kwargs)
+        finally:
+            spent.append((time.perf_counter() - started) * 1000.0)
+
+    monkeypatch.setattr(Detector, "detect", timed)
+    return spent
+
+
+def note_environment(tally: Any, perception: list[float]) -> str:
+    import os
+
+    import numpy as np
+
+    load = os.getloadavg()[0]
+    p50, p99 = np.percentile(perception, [50, 99]) if perception else (0.0, 0.0)
+    tally.note(CATEGORY, "detector p50/p99/max [ms]", f"{p50:.1f}/{p99:.1f}/{max(perception or [0]):.1f}")
+    tally.note(CATEGORY, "load avg (1 min)", round(load, 2))
+    return f"detector p50 {p50:.1f} ms, p99 {p99:.1f} ms, max {max(perception or [0]):.1f} ms; load {load:.2f}"
+
+
 def realtime_episode(tmp_path: Path, name: str, ticks: int, backend: Backend) -> dict[str, Any]:
     spec = EpisodeSpec(
         scenario="maze_arena",
@@ -71,18 +103,23 @@ def record(tally: Any, runs: list[dict[str, Any]]) -> tuple[int, int, float]:
     return ticks, missed, p99
 
 
-def test_fsm_keeps_its_deadline_with_a_slow_model_quick(tmp_path: Path, tally: Any) -> None:
+def test_fsm_keeps_its_deadline_with_a_slow_model_quick(
+    tmp_path: Path, tally: Any, perception_ms: list[float]
+) -> None:
     backend = SlowModel(0.2)
     metrics = realtime_episode(tmp_path, "quick", 400, backend)
     ticks, missed, p99 = record(tally, [metrics])
+    context = note_environment(tally, perception_ms)
     assert ticks == 400 and backend.calls > 0 and metrics["suggestions"] > 0, metrics
-    assert missed == 0, metrics
+    assert missed == 0, f"{missed} missed deadlines; {context}"
     assert p99 <= P99_LIMIT_MS, metrics["tick_latency_ms"]
 
 
 @pytest.mark.slow
 @pytest.mark.reliability
-def test_fsm_keeps_its_deadline_with_the_local_model_full(tmp_path: Path, tally: Any) -> None:
+def test_fsm_keeps_its_deadline_with_the_local_model_full(
+    tmp_path: Path, tally: Any, perception_ms: list[float]
+) -> None:
     from llmnav.backends.local import LocalBackend
 
     backend = LocalBackend()
@@ -110,6 +147,7 @@ def test_fsm_keeps_its_deadline_with_the_local_model_full(tmp_path: Path, tally:
         thread.join(timeout=30)
     ticks, missed, p99 = record(tally, runs)
     tally.note(CATEGORY, "background generations", generated[0])
+    context = note_environment(tally, perception_ms)
     assert ticks >= 10_000 and generated[0] > 0 and sum(m["suggestions"] for m in runs) > 0
-    assert missed == 0, [m["missed_deadlines"] for m in runs]
+    assert missed == 0, f"{[m['missed_deadlines'] for m in runs]} missed deadlines; {context}"
     assert p99 <= P99_LIMIT_MS, [m["tick_latency_ms"] for m in runs]

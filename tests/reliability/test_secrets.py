@@ -60,6 +60,7 @@ def echo(Fault: Any, status: int, html: bool = False) -> Any:
     return reply
 
 
+FULL = [pytest.mark.slow, pytest.mark.reliability]
 SCENARIOS = ["works", "echo 400", "echo 500 retried", "echo HTML 502", "reset"]
 
 
@@ -86,7 +87,10 @@ def scripted(fault_kit: Any, backend: str, scenario: str) -> Any:
     }[scenario]
 
 
-@pytest.mark.parametrize("backend", ["openai", "gemini", "ollama"])
+@pytest.mark.parametrize(
+    "backend",
+    ["openai", pytest.param("gemini", marks=FULL), pytest.param("ollama", marks=FULL)],
+)
 def test_no_key_in_runs_output_or_errors(
     backend: str, tmp_path: Path, fault_server: Any, fault_kit: Any, monkeypatch: Any, tally: Any,
     caplog: pytest.LogCaptureFixture,
