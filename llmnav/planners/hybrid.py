@@ -5,13 +5,23 @@ well-described options under a grammar (SPEC E), so each decision offers:
 - go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
   the waypoint source), otherwise only objects the detector has seen, each with distance, bearing and
   whether its name matches the task;
-- explore a frontier cluster of the robot's own LiDAR map (bearing, distance, size);
+- explore a frontier cluster of the robot's own LiDAR map (bearing, distance, size; not offered when
+  the map is published);
 - rotate 360° to scan;
 - finish.
-The answer's schema restricts `option` to the listed numbers, and it still passes the guard. The chosen
-option runs through A* on the static occupancy grid and `Motion.go_to`; every straight leg is checked by
-the safety veto first, and a leg interrupted by a newly detected landmark ends the option early so the
-model decides again with the new information.
+The answer's schema restricts `option` to the listed numbers, and it still passes the guard.
+
+The menu is ordered for a weak model, which favours the first and the last entry: while nothing the task
+names is known, looking around (once per spot) and exploring come first; a named landmark comes first
+once known; at it, the menu shrinks to Finish (and one more look); an unfinished task never lists Finish
+last. The texts carry all the information whatever the order.
+
+The chosen option runs through A* and `Motion.go_to`. Paths are planned on a grid roomy enough for the
+veto's swept rectangle (falling back to the plain grid), plus whatever the LiDAR has hit away from every
+known solid. Every straight leg is checked by the safety veto first; a blocked leg ends the option and the
+model is told, and the same option then plans around what was seen. A robot standing inside the wall
+clearance first steps out to the nearest free cell. Exploring ends early when something the task names
+comes into view, so the model decides again with the new information.
 """
 
 from __future__ import annotations
@@ -54,7 +64,7 @@ class HybridConfig:
     obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
     max_tokens: int = 96  # [tokens] an option number and a sentence of reasoning
     arrived_m: float = 0.3  # [m] within this of a visited landmark's stand point the robot is "there"
-    rescan_m: float = 1.0  # [m] a full turn within this of the last one shows little new: list it lower
+    rescan_m: float = 1.0  # [m] a full turn within this of the last one shows nothing new: not offered
 
 
 @dataclass
