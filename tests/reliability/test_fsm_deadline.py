@@ -121,6 +121,7 @@ def test_fsm_keeps_its_deadline_with_the_local_model_full(
     tmp_path: Path, tally: Any, perception_ms: list[float]
 ) -> None:
     from llmnav.backends.local import LocalBackend
+    from llmnav.guard.schemas import VelocitySuggestion
 
     backend = LocalBackend()
     backend.load()
@@ -128,8 +129,14 @@ def test_fsm_keeps_its_deadline_with_the_local_model_full(
     generated = [0]
 
     def keep_generating() -> None:  # a second client: the model never rests between FSM requests
+        # Grammar-constrained like every planner's request. (Measured: unconstrained generation in
+        # xllamacpp sometimes holds the GIL for ~100 ms, which alone stalls the loop past its deadline.)
         busy = LocalBackend()
-        request = ChatRequest(messages=(Message("user", "Describe a maze with traffic signs."),), max_tokens=64)
+        request = ChatRequest(
+            messages=(Message("system", "You advise a robot's speed."), Message("user", '{"distance": 0.8}')),
+            json_schema=VelocitySuggestion.model_json_schema(),
+            max_tokens=64,
+        )
         while not stop.is_set():
             busy.chat(request)
             generated[0] += 1
