@@ -45,6 +45,38 @@ for _name, _module in _GROUPS:
     app.add_typer(_mod.app, name=_name)
 
 
+def _usage_errors() -> tuple[type[Exception], ...]:
+    """Click's exception base: typer >= 0.25 vendors its own click, older versions use click itself."""
+    kinds: list[type[Exception]] = []
+    try:
+        from typer.exceptions import TyperException
+
+        kinds.append(TyperException)
+    except ImportError:
+        pass
+    try:
+        import click
+
+        kinds.append(click.ClickException)
+    except ImportError:
+        pass
+    return tuple(kinds)
+
+
 def main() -> None:
-    """Console-script entry point."""
-    app()
+    """Console-script entry point: usage errors (bad flags or values) become one line and exit 2."""
+    from llmnav.commands.common import err_console
+
+    try:
+        result = app(standalone_mode=False)
+    except typer.Abort:
+        err_console.print("[bold red]error:[/] interrupted; everything written so far is kept")
+        raise SystemExit(130) from None
+    except _usage_errors() as err:
+        format_message = getattr(err, "format_message", None)
+        message = " ".join((format_message() if format_message else str(err)).split())
+        ctx = getattr(err, "ctx", None)
+        where = ctx.command_path if ctx is not None else "llmnav"
+        err_console.print(f"[bold red]error:[/] {message} (see '{where} --help')", highlight=False, soft_wrap=True)
+        raise SystemExit(getattr(err, "exit_code", 2)) from None
+    raise SystemExit(result if isinstance(result, int) else 0)

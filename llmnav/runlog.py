@@ -77,6 +77,8 @@ class RunLog:
 
     def __init__(self, run_dir: Path, config: dict[str, Any]) -> None:
         self.run_dir = Path(run_dir)
+        if (self.run_dir / RUN_FILE).exists():  # never overwrite a run: nothing already written is lost
+            raise BadInputError(f"{self.run_dir} already holds a run ({RUN_FILE}); choose another --out or remove it")
         # The log is born under a temporary name and renamed once its first line is written: a process
         # killed in between leaves no run.jsonl without its configuration (readers would reject it).
         partial = self.run_dir / (RUN_FILE + ".tmp")

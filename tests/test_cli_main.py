@@ -1,0 +1,41 @@
+"""The console script itself (not CliRunner): usage errors are one line with exit 2, no traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+ENTRY = "from llmnav.cli import main; main()"
+
+
+def llmnav(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-c", ENTRY, *args], capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    "args",
+    [("drive", "--lidar-sectors", "abc"), ("drive", "--bogus"), ("score",), ("scenarios", "show", "nope")],
+)
+def test_bad_usage_is_one_line_and_exit_2(args):
+    result = llmnav(*args)
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert result.stderr.startswith("error:")
+
+
+def test_help_exits_0():
+    result = llmnav("--help")
+    assert result.returncode == 0 and "drive" in result.stdout
+
+
+def test_drive_refuses_to_overwrite_a_run(tmp_path):
+    out = tmp_path / "run"
+    first = llmnav("drive", "--scenario", "corridor_a", "--task-id", "A1", "--planner", "oracle", "--out", str(out))
+    assert first.returncode == 0, first.stderr
+    before = (out / "run.jsonl").read_bytes()
+    second = llmnav("drive", "--scenario", "corridor_a", "--task-id", "A1", "--planner", "oracle", "--out", str(out))
+    assert second.returncode == 2 and "already holds a run" in second.stderr
+    assert (out / "run.jsonl").read_bytes() == before
