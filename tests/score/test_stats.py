@@ -1,4 +1,4 @@
-"""Statistics: source C's Table 6 (e_pos) from its published numbers, and hand-computed cases."""
+"""Statistics: source C's Table 6 (e_pos, eta) from its published numbers, and hand-computed cases."""
 
 from __future__ import annotations
 
@@ -17,6 +17,19 @@ def test_table6_epos_from_published_numbers() -> None:
     assert 116 < w.df < 118  # Welch–Satterthwaite, close to 2n - 2 for similar SDs
     g = hedges_g_summary(0.246, 0.078, 60, 0.159, 0.069, 60)
     assert 1.17 <= round(g, 2) <= 1.18
+
+
+@pytest.mark.parametrize("share", [0.3, 0.5, 0.7])
+def test_table6_eta_g_follows_from_the_published_t(share: float) -> None:
+    # eta: FSM 0.821 vs FSM+LLM 0.901, N = 60 each; published t = 10.51, g = 1.91. The SDs are not
+    # published, but with equal N Welch's t depends only on s1^2 + s2^2 and Hedges' g only on their mean,
+    # so the published t fixes exactly what g needs: (0.901 - 0.821) / t = sqrt((s1^2 + s2^2) / 60).
+    # Any split of that total (share) must give t = 10.51 back and g = 1.90-1.91.
+    total = 60 * ((0.901 - 0.821) / 10.51) ** 2
+    sd1, sd2 = math.sqrt(share * total), math.sqrt((1 - share) * total)
+    w = welch_summary(0.901, sd1, 60, 0.821, sd2, 60)
+    assert w.t == pytest.approx(10.51, abs=1e-9)
+    assert 1.90 <= round(hedges_g_summary(0.901, sd1, 60, 0.821, sd2, 60), 2) <= 1.91
 
 
 def test_hand_computed_welch_and_g() -> None:

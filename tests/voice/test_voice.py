@@ -132,3 +132,21 @@ def test_drive_with_unknown_spoken_command_moves_nothing(tmp_path):
     result = runner.invoke(app, args)
     assert result.exit_code == 2
     assert not out.exists()
+
+
+def test_missing_voice_extra_is_one_clear_line(monkeypatch):
+    import builtins
+
+    from llmnav import voice
+    from llmnav.errors import ModelUnavailableError
+
+    real_import = builtins.__import__
+
+    def no_pocketsphinx(name, *args, **kwargs):
+        if name == "pocketsphinx":
+            raise ImportError("No module named 'pocketsphinx'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_pocketsphinx)
+    with pytest.raises(ModelUnavailableError, match=r"pip install 'llmnav\[voice\]'"):
+        voice._pocketsphinx()
