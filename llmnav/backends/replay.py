@@ -195,9 +195,7 @@ class ReplayBackend(Backend):
         if diverged:
             self.divergences += 1
             if not self.loose:
-                where = f"call {call.number} (step {call.step}" + (
-                    f", {call.purpose})" if call.purpose else ")"
-                )
+                where = f"call {call.number} (step {call.step}" + (f", {call.purpose})" if call.purpose else ")")
                 raise ReplayDivergenceError(
                     f"replay: {where} differs from the recording at {self.file}:{call.line}: "
                     f"{describe_difference(call.request, asked)}"
@@ -233,3 +231,27 @@ class ReplayBackend(Backend):
         except BadInputError as err:
             return BackendStatus(False, str(err).splitlines()[0])
         return BackendStatus(True, f"{len(calls)} recorded model calls in {file}")
+
+
+def write_script(
+    run_dir: Path, replies: list[str] | list[tuple[str, float]], *, purpose: str = "action", latency_s: float = 0.25
+) -> str:
+    """Write a hand-made "recording" of model replies and return the spec argument that replays it loosely.
+
+    Each reply is a text, or (text, latency [s]) when the latency matters (the FSM charges it to sim time).
+    Loose replay answers in order whatever the prompt, so a script drives any planner: tests use it as a
+    scripted model, and a user can try a planner without any model at all.
+    """
+    from llmnav.runlog import RunLog
+
+    with RunLog(run_dir, {"note": "scripted replies"}) as log:
+        for reply in replies:
+            text, latency = reply if isinstance(reply, tuple) else (reply, latency_s)
+            log.event(
+                "llm_call",
+                step=0,
+                purpose=purpose,
+                request={"messages": []},
+                reply={"text": text, "latency_s": latency, "model": "script"},
+            )
+    return f"{Path(run_dir) / RUN_FILE}?loose"

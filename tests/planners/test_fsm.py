@@ -9,27 +9,18 @@ from typing import Any
 
 import pytest
 
-from llmnav.backends.replay import ReplayBackend
+from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.planners.base import DriveOptions
 from llmnav.planners.fsm import FsmConfig, project
-from llmnav.runlog import RunLog, RunRecord, read_run
+from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, run_episode
 
 CFG = FsmConfig()
 
 
 def script(path: Path, replies: list[tuple[str, float]]) -> str:
-    """A run log of (answer, latency) pairs the replay backend returns in order, whatever the prompt."""
-    with RunLog(path, {"note": "scripted FSM suggestions"}) as log:
-        for text, latency in replies:
-            log.event(
-                "llm_call",
-                step=0,
-                purpose="suggestion",
-                request={"messages": []},
-                reply={"text": text, "latency_s": latency, "model": "script"},
-            )
-    return f"{path / 'run.jsonl'}?loose"
+    """Scripted (answer, latency) pairs the replay backend returns in order, whatever the prompt."""
+    return write_script(path, replies, purpose="suggestion")
 
 
 def run_fsm(
@@ -86,9 +77,7 @@ def test_llm_suggestions_are_judged_fused_and_deterministic(tmp_path):
     rejected = metrics["rejected"]
     assert metrics["suggestions"] > 8
     assert metrics["suggestions"] == metrics["accepted"] + sum(rejected.values())
-    assert (
-        metrics["accepted"] > 0 and rejected["stale"] > 0 and rejected["bounds"] > 0 and rejected["parse"] > 0
-    )
+    assert metrics["accepted"] > 0 and rejected["stale"] > 0 and rejected["bounds"] > 0 and rejected["parse"] > 0
     assert metrics["r_acc"] == pytest.approx(metrics["accepted"] / metrics["suggestions"])
     assert 0 < metrics["r_use"] < 1
     # The state JSON goes out only in APPROACH, with the source's fields.

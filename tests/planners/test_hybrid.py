@@ -14,12 +14,12 @@ from typing import Any
 import pytest
 
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
-from llmnav.backends.replay import ReplayBackend
+from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import hybrid_choice_model
 from llmnav.planners.base import DriveOptions
 from llmnav.resources import resource_dir
-from llmnav.runlog import RunLog, RunRecord, read_run
+from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
 from llmnav.scenario import load_scenario
 
@@ -29,17 +29,8 @@ def choice(option: int, reasoning: str = "scripted") -> str:
 
 
 def script(path: Path, replies: list[str]) -> str:
-    """A hand-written run log whose replies the replay backend returns in order (loose: any prompt)."""
-    with RunLog(path, {"note": "scripted replies"}) as log:
-        for text in replies:
-            log.event(
-                "llm_call",
-                step=0,
-                purpose="choice",
-                request={"messages": []},
-                reply={"text": text, "latency_s": 0.1, "model": "script"},
-            )
-    return f"{path / 'run.jsonl'}?loose"
+    """Scripted replies the replay backend returns in order, whatever the prompt."""
+    return write_script(path, replies, purpose="choice", latency_s=0.1)
 
 
 def options_in(user_turn: str) -> dict[int, str]:

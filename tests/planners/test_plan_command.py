@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from llmnav.backends.replay import write_script
 from llmnav.cli import app
 from llmnav.commands import common
 from llmnav.resources import resource_dir
-from llmnav.runlog import RunLog, read_run
+from llmnav.runlog import read_run
 
 runner = CliRunner()
 BAD = [(3.0, 1.7), (3.2, 1.4), (6.5, 0.5)]  # outside the margin, too close, off target
@@ -37,16 +38,7 @@ def plan_text(points: list[tuple[float, float]]) -> str:
 
 def replay(path: Path, replies: list[str]) -> str:
     """A replay backend spec answering `replies` in order, whatever is asked."""
-    with RunLog(path, {"note": "scripted replies"}) as log:
-        for text in replies:
-            log.event(
-                "llm_call",
-                step=0,
-                purpose="waypoints",
-                request={"messages": []},
-                reply={"text": text, "latency_s": 0.25, "model": "script"},
-            )
-    return f"replay:{path / 'run.jsonl'}?loose"
+    return "replay:" + write_script(path, replies, purpose="waypoints")
 
 
 def test_plan_prints_every_verdict_and_writes_the_figure(tmp_path: Path) -> None:

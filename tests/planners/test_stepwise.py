@@ -15,12 +15,12 @@ from typing import Any
 
 import pytest
 
-from llmnav.backends.replay import ReplayBackend
+from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import ActionBounds, StepAction, response_schema
 from llmnav.metrics import summarize_run
 from llmnav.planners.base import DriveOptions
-from llmnav.runlog import RunLog, RunRecord, read_run
+from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
 from llmnav.scenario import load_scenario
 
@@ -39,18 +39,8 @@ def answer(command: str, parameters: float) -> str:
 
 
 def script(path: Path, replies: list[str]) -> str:
-    """A hand-written run log whose replies the replay backend returns in order (loose: any prompt);
-    returns the replay backend's argument."""
-    with RunLog(path, {"note": "scripted replies"}) as log:
-        for text in replies:
-            log.event(
-                "llm_call",
-                step=0,
-                purpose="action",
-                request={"messages": []},
-                reply={"text": text, "latency_s": 0.25, "model": "script"},
-            )
-    return f"{path / 'run.jsonl'}?loose"
+    """Scripted replies the replay backend returns in order, whatever the prompt."""
+    return write_script(path, replies, purpose="action", latency_s=0.25)
 
 
 def drive(
@@ -116,9 +106,7 @@ def test_malformed_json_gets_a_correction_turn_with_the_exact_error(tmp_path: Pa
 
 def test_a_front_into_a_wall_is_vetoed_and_the_alternative_accepted(tmp_path: Path) -> None:
     # start pose 2 faces the east wall 2.3 m away: a 2 m move cannot stop in time with a 0.72 m wide base
-    summary, record = drive(
-        tmp_path, [answer("FRONT", 2.0), answer("ROTATE_LEFT", 90), answer("COMPLETE", 0)], pose=2
-    )
+    summary, record = drive(tmp_path, [answer("FRONT", 2.0), answer("ROTATE_LEFT", 90), answer("COMPLETE", 0)], pose=2)
     assert summary["outcome"] == "completed"
     assert [g["outcome"] for g in record.of_type("guard")] == ["ok", "veto", "ok", "ok"]
     assert [c["purpose"] for c in calls(record)] == ["action", "veto", "action"]
@@ -284,7 +272,6 @@ def test_a_collision_the_lidar_cannot_see_is_reported_with_the_next_observation(
     assert 0.3 < first["distance_m"] < 1.5
     told = calls(record)[1]["request"]["messages"][-1]["text"]
     assert told.startswith(
-        f"Your last action (FRONT 2 m) was stopped after {first['distance_m']:.2f} m by a "
-        "collision with shelf."
+        f"Your last action (FRONT 2 m) was stopped after {first['distance_m']:.2f} m by a collision with shelf."
     )
     assert summary["collisions"] == 1 and summary["planner_metrics"]["collisions"] == 1

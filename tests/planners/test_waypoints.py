@@ -11,12 +11,12 @@ from typing import Any
 
 import pytest
 
-from llmnav.backends.replay import ReplayBackend
+from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import WaypointList, response_schema, target_choice_model
 from llmnav.planners.base import DriveOptions
 from llmnav.prompting import render
-from llmnav.runlog import RunLog, RunRecord, read_run
+from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
 from llmnav.tasks import SEQUENCE_JOIN
 
@@ -31,17 +31,8 @@ def plan_text(*points: tuple[float, float]) -> str:
 
 
 def script(path: Path, replies: list[str]) -> str:
-    """A hand-written run log whose replies the replay backend returns in order (loose: any prompt)."""
-    with RunLog(path, {"note": "scripted replies"}) as log:
-        for text in replies:
-            log.event(
-                "llm_call",
-                step=0,
-                purpose="waypoints",
-                request={"messages": []},
-                reply={"text": text, "latency_s": 0.25, "model": "script"},
-            )
-    return f"{path / 'run.jsonl'}?loose"
+    """Scripted replies the replay backend returns in order, whatever the prompt."""
+    return write_script(path, replies, purpose="waypoints", latency_s=0.25)
 
 
 def drive(
@@ -268,9 +259,7 @@ def test_replans_are_bounded_and_spaced_by_the_cooldown(tmp_path: Path) -> None:
 def test_a_sequence_of_targets_is_driven_leg_by_leg(tmp_path: Path) -> None:
     to_window = plan_text((6.0, 0.0), (13.1, 0.0))
     back_to_105 = plan_text((9.0, 0.6), ROOM_105)
-    summary, record = drive(
-        tmp_path, [to_window, back_to_105], tasks=("Go to the window", "Go to room 105")
-    )
+    summary, record = drive(tmp_path, [to_window, back_to_105], tasks=("Go to the window", "Go to room 105"))
     assert summary["outcome"] == "completed", summary["reason"]
     assert summary["task_id"] == "SEQ"
     assert [(g["step"], g["target"]) for g in planner_events(record, "grounding")] == [(1, "WIN"), (2, "R105")]
