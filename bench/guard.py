@@ -11,13 +11,13 @@ import random
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from llmnav.guard.parse import parse_answer
 from llmnav.guard.schemas import ActionBounds, StepAction
 from llmnav.guard.veto import check_motion
+from llmnav.sim.sensors import LidarScan as Scan
 
 PARSE_TARGET_MS = 1.0
 VETO_TARGET_MS = 1.5  # one LiDAR scan's cost: the veto should be small next to it
@@ -53,14 +53,6 @@ MAKERS: dict[str, Callable[[dict[str, object], random.Random], str]] = {
 }
 # Realistic weights: mostly valid, a few of each failure.
 WEIGHTS = [40, 25, 10, 4, 4, 3, 3, 2, 3, 3, 3]
-
-
-@dataclass
-class Scan:
-    angles: np.ndarray
-    ranges: np.ndarray
-    range_max: float = 10.0
-    range_min: float = 0.05
 
 
 def _median_ms(samples: list[float]) -> float:
@@ -112,8 +104,10 @@ def main() -> None:
     print(f"  {'all':<24}{len(everything):>5}{overall:>11.3f}{worst:>9.2f}  p95 {p95:.3f} ms")
     ratio = overall / PARSE_TARGET_MS
     print(f"  median parse {overall:.3f} ms vs target {PARSE_TARGET_MS} ms (ratio {ratio:.2f})")
-    print(f"  veto check (360 rays) median {veto:.3f} ms vs target {VETO_TARGET_MS} ms "
-          f"(ratio {veto / VETO_TARGET_MS:.2f})")
+    print(
+        f"  veto check (360 rays) median {veto:.3f} ms vs target {VETO_TARGET_MS} ms "
+        f"(ratio {veto / VETO_TARGET_MS:.2f})"
+    )
 
 
 if __name__ == "__main__":

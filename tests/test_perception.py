@@ -18,14 +18,7 @@ from llmnav.perception import (
     pose_text,
     summarize_scan,
 )
-
-
-@dataclass
-class Scan:
-    angles: np.ndarray
-    ranges: np.ndarray
-    range_max: float = 10.0
-    range_min: float = 0.05
+from llmnav.sim.sensors import LidarScan as Scan
 
 
 @dataclass
@@ -62,9 +55,7 @@ def test_eight_sectors_over_ninety_degrees_left_to_right() -> None:
         assert math.isinf(s.min_m) and s.min_angle_deg is None and s.rays > 0
 
 
-@pytest.mark.parametrize(
-    ("angle", "expected_sector"), [(40.0, 0), (20.0, 2), (5.0, 3), (-5.0, 4), (-44.0, 7)]
-)
+@pytest.mark.parametrize(("angle", "expected_sector"), [(40.0, 0), (20.0, 2), (5.0, 3), (-5.0, 4), (-44.0, 7)])
 def test_sector_min_and_angle(angle: float, expected_sector: int) -> None:
     scan = empty_scan()
     put(scan, angle, 2.5)
@@ -165,6 +156,4 @@ def test_detections_text_nearest_first() -> None:
 
 
 def test_pose_text() -> None:
-    assert pose_text(Pose2D(1.0, -2.5, math.pi / 2)) == (
-        "x 1.00 m, y -2.50 m, heading 90 deg (0 = +x, CCW positive)"
-    )
+    assert pose_text(Pose2D(1.0, -2.5, math.pi / 2)) == ("x 1.00 m, y -2.50 m, heading 90 deg (0 = +x, CCW positive)")

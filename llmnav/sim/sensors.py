@@ -41,8 +41,8 @@ class LidarScan:
 
     angles: np.ndarray  # [rad] relative to heading, CCW positive, ascending
     ranges: np.ndarray  # [m] from the robot centre; np.inf where nothing lies within range
-    range_max: float  # [m]
-    range_min: float  # [m]
+    range_max: float = 10.0  # [m] LidarConfig's default
+    range_min: float = 0.05  # [m] LidarConfig's default
 
     def min_in(self, lo_rad: float, hi_rad: float) -> float:
         """Smallest range [m] among rays with lo <= angle <= hi (np.inf if none or all clear)."""

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -11,17 +10,10 @@ import pytest
 from llmnav.guard.parse import parse_answer
 from llmnav.guard.schemas import ActionBounds, StepAction
 from llmnav.guard.veto import VetoResult, check_motion, veto_message
+from llmnav.sim.sensors import LidarScan as Scan
 
 WIDTH = 0.72  # [m] PR2-like footprint, radius 0.36
 MARGINS = {"robot_width_m": WIDTH, "margin_m": 0.15, "stop_margin_m": 0.2}
-
-
-@dataclass
-class Scan:
-    angles: np.ndarray
-    ranges: np.ndarray
-    range_max: float = 10.0
-    range_min: float = 0.05
 
 
 def scan_with_points(points: list[tuple[float, float]], *, fov_deg: float = 360.0, rays: int = 720) -> Scan:
