@@ -476,12 +476,13 @@ class FsmPlanner(Planner):
         return Suggestion(now, now + result.latency_s, result.text, result.latency_s)
 
     def _metrics(self, ctx: EpisodeContext, stats: FsmStats, final: Any, start: Any) -> dict[str, Any]:
+        from llmnav.metrics import path_length
         from llmnav.runlog import read_run
 
         target = self._stop_point(ctx) if ctx.task.targets else None
         e_pos = final.distance_to(*target) if target is not None else None
         poses = read_run(ctx.log.run_dir).poses()
-        real = float(sum(math.dist(a[:2], b[:2]) for a, b in zip(poses, poses[1:], strict=False)))
+        real = path_length(poses)
         optimal = _shortest_length(ctx, start, target) if target is not None else None
         ticks = max(len(stats.tick_latency_ms), 1)
         lat = np.asarray(stats.tick_latency_ms or [0.0])
