@@ -47,6 +47,7 @@ class EpisodeSpec(BaseModel):
     out_dir: Path
     quiet: bool = True
     plots: bool = True  # write trajectory.png (ablations turn it off: it costs more than a short episode)
+    condition: str | None = None  # an ablation's hash of the episode's full condition, logged in the config
 
 
 def _package_version(name: str) -> str | None:
@@ -111,6 +112,7 @@ def build_config(
         "options": spec.options.model_dump(mode="json"),
         "seed": spec.options.seed,
         "prompt_hashes": prompts,
+        **({"condition": spec.condition} if spec.condition else {}),
     }
 
 

@@ -31,7 +31,8 @@ def execute_episode(runner: Runner, spec: EpisodeSpec) -> tuple[dict[str, Any] |
         return None, f"{type(err).__name__}: {text}" if text else type(err).__name__, False
 
 
-def _default_runner() -> Runner:
+def default_runner() -> Runner:
+    """`llmnav.runner.run_episode` (imported when first needed)."""
     from llmnav.runner import run_episode
 
     return run_episode
@@ -57,16 +58,51 @@ def worker_model_threads(workers: int) -> int:
     return max(1, (cores - 1) // workers)
 
 
-def _init_worker(model_threads: int) -> None:
-    """Pool worker start-up, before numpy, cv2 or a model is imported: cap the native thread pools."""
+def _init_worker(model_threads: int, parent_pid: int) -> None:
+    """Pool worker start-up, before numpy, cv2 or a model is imported: cap threads, die with the parent.
+
+    A `kill -9` of the sweep must not leave workers running episodes nobody records.
+    """
     from llmnav.backends.local import THREADS_ENV
 
     for name in _WORKER_THREAD_VARS:
         os.environ.setdefault(name, "1")
     os.environ.setdefault(THREADS_ENV, str(model_threads))
+    exit_with_parent(parent_pid)
 
 
-def _run_pool(
+_PR_SET_PDEATHSIG = 1
+
+
+def exit_with_parent(parent_pid: int, poll_s: float = 0.2) -> None:
+    """End this process when `parent_pid` is gone.
+
+    The kernel's parent-death signal on Linux, and a watchdog thread everywhere (it also covers a parent
+    that died before the signal was armed).
+    """
+    import signal
+    import sys
+    import threading
+    import time
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="llmnav-parent-watchdog", daemon=True).start()
+
+
+def run_pool(
     runner: Runner, specs: Sequence[tuple[Episode, EpisodeSpec]], workers: int
 ) -> Iterator[tuple[Episode, Result]]:
     """Episodes in a spawn process pool (fresh interpreters: no inherited PyBullet or model state)."""
@@ -79,7 +115,7 @@ def _run_pool(
         max_workers=count,
         mp_context=context,
         initializer=_init_worker,
-        initargs=(worker_model_threads(count),),
+        initargs=(worker_model_threads(count), os.getpid()),
     )
     futures: dict[Future[Result], Episode] = {}
     try:
@@ -94,7 +130,7 @@ def _run_pool(
         executor.shutdown(wait=True, cancel_futures=True)
 
 
-def _run_ray(
+def run_ray(
     runner: Runner, specs: Sequence[tuple[Episode, EpisodeSpec]], address: str
 ) -> Iterator[tuple[Episode, Result]]:
     """Episodes as Ray tasks on an existing cluster (`auto`, `ray://host:10001`, `host:6379`)."""

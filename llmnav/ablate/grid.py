@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -45,6 +47,14 @@ class GridSpec(BaseModel):
     assist: list[str] | None = None
     options: dict[str, Any] = {}  # fixed DriveOptions for every episode (max_iterations, image size, ...)
 
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, name: str | None) -> str | None:
+        # the name becomes a folder under ablations/: a path (/etc, ../x) would put the sweep elsewhere
+        if name is not None and (not name.strip() or name != Path(name).name or name in (".", "..")):
+            raise ValueError(f"{name!r} is not a plain folder name (use --out for a path)")
+        return name
+
     @field_validator("poses")
     @classmethod
     def _positive(cls, poses: list[int] | None) -> list[int] | None:
@@ -83,9 +93,19 @@ class Episode:
     factors: dict[str, Any]
     backend: str
     options: DriveOptions
+    # The episode's full condition (see `condition`) and its hash: a run folder is this episode's result
+    # only when its config line carries the same hash.
+    condition: dict[str, Any] = field(default_factory=dict, compare=False)
+    identity: str = ""
 
-    def spec(self, root: Path, scenario: str, *, plots: bool = False) -> EpisodeSpec:
-        """The runner's input for this episode (`plots`: write each run's trajectory.png)."""
+    def spec(
+        self, root: Path, scenario: str, *, plots: bool = False, dir_name: str | None = None
+    ) -> EpisodeSpec:
+        """The runner's input for this episode.
+
+        `plots`: write each run's trajectory.png; `dir_name`: the folder under `root` when not the
+        episode's first choice.
+        """
         from llmnav.runner import EpisodeSpec
 
         return EpisodeSpec(
@@ -94,9 +114,10 @@ class Episode:
             start_pose=self.start_pose,
             options=self.options,
             backend=self.backend,
-            out_dir=root / self.dir_name,
+            out_dir=root / (dir_name or self.dir_name),
             quiet=True,
             plots=plots,
+            condition=self.identity or None,
         )
 
 
@@ -209,11 +230,62 @@ def _factor_options(factors: dict[str, Any]) -> dict[str, Any]:
     return options
 
 
+def condition(
+    scenario_hash: str, task_id: str, start_pose: int, trial: int, backend: str, options: DriveOptions
+) -> dict[str, Any]:
+    """Everything that decides an episode's result.
+
+    Scenario file content, task, start pose, trial, backend spec (model and URL; secrets redacted), every
+    option (seed included) and the prompt templates used.
+    """
+    from llmnav.backends.http import redact
+
+    return {
+        "scenario_sha256": scenario_hash,
+        "task": task_id,
+        "start_pose": start_pose,
+        "trial": trial,
+        "backend": redact(backend.strip()),
+        "options": options.model_dump(mode="json"),
+        "prompt_hashes": _prompt_hashes(options),
+    }
+
+
+def condition_hash(data: dict[str, Any]) -> str:
+    """A stable hash of a condition (canonical JSON)."""
+    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _prompt_hashes(options: DriveOptions) -> dict[str, str]:
+    return dict(_prompt_hashes_cached(options.model_dump_json()))
+
+
+@lru_cache(maxsize=256)
+def _prompt_hashes_cached(options_json: str) -> tuple[tuple[str, str], ...]:
+    from llmnav.planners.base import get_planner
+    from llmnav.runner import prompt_hashes
+
+    options = DriveOptions.model_validate_json(options_json)
+    return tuple(sorted(prompt_hashes(get_planner(options.planner), options).items()))
+
+
+def check_backend(spec: str) -> None:
+    """Refuse a backend spec naming no installed backend (what the real run would refuse, before any work)."""
+    from llmnav.backends.base import _entry_points, parse_spec
+    from llmnav.errors import BackendSpecError
+
+    name, _ = parse_spec(spec)
+    points = _entry_points()
+    if name not in points:
+        raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {', '.join(sorted(points))})")
+
+
 def expand(grid: GridSpec) -> list[Episode]:
     """Every episode of the grid, in a stable order (task, pose, trial, then factors)."""
-    from llmnav.scenario import load_scenario
+    from llmnav.scenario import load_scenario, resolve_scenario_path
 
     scenario = load_scenario(grid.scenario)
+    scenario_hash = hashlib.sha256(resolve_scenario_path(grid.scenario).read_bytes()).hexdigest()
     if grid.tasks == "all":
         tasks = [t.id for t in scenario.tasks]
     else:
@@ -228,6 +300,8 @@ def expand(grid: GridSpec) -> list[Episode]:
                 ) from None
     if not tasks:
         raise BadInputError(f"scenario {scenario.name} has no tasks to ablate")
+    for backend_spec in dict.fromkeys(grid.backend or [DEFAULT_BACKEND]):
+        check_backend(backend_spec)
     factors = grid.factors()
     names = list(factors)
     combos = [dict(zip(names, values, strict=True)) for values in itertools.product(*factors.values())]
@@ -251,5 +325,11 @@ def expand(grid: GridSpec) -> list[Episode]:
                 raise BadInputError(f"grid value: {_validation_message(err)}") from None
             key = episode_key(task_id, pose, trial, {k: v for k, v in combo.items() if k in varying})
             backend = str(combo.get("backend", (grid.backend or [DEFAULT_BACKEND])[0]))
-            episodes.append(Episode(key, _dir_name(key), task_id, pose, trial, seed, combo, backend, options))
+            cond = condition(scenario_hash, task_id, pose, trial, backend, options)
+            episodes.append(
+                Episode(
+                    key, _dir_name(key), task_id, pose, trial, seed, combo, backend, options,
+                    cond, condition_hash(cond),
+                )
+            )
     return episodes

@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from llmnav.ablate.grid import Episode, GridSpec, expand
-from llmnav.runlog import RUN_FILE, SUMMARY_FILE, write_json_atomic
+from llmnav.runlog import SUMMARY_FILE, write_json_atomic
 
 MANIFEST_FILE = "manifest.json"
 Status = Literal["pending", "done", "error"]
+
+
+# Navigation outcomes that are results. "aborted" (auth, connection, server error, replay divergence, a
+# crash) says nothing about navigation: it is an error, and the next resume runs the episode again.
+DONE_OUTCOMES = ("completed", "failed")
 
 
 @dataclass
@@ -26,20 +30,31 @@ class ManifestEntry:
     trial: int
     seed: int
     factors: dict[str, Any]
+    condition: str = ""  # hash of the episode's full condition (grid.condition), logged in its run
     status: Status = "pending"
     summary: str | None = None  # relative path of summary.json
     outcome: str | None = None
     success: bool | None = None
     score: float | None = None
     error: str | None = None
+    kept: list[str] = field(default_factory=list)  # earlier folders of this episode, kept: "dir: why"
+
+    def reset(self, dir_name: str) -> None:
+        """Pending, to be run into `dir_name`."""
+        self.dir, self.status, self.error = dir_name, "pending", None
+        self.summary = self.outcome = self.success = self.score = None
 
     def record(self, summary: dict[str, Any]) -> None:
-        """Mark done with the episode's summary."""
-        self.status, self.error = "done", None
+        """Settle with the episode's summary: done, or an error when the run was aborted."""
         self.summary = f"{self.dir}/{SUMMARY_FILE}"
         self.outcome = summary.get("outcome")
         self.success = bool(summary.get("success"))
         self.score = summary.get("score")
+        if self.outcome in DONE_OUTCOMES and not summary.get("cut_short"):
+            self.status, self.error = "done", None
+        else:
+            self.status = "error"
+            self.error = f"{self.outcome or 'no outcome'}: {summary.get('reason') or 'no reason logged'}"
 
 
 @dataclass
@@ -50,13 +65,21 @@ class Ablation:
     root: Path
     episodes: list[Episode]
     entries: dict[str, ManifestEntry] = field(default_factory=dict)
+    kept: list[tuple[str, str]] = field(default_factory=list)  # folders set aside by the last run: (dir, why)
 
     def __post_init__(self) -> None:
         for ep in self.episodes:
             self.entries.setdefault(
                 ep.key,
                 ManifestEntry(
-                    ep.key, ep.dir_name, ep.task_id, ep.start_pose, ep.trial, ep.seed, dict(ep.factors)
+                    ep.key,
+                    ep.dir_name,
+                    ep.task_id,
+                    ep.start_pose,
+                    ep.trial,
+                    ep.seed,
+                    dict(ep.factors),
+                    ep.identity,
                 ),
             )
 
@@ -65,18 +88,25 @@ class Ablation:
         """Number of episodes."""
         return len(self.episodes)
 
+    def counts(self) -> tuple[int, int, int]:
+        """(done, successes, errors) over the episodes."""
+        entries = [self.entries[ep.key] for ep in self.episodes]
+        done = [e for e in entries if e.status == "done"]
+        return len(done), sum(1 for e in done if e.success), sum(1 for e in entries if e.status == "error")
+
     def manifest(self) -> dict[str, Any]:
         """The manifest as data (no timestamps: an interrupted and resumed sweep gives the same one)."""
-        entries = [self.entries[ep.key].__dict__ for ep in self.episodes]
-        done = [e for e in entries if e["status"] == "done"]
+        entries = [dict(self.entries[ep.key].__dict__) for ep in self.episodes]
+        done, successes, errors = self.counts()
         return {
             "name": self.grid.default_name(),
             "scenario": self.grid.scenario,
             "grid": self.grid.model_dump(mode="json"),
             "factors": list(self.grid.factors()),
             "size": self.size,
-            "done": len(done),
-            "successes": sum(1 for e in done if e["success"]),
+            "done": done,
+            "errors": errors,
+            "successes": successes,
             "episodes": entries,
         }
 
@@ -92,32 +122,6 @@ def plan(grid: GridSpec, root: Path) -> Ablation:
     return Ablation(grid, Path(root), expand(grid))
 
 
-def _finished(ep: Episode, run_dir: Path) -> dict[str, Any] | None:
-    """The episode's summary when its folder holds a finished run of exactly this episode, else None."""
-    summary_path = run_dir / SUMMARY_FILE
-    try:
-        summary = json.loads(summary_path.read_text(encoding="utf-8"))
-        with open(run_dir / RUN_FILE, encoding="utf-8") as log:
-            config = json.loads(log.readline())
-    except (OSError, json.JSONDecodeError):
-        return None
-    if not isinstance(summary, dict) or not isinstance(config, dict) or "outcome" not in summary:
-        return None
-    reason = str(summary.get("reason") or "")
-    if summary.get("cut_short") or reason.startswith(("crash", "interrupted")):
-        return None
-    task = config.get("task") or {}
-    logged_backend = str(config.get("backend") or "")
-    same = (
-        str(task.get("id", "")).lower() == ep.task_id.lower()
-        and config.get("start_pose_index") == ep.start_pose
-        and config.get("options") == ep.options.model_dump(mode="json")
-        # a backend spec may gain its default argument when logged ("local" -> "local:<model>")
-        and (not logged_backend or logged_backend.split(":")[0] == ep.backend.split(":")[0])
-    )
-    return summary if same else None
-
-
 def results_runs(ablation: Ablation) -> list[Any]:
     """The finished episodes as `llmnav.score.Run`s (for the closing tables)."""
     from llmnav.score import load_run
@@ -125,7 +129,7 @@ def results_runs(ablation: Ablation) -> list[Any]:
     runs = []
     for ep in ablation.episodes:
         if ablation.entries[ep.key].status == "done":
-            runs.append(load_run(ablation.root / ep.dir_name))
+            runs.append(load_run(ablation.root / ablation.entries[ep.key].dir))
     return runs
 
 

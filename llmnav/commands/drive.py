@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from pydantic import ValidationError
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import cli_errors, console, path_option, print_data
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -86,7 +86,7 @@ def drive(
     ] = 30,
     seed: Annotated[int, typer.Option(help="Simulation and model seed.")] = 0,
     out: Annotated[
-        Path | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")
+        str | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")
     ] = None,
     realtime: Annotated[
         bool, typer.Option("--realtime", help="Pace the simulation to the wall clock.")
@@ -110,6 +110,7 @@ def drive(
     from llmnav.runner import EpisodeSpec, exit_code
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario
 
+    out_dir = path_option(out, "--out")
     texts = [t for t in (task or []) if t.strip()]
     if task_audio is not None:
         if texts or task_id is not None:
@@ -150,12 +151,12 @@ def drive(
         start_pose=start_pose,
         options=options,
         backend=backend_spec,
-        out_dir=out or default_out_dir(options.planner, task_id or (texts[0] if texts else "task")),
+        out_dir=out_dir or default_out_dir(options.planner, task_id or (texts[0] if texts else "task")),
         quiet=quiet or json_output,
     )
     summary = _run_with_view(spec, quiet=quiet, json_output=json_output)
     if json_output:
-        console.print(json.dumps(summary, default=str), markup=False, highlight=False, soft_wrap=True)
+        print_data(json.dumps(summary, default=str))
     else:
         from llmnav.reporting.live import print_result
 
