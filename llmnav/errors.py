@@ -40,6 +40,10 @@ class ModelError(LlmnavError):
     """A backend call failed after its last retry (HTTP status, timeout, garbage body)."""
 
 
+class RunFolderError(LlmnavError):
+    """A run folder could not be written (disk full, I/O error); what was written before stays readable."""
+
+
 class ReplayDivergenceError(LlmnavError):
     """A strict replay saw a prompt that differs from the recorded one (message has step and diff)."""
 

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from llmnav.backends.base import Image
-from llmnav.errors import BadInputError, FolderLockedError
+from llmnav.errors import BadInputError, FolderLockedError, RunFolderError
 from llmnav.locking import LOCK_FILE, FolderLock, locked_by
 
 RUN_FILE = "run.jsonl"
@@ -159,7 +159,11 @@ class RunLog:
         self._images: set[str] = set()
         self._lock = threading.Lock()  # a model worker thread may log while the control loop does
         self.sim_time: float | None = None
+        self.write_error: str | None = None  # the first failed write (disk full): nothing is written after it
         self._write({"type": "config", **config})
+        if self.write_error is not None:
+            self.close()
+            raise RunFolderError(f"{self.run_dir}: {self.write_error}")
         try:
             os.link(partial, self.run_dir / RUN_FILE)
         except FileExistsError:
@@ -177,10 +181,13 @@ class RunLog:
             record["truncated"] = cut
         line = dumps(record) + "\n"
         with self._lock:
-            if self._file.closed:  # a model call abandoned at the end of an episode returned late
+            if self._file.closed or self.write_error:  # a late model call, or the disk is full
                 return
-            self._file.write(line)
-            self._file.flush()  # survives SIGKILL: the line is in the kernel's page cache
+            try:
+                self._file.write(line)
+                self._file.flush()  # survives SIGKILL: the line is in the kernel's page cache
+            except OSError as err:  # the log keeps its complete lines (a torn last one is ignored)
+                self.write_error = f"cannot write {RUN_FILE}: {err.strerror or err}"
 
     def event(self, type_: str, **fields: Any) -> None:
         """Append one event (flushed at once)."""
@@ -197,22 +204,39 @@ class RunLog:
             path = self.run_dir / IMAGES_DIR / f"{digest}.jpg"
             if not path.exists():
                 tmp = path.with_suffix(".tmp")
-                tmp.write_bytes(image.jpeg_bytes)
-                os.replace(tmp, path)
+                try:
+                    tmp.write_bytes(image.jpeg_bytes)
+                    os.replace(tmp, path)
+                except OSError as err:  # no event will name it: the log stops here
+                    self.write_error = self.write_error or f"cannot write {path.name}: {err.strerror or err}"
+                    return digest
             self._images.add(digest)
         return digest
 
     def write_summary(self, summary: dict[str, Any]) -> Path:
-        """Write `summary.json` atomically."""
+        """Write `summary.json` atomically (RunFolderError when it cannot be written)."""
         path = self.run_dir / SUMMARY_FILE
-        write_json_atomic(path, summary)
+        try:
+            write_json_atomic(path, summary)
+        except OSError as err:
+            raise RunFolderError(
+                f"{self.run_dir}: cannot write {SUMMARY_FILE}: {err.strerror or err}; {RUN_FILE} is complete"
+            ) from None
         return path
+
+    def check_written(self) -> None:
+        """Raise RunFolderError if a write failed (the log is readable up to the failure)."""
+        if self.write_error is not None:
+            raise RunFolderError(f"{self.run_dir}: {self.write_error}; the log is readable up to that point")
 
     def close(self) -> None:
         """Close the log file and give up the folder lock."""
         with self._lock:
             if not self._file.closed:
-                self._file.close()
+                try:
+                    self._file.close()
+                except OSError:  # the flush of a failed write fails again: already recorded
+                    pass
         self._folder_lock.release()
 
     def __enter__(self) -> RunLog:

@@ -11,6 +11,7 @@ message.
 from __future__ import annotations
 
 import hashlib
+import math
 import platform
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -31,6 +32,7 @@ if TYPE_CHECKING:
     from llmnav.sim.world import World
 
 TRAJECTORY_FILE = "trajectory.png"
+_ADDED_OBSTACLE_SIZE_M = 0.5  # [m] the box World.add_obstacle drops by default
 
 
 class EpisodeSpec(BaseModel):
@@ -124,6 +126,16 @@ def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
     return {"lidar": scenario.sensors.lidar, "camera": camera}
 
 
+def _check_obstacles(scenario: Scenario, start: Pose2D, options: DriveOptions) -> None:
+    """Added obstacles inside the world and clear of the robot's start (bad input, before any folder)."""
+    from llmnav.scenario import check_added_obstacles
+    from llmnav.sim.robot_specs import ROBOT_SPECS
+
+    robot = ROBOT_SPECS.get(scenario.robot)
+    clearance = (robot.radius_m if robot else 0.3) + _ADDED_OBSTACLE_SIZE_M * math.sqrt(0.5)
+    check_added_obstacles(scenario, (start.x, start.y), options.obstacles, clearance)
+
+
 def run_episode(
     spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None
 ) -> dict[str, Any]:
@@ -137,8 +149,12 @@ def run_episode(
     resolved = resolve_task(spec.scenario or None, texts, spec.task_id, spec.start_pose)
     scenario, task = resolved.scenario, resolved.task
     start = resolved.start.pose()
+    _check_obstacles(scenario, start, spec.options)
     planner = get_planner(spec.options.planner)
     prompts = prompt_hashes(planner, spec.options)  # an unknown --prompt fails here, before anything loads
+    check_scenario = getattr(planner, "check_scenario", None)  # a planner that cannot run here: bad input
+    if check_scenario is not None:
+        check_scenario(scenario)
 
     # Backend before the run folder: a missing key or engine is bad input and leaves nothing behind.
     backend = backend_obj
@@ -218,6 +234,7 @@ def _run_logged(
     from llmnav.metrics import summarize_run
     from llmnav.runlog import read_run
 
+    log.check_written()  # a full disk: one error, no summary of a log that stops early
     record = read_run(log.run_dir)
     summary = summarize_run(record, scenario, outcome)
     summary["run_dir"] = str(log.run_dir)

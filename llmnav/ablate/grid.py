@@ -222,7 +222,10 @@ def _factor_options(factors: dict[str, Any]) -> dict[str, Any]:
         if name == "backend":
             continue
         if name == "sensing":
-            options["sensing"] = tuple(part for part in str(value).split("+") if part)
+            parts = tuple(part for part in str(value).split("+") if part)
+            if len(set(parts)) != len(parts):
+                raise BadInputError(f"sensing {value!r}: lists a sensor more than once")
+            options["sensing"] = parts
         elif name == "history":
             options["history"] = str(value)
         else:

@@ -49,6 +49,10 @@ class OllamaBackend(HttpBackend):
     multimodal = True
     options_model: ClassVar[type[HttpOptions]] = OllamaOptions
 
+    def __init__(self, arg: str | None = None, **options: Any) -> None:
+        super().__init__(arg, **options)
+        ollama_host(self.settings.base_url)  # a malformed OLLAMA_HOST is bad input now, not an aborted run
+
     def _make_client(self) -> JsonHttpClient:
         return JsonHttpClient(self.name, ollama_host(self.settings.base_url), self.settings)
 

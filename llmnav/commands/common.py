@@ -27,6 +27,7 @@ from llmnav.reporting.safe import esc
 
 __all__ = [
     "OutputError",
+    "chart_folder_option",
     "check_output_path",
     "cli_errors",
     "console",
@@ -34,6 +35,7 @@ __all__ = [
     "esc",
     "fail",
     "path_option",
+    "plot_option",
     "print_data",
     "stdout",
 ]
@@ -134,6 +136,35 @@ def path_option(text: str | None, flag: str) -> Path | None:
     if not text.strip():
         raise BadInputError(f"{flag}: empty path; give a file or folder name")
     return Path(text)
+
+
+PLOT_FORMATS = (".png", ".pdf", ".svg")
+
+
+def plot_option(text: str | None, flag: str = "--plot") -> Path | None:
+    """A figure path checked before any work: a file name (not a folder) with a format matplotlib writes.
+
+    No suffix means PNG, and the suffix is added here, so the path reported is the path written.
+    """
+    path = path_option(text, flag)
+    if path is None or text is None:
+        return None
+    if text.endswith(("/", os.sep)) or path.is_dir():
+        raise BadInputError(f"{flag} {text}: a folder; give a file name such as {path / 'plot.png'}")
+    if not path.suffix:
+        path = path.with_name(path.name + ".png")
+    elif path.suffix.lower() not in PLOT_FORMATS:
+        raise BadInputError(f"{flag} {text}: cannot draw a '{path.suffix}' file; use {', '.join(PLOT_FORMATS)}")
+    if path.parent.exists() and not path.parent.is_dir():
+        raise BadInputError(f"{flag} {text}: {path.parent} is not a folder")
+    check_output_path(path, flag)
+    return path
+
+
+def chart_folder_option(path: Path | None, flag: str = "--plot") -> None:
+    """Refuse a file-like name for an option that is a folder of charts (it would become a folder)."""
+    if path is not None and (path.suffix.lower() in PLOT_FORMATS or (path.exists() and not path.is_dir())):
+        raise BadInputError(f"{flag} {path}: the charts go into a folder; give a folder name such as 'charts'")
 
 
 def check_output_path(out: Path, flag: str, inputs: Sequence[Path] = ()) -> None:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from llmnav.commands.common import cli_errors, console, esc, path_option, print_data
+from llmnav.commands.common import cli_errors, console, esc, path_option, plot_option, print_data
 from llmnav.errors import BadInputError, printable
 
 if TYPE_CHECKING:
@@ -35,7 +35,7 @@ def plan(
     backend: Annotated[str, typer.Option(help="Model backend spec NAME[:ARG].")] = "local",
     max_generations: Annotated[int, typer.Option("--max-generations", help="Attempts before giving up.")] = 5,
     seed: Annotated[int, typer.Option(help="Model seed.")] = 0,
-    plot: Annotated[Path | None, typer.Option(help="Write the plan figure here (PNG).")] = Path("plan.png"),
+    plot: Annotated[str | None, typer.Option(help="Write the plan figure here (PNG).")] = "plan.png",
     json_output: Annotated[bool, typer.Option("--json", help="Print the plan as JSON only.")] = False,
     execute: Annotated[bool, typer.Option(help="Drive the valid plan (drive --planner waypoints).")] = False,
     out: Annotated[str | None, typer.Option(help="Run folder for --execute.")] = None,
@@ -47,6 +47,7 @@ def plan(
     from llmnav.tasks import resolve_task
 
     out_dir = path_option(out, "--out")
+    plot_path = plot_option(plot)  # checked before any model work
     if (task is None) == (task_audio is None):
         raise BadInputError("give exactly one of --task TEXT or --task-audio FILE.wav")
     if task_audio is not None:
@@ -74,14 +75,15 @@ def plan(
             sc, target, start, call, max_generations=max_generations, grid=build_grid(sc), seed=seed
         )
         result.planning_time_s += grounding_s
-        if plot is not None:
+        if plot_path is not None:
             from llmnav.reporting.planplot import plot_plan
 
-            plot_plan(sc, result, start, plot)
+            plot_path.parent.mkdir(parents=True, exist_ok=True)
+            plot_plan(sc, result, start, plot_path)
         if json_output:
             print_data(json.dumps(plan_summary(result)))
         else:
-            _print_plan(result, sc.name, plot)
+            _print_plan(result, sc.name, plot_path)
         if result.waypoints is None:
             raise typer.Exit(1)
         if execute:

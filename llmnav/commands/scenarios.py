@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console, esc
+from llmnav.commands.common import cli_errors, console, esc, plot_option
 from llmnav.errors import BadInputError
 from llmnav.scenario import Scenario, Task, list_scenarios, load_scenario
 
@@ -66,10 +65,11 @@ def list_command() -> None:
 @cli_errors
 def show(
     name: Annotated[str, typer.Argument(help="Bundled scenario name or path to a scenario YAML file.")],
-    plot: Annotated[Path | None, typer.Option("--plot", help="Write a top view PNG to this file.")] = None,
+    plot: Annotated[str | None, typer.Option("--plot", help="Write a top view PNG to this file.")] = None,
     task: Annotated[str | None, typer.Option("--task", help="Only this task (id), also in the plot.")] = None,
 ) -> None:
     """A scenario's tasks (id, kind, difficulty, text, targets, start poses); optionally its top view."""
+    plot_path = plot_option(plot)
     scenario = load_scenario(name)
     chosen: Task | None = None
     if task is not None:
@@ -91,8 +91,8 @@ def show(
         starts = "\n".join(f"{s.x:g}, {s.y:g} @ {s.yaw_deg:g}°" for s in scenario.start_poses(t))
         table.add_row(esc(t.id), t.kind, t.difficulty, esc(t.text), esc(_targets(scenario, t)), starts)
     console.print(table)
-    if plot is not None:
+    if plot_path is not None:
         from llmnav.reporting.topview import plot_scenario  # matplotlib only when a plot is asked for
 
-        written = plot_scenario(scenario, plot, task=chosen)
+        written = plot_scenario(scenario, plot_path, task=chosen)
         console.print(f"top view written to {esc(written)}", highlight=False, soft_wrap=True)

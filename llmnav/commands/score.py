@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from llmnav.commands.common import check_output_path, cli_errors, console, esc
+from llmnav.commands.common import chart_folder_option, check_output_path, cli_errors, console, esc
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -48,6 +48,7 @@ def score(
 
     if out is not None:
         check_output_path(out, "--out", paths)
+    chart_folder_option(plot)
     runs = load_runs(paths)
     keys = varying_keys(runs) if by is None else parse_keys(by)
     tables = build_tables(runs, keys)
