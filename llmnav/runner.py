@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
-from llmnav.errors import LlmnavError, one_line
+from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, NullView, View
 from llmnav.scenario import resolve_scenario_path
 
@@ -32,6 +32,8 @@ if TYPE_CHECKING:
     from llmnav.sim.world import World
 
 TRAJECTORY_FILE = "trajectory.png"
+# Errors that end an episode "aborted" without saying anything about navigation: no answer came.
+BACKEND_FAILURES = (ModelError, ReplayDivergenceError, BadInputError)
 _ADDED_OBSTACLE_SIZE_M = 0.5  # [m] the box World.add_obstacle drops by default
 
 
@@ -114,7 +116,7 @@ def build_config(
         "options": spec.options.model_dump(mode="json"),
         "seed": spec.options.seed,
         "prompt_hashes": prompts,
-        **({"condition": spec.condition} if spec.condition else {}),
+        **({"condition_hash": spec.condition} if spec.condition else {}),
     }
 
 
@@ -211,7 +213,9 @@ def _run_logged(
     try:
         outcome = planner.run(ctx)
     except LlmnavError as err:
-        outcome = EpisodeOutcome("aborted", one_line(err))
+        # `failure` tells a resume what to run again: the model or server failing (not a navigation result)
+        failure = "backend" if isinstance(err, BACKEND_FAILURES) else "model"
+        outcome = EpisodeOutcome("aborted", one_line(err), metrics={"failure": failure})
     except BaseException as err:  # a bug or Ctrl-C: keep the log valid, then let it propagate
         crash = err
         reason = (

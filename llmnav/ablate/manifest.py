@@ -14,9 +14,24 @@ MANIFEST_FILE = "manifest.json"
 Status = Literal["pending", "done", "error"]
 
 
-# Navigation outcomes that are results. "aborted" (auth, connection, server error, replay divergence, a
-# crash) says nothing about navigation: it is an error, and the next resume runs the episode again.
+# Navigation outcomes that are results. An episode aborted because no answer came (auth, connection,
+# server error, replay divergence: the runner logs failure "backend") or by a crash says nothing about
+# navigation: it is an error, and the next resume runs it again. Aborted by the model's own answers (no
+# valid action after the corrections, every motion vetoed) is a result: rerunning it until it passes
+# would bias the tables.
 DONE_OUTCOMES = ("completed", "failed")
+
+
+def is_result(summary: dict[str, Any]) -> bool:
+    """Whether a summary is a navigation result (else an error to run again)."""
+    reason = str(summary.get("reason") or "")
+    if summary.get("cut_short") or reason.startswith(("crash", "interrupted")):
+        return False
+    if summary.get("outcome") in DONE_OUTCOMES:
+        return True
+    metrics = summary.get("planner_metrics") or {}
+    # a planner's own "aborted" (no valid action, every motion vetoed) carries no failure mark: a result
+    return summary.get("outcome") == "aborted" and metrics.get("failure") != "backend"
 
 
 @dataclass
@@ -50,7 +65,7 @@ class ManifestEntry:
         self.outcome = summary.get("outcome")
         self.success = bool(summary.get("success"))
         self.score = summary.get("score")
-        if self.outcome in DONE_OUTCOMES and not summary.get("cut_short"):
+        if is_result(summary):
             self.status, self.error = "done", None
         else:
             self.status = "error"

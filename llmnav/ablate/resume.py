@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from llmnav.ablate.grid import Episode
-from llmnav.ablate.manifest import DONE_OUTCOMES
+from llmnav.ablate.manifest import is_result
 from llmnav.errors import FolderLockedError
 from llmnav.locking import locked_by
 from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, write_json_atomic
@@ -77,7 +77,7 @@ def inspect(run_dir: Path, ep: Episode) -> tuple[str, dict[str, Any] | None, str
     config = _read_config(run_dir)
     if isinstance(config, str):
         return "retry", None, config
-    if config.get("condition") != ep.identity:
+    if config.get("condition_hash") != ep.identity:
         return "other", None, "another condition"
     summary = _read_summary(run_dir)
     if isinstance(summary, str):
@@ -85,7 +85,7 @@ def inspect(run_dir: Path, ep: Episode) -> tuple[str, dict[str, Any] | None, str
     reason = str(summary.get("reason") or "")
     if summary.get("cut_short") or reason.startswith(("crash", "interrupted")):
         return "retry", None, f"cut short ({reason or 'no end'})"
-    if summary.get("outcome") not in DONE_OUTCOMES:
+    if not is_result(summary):
         return "retry", None, f"{summary.get('outcome')}: {reason or 'no reason logged'}"
     return "done", summary, ""
 

@@ -68,7 +68,7 @@ def mislabelled(ablation: lib.Ablation) -> list[str]:
             continue
         config = read_run(ablation.root / entry["dir"]).config
         ep = by_key[entry["key"]]
-        if config.get("condition") != ep.identity or config.get("backend") != ep.backend:
+        if config.get("condition_hash") != ep.identity or config.get("backend") != ep.backend:
             wrong.append(entry["key"])
     return wrong
 
@@ -379,3 +379,48 @@ def test_huge_reply_is_capped_in_the_log(tmp_path: Path, tally: Any) -> None:
     text = last["reply"]["text"]
     assert text.startswith("{xxx") and text.endswith("xx}") and "not logged" in text
     tally.add(CATEGORY, tried=1)
+
+
+# --- aborted by a backend failure: an error, retried; aborted by the model's answers: a result ------------
+
+
+def aborting_runner(failure: str | None, ran: list[str]) -> Any:
+    """A runner whose episodes all end "aborted", marked as the runner marks them (or not at all)."""
+    from llmnav.metrics import summarize_run
+    from llmnav.runlog import write_json_atomic
+    from score_fakes import tiny_scenario
+
+    def run(spec: Any) -> dict[str, Any]:
+        ran.append(Path(spec.out_dir).name)
+        options = spec.options.model_dump(mode="json")
+        config = config_for(spec.task_id, options=options, start_pose_index=spec.start_pose, seed=options["seed"],
+                            backend=spec.backend, condition=spec.condition)
+        metrics = {"failure": failure} if failure else {}
+        write_run(Path(spec.out_dir), config, [[0.0, 0.0, 0.0]], outcome="aborted", metrics=metrics)
+        summary = summarize_run(read_run(Path(spec.out_dir)), tiny_scenario())
+        write_json_atomic(Path(spec.out_dir) / SUMMARY_FILE, summary)
+        return summary
+
+    return run
+
+
+def test_backend_failures_are_errors_and_retried(scenario: Path, tmp_path: Path, tally: Any) -> None:
+    out = tmp_path / "ab"
+    first: list[str] = []
+    ab = lib.run(lib.plan(grid(scenario), out), runner=aborting_runner("backend", first))
+    assert ab.counts() == (0, 0, ab.size)  # no episode done, every one an error
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["done"] == 0 and manifest["errors"] == ab.size
+    assert all(e["status"] == "error" and e["error"].startswith("aborted") for e in manifest["episodes"])
+    before = tree(out)
+    counter = CountingRunner()
+    again = lib.run(lib.plan(grid(scenario), out), runner=counter)
+    assert sorted(counter.ran) == sorted(name + ".2" for name in first)  # retried, into new folders
+    assert again.counts()[0] == again.size and not kept(before, tree(out)) and not mislabelled(again)
+    # the planner's own "aborted" (the model never gave a valid action) is a result: kept, not rerun
+    model_out = tmp_path / "model"
+    lib.run(lib.plan(grid(scenario), model_out), runner=aborting_runner(None, []))
+    rerun = CountingRunner()
+    done = lib.run(lib.plan(grid(scenario), model_out), runner=rerun)
+    assert rerun.ran == [] and done.counts()[0] == done.size
+    tally.add(CATEGORY, tried=2)

@@ -108,7 +108,7 @@ def config_for(
         "backend": backend,
         "options": opts,
         "seed": seed,
-        **({"condition": condition} if condition else {}),
+        **({"condition_hash": condition} if condition else {}),
     }
 
 
