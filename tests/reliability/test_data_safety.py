@@ -386,9 +386,10 @@ def test_huge_reply_is_capped_in_the_log(tmp_path: Path, tally: Any) -> None:
 
 def aborting_runner(failure: str | None, ran: list[str]) -> Any:
     """A runner whose episodes all end "aborted", marked as the runner marks them (or not at all)."""
+    from score_fakes import tiny_scenario
+
     from llmnav.metrics import summarize_run
     from llmnav.runlog import write_json_atomic
-    from score_fakes import tiny_scenario
 
     def run(spec: Any) -> dict[str, Any]:
         ran.append(Path(spec.out_dir).name)
