@@ -9,8 +9,8 @@ import pytest
 from scipy.sparse import lil_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from llmnav.baselines.astar import astar, densify, line_of_sight, octile_distance, polyline_length, shortcut
 from llmnav.errors import BadInputError
+from llmnav.mapping.astar import astar, densify, line_of_sight, octile_distance, polyline_length, shortcut
 
 
 def reference_distance(blocked: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> float:
