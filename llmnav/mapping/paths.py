@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from llmnav.mapping.astar import astar, polyline_length, shortcut
+from llmnav.geometry import path_length
+from llmnav.mapping.astar import astar, shortcut
 from llmnav.mapping.grid import nearest_free_cell
 
 if TYPE_CHECKING:
@@ -39,4 +40,4 @@ def shortest_path_length(scenario: Scenario, start: Point, goal: Point) -> float
     from llmnav.mapping.targets import scenario_grid
 
     path = plan_path(scenario_grid(scenario), start, goal)
-    return None if path is None else polyline_length(path)
+    return None if path is None else path_length(path)

@@ -35,8 +35,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from llmnav.errors import BadInputError
-from llmnav.geometry import Pose2D
-from llmnav.mapping.astar import GridPath, astar, densify, polyline_length, shortcut
+from llmnav.geometry import Pose2D, path_length
+from llmnav.mapping.astar import GridPath, astar, densify, shortcut
 from llmnav.mapping.grid import Cell, GridConfig, OccupancyGrid, build_grid, nearest_free_cell
 
 if TYPE_CHECKING:
@@ -165,8 +165,8 @@ def plan_to_targets(
         points=points,
         grid_points=grid_points,
         waypoints=waypoints,
-        length_m=polyline_length(points),
-        grid_length_m=polyline_length(grid_points),
+        length_m=path_length(points),
+        grid_length_m=path_length(grid_points),
     )
 
 

@@ -480,7 +480,7 @@ class FsmPlanner(Planner):
         return Suggestion(now, now + result.latency_s, result.text, result.latency_s)
 
     def _metrics(self, ctx: EpisodeContext, stats: FsmStats, final: Any, start: Any) -> dict[str, Any]:
-        from llmnav.metrics import path_length
+        from llmnav.geometry import path_length
         from llmnav.runlog import read_run
 
         target = self._stop_point(ctx) if ctx.task.targets else None
