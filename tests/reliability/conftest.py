@@ -32,7 +32,8 @@ JSON_ENV = "LLMNAV_RELIABILITY_JSON"
 
 # test module stem → table category
 CATEGORIES = {
-    "test_fuzz": "guard fuzzing",
+    "test_fuzz": "fuzz: stepwise",
+    "test_fuzz_planners": "fuzz: other planners",
     "test_backend_faults": "backend faults",
     "test_crash": "crash safety",
     "test_bad_input": "bad input",

@@ -1,5 +1,5 @@
-"""Guard fuzzing: hostile and malformed model answers, straight into the guard and through whole stepwise
-episodes in the simulator.
+"""Stepwise fuzzing: hostile and malformed model answers, straight into the guard and through whole stepwise
+episodes in the simulator (the other planners: test_fuzz_planners.py).
 
 Properties:
 - the guard never raises and classifies every answer (ok | parse | schema | bounds);
@@ -34,7 +34,7 @@ from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 from llmnav.scenario import load_scenario
 
-CATEGORY = "guard fuzzing"
+CATEGORY = "fuzz: stepwise"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 MAX_STEP_M = 5.0  # [m] DriveOptions default
 BOUNDS = ActionBounds(max_step_m=MAX_STEP_M)
