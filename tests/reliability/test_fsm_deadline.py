@@ -6,7 +6,8 @@ short run. The load it adds is one worker thread that sleeps (no CPU) beside the
 what it asserts is the controller's own work — every tick within P99_LIMIT_MS at p99 and none near a
 20 ms slot — because missed slots also count the detector and physics, which other processes on a
 loaded machine can delay (misses and the load average are recorded in the reliability table).
-Full run: the real local model (llama.cpp in process) answering the FSM's state JSON, plus a second thread keeping it generating all the time, for ≥ 10 000 ticks on maze_arena (≈ 200 s wall).
+Full run: the real local model (llama.cpp in process) answering the FSM's state JSON, plus a second
+thread keeping it generating all the time, for ≥ 10 000 ticks on maze_arena (≈ 200 s wall).
 """
 
 from __future__ import annotations
