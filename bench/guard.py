@@ -1,6 +1,6 @@
 """Guard overhead: parse_answer per answer over a realistic mix, and the safety veto per check.
 
-Targets: median parse ≤ 1 ms per answer, veto check far below a LiDAR scan (≈ 1.5 ms, SPEC F).
+Targets: median parse ≤ 1 ms per answer, veto check far below a LiDAR scan (≈ 1.5 ms, docs/sources.md, M).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Hybrid planner: the model picks one numbered option; A* and the motion layer carry it out.
 
 Beyond the three sources. A small local model writes absurd free-form actions but can choose among a few
-well-described options under a grammar (SPEC E), so each decision offers:
+well-described options under a grammar (docs/sources.md, M), so each decision offers:
 - go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
   the waypoint source), otherwise only objects the detector has seen, each with distance, bearing and
   whether its name matches the task;
