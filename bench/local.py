@@ -1,4 +1,4 @@
-"""Benchmark of the embedded `local` backend (SmolLM2-135M via xllamacpp) against the measured speeds in docs/sources.md (M).
+"""Benchmark of the embedded `local` backend (SmolLM2-135M via xllamacpp) against docs/sources.md (M).
 
 Measures cold load, the first (cold-cache) stepwise decision, warm decisions (system prompt served from
 the KV cache), decode speed and the process's peak RSS, and prints them beside the targets.
@@ -17,7 +17,7 @@ from llmnav.backends.base import ChatRequest, ChatResult, Message
 from llmnav.backends.local import LocalBackend
 
 REPEATS = 5  # warm decisions measured
-# llama.cpp threads: the measured speeds (docs/sources.md, M) used 2; on a busy 2-core box 1 is far faster (see local.py).
+# llama.cpp threads: docs/sources.md (M) was measured with 2; on a busy 2-core box 1 is far faster (local.py).
 THREADS = int(os.environ.get("LLMNAV_LOCAL_THREADS", "2"))
 MAX_TOKENS = 160  # [tokens] budget of one stepwise answer
 
