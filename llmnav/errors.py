@@ -54,7 +54,15 @@ class PromptTemplateError(BadInputError):
     """A prompt template is unknown or malformed, or a value it needs was not given (the message names it)."""
 
 
-def one_line(err: BaseException) -> str:
-    """An error's message as one line for logs and the terminal (its class name when it has no message)."""
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
+def one_line(value: BaseException | str, limit: int | None = None) -> str:
+    """One line for logs and the terminal, at most `limit` characters (shortened with "…").
+
+    An error gives its message's first line (its class name when it has no message); a text (a server's
+    reply, an engine's complaint) is flattened, every run of whitespace becoming one space.
+    """
+    if isinstance(value, BaseException):
+        text = str(value).strip()
+        line = text.splitlines()[0] if text else type(value).__name__
+    else:
+        line = " ".join(str(value).split())
+    return line if limit is None or len(line) <= limit else line[: limit - 1] + "…"

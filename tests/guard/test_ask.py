@@ -8,12 +8,11 @@ from typing import Any
 from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.guard.ask import CallContext, ask_guarded
 from llmnav.guard.parse import correction_message, parse_answer
-from llmnav.guard.schemas import ActionBounds, StepAction, response_schema
+from llmnav.guard.schemas import ActionBounds, StepAction, response_schema, step_answer
 
 
 def step(command: str, parameters: float) -> str:
-    action = {"command": command, "parameters": parameters}
-    return json.dumps({"goal": "g", "reasoning": "r", "scene_description": "s", "action": action})
+    return json.dumps(step_answer(command, parameters))
 
 
 class Scripted:

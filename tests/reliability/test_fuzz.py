@@ -25,7 +25,7 @@ import pytest
 
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.guard.parse import parse_answer
-from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction
+from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, step_answer
 from llmnav.guard.veto import check_motion
 from llmnav.metrics import summarize_run
 from llmnav.planners.base import DriveOptions
@@ -69,15 +69,7 @@ HOSTILE_PROSE = [
 ]
 
 
-def action(command: Any, parameters: Any, **extra: Any) -> dict[str, Any]:
-    body: dict[str, Any] = {
-        "goal": "reach the target",
-        "reasoning": "it seems right",
-        "scene_description": "a room with walls",
-        "action": {"command": command, "parameters": parameters},
-    }
-    body.update(extra)
-    return body
+action = step_answer
 
 
 def fenced(text: str) -> str:
