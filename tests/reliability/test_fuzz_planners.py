@@ -366,3 +366,16 @@ def test_every_planner_full(tmp_path: Path, tally: Any) -> None:
         fuzz_baseline_episode(tmp_path, "oracle", seed, tally)
     for seed in range(20, 23):
         fuzz_baseline_episode(tmp_path, "frontier", seed, tally)
+
+
+def test_the_geometry_check_catches_an_unsafe_motion() -> None:
+    # The checker can fail: a pose inside small_room's south wall and a collided action are both reported.
+    class Record:
+        def of_type(self, kind: str) -> list[dict[str, Any]]:
+            if kind == "pose":
+                return [{"pose": [4.0, 3.0, 0.0]}, {"pose": [4.0, 0.3, 0.0]}]
+            return [{"command": "GO_TO", "collided": True, "collision_with": "wall-south"}]
+
+    scenario = load_scenario(SMALL_ROOM)
+    problems = unsafe_motions(Record(), scenario, ROBOT_SPECS[scenario.robot].radius_m)
+    assert len(problems) == 2 and "overlaps a solid" in problems[0] and "collided" in problems[1]
