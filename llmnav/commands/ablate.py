@@ -72,11 +72,11 @@ def ablate(
             flags[key] = lib.split_list(value)
     data.update({k: v for k, v in flags.items() if v is not None})
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
-    _note_inapplicable(spec)
     root = out if out is not None else Path("ablations") / spec.default_name()
     ablation = lib.plan(spec, root)
     if dry_run:
         _print_plan(ablation)
+        _note_inapplicable(spec)
         return
     with _progress() as progress:
         lib.run(
@@ -88,6 +88,7 @@ def ablate(
             on_result=progress.advance,
         )
     _print_results(ablation)
+    _note_inapplicable(spec)  # after the work: a failure stays one error line
 
 
 def _note_inapplicable(spec: Any) -> None:

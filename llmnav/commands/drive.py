@@ -141,7 +141,6 @@ def drive(
         )
     except ValidationError as err:
         raise _option_error(err) from None
-    _note_inapplicable(options)
     backend_spec = _with_replay_mode(backend, replay_loose)
     scenario_name = scenario or default_scenario(texts, task_id)
     spec = EpisodeSpec(
@@ -155,6 +154,7 @@ def drive(
         quiet=quiet or json_output,
     )
     summary = _run_with_view(spec, quiet=quiet, json_output=json_output)
+    _note_inapplicable(options)  # after the run: a failure to start stays one error line
     if json_output:
         console.print(json.dumps(summary, default=str), markup=False, highlight=False, soft_wrap=True)
     else:
