@@ -20,7 +20,7 @@ from llmnav.planners.base import DriveOptions
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 
-WARM_DECISION_S = (1.6, 2.3)  # [s] warm local-model decision (SPEC E)
+WARM_DECISION_S = (1.6, 2.3)  # [s] warm local-model decision (docs/sources.md, M)
 TARGET_SHARE = 0.10
 ITERATIONS = 12
 REPEATS = 3

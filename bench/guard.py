@@ -1,6 +1,8 @@
-"""Guard overhead: parse_answer per answer over a realistic mix, and the safety veto per check.
+"""Guard overhead: parse_answer per answer over a realistic mix, the safety veto per check, and what the
+guarded motion layer adds to a 50 Hz velocity tick (kinematic box + time to collision, a scan every 0.1 s).
 
-Targets: median parse ≤ 1 ms per answer, veto check far below a LiDAR scan (≈ 1.5 ms, SPEC F).
+Targets: median parse ≤ 1 ms per answer, veto check far below a LiDAR scan (≈ 1.5 ms, docs/sources.md, M),
+the layer's cost per velocity tick ≤ 1 ms (a 20 ms slot also holds the detector and the physics).
 """
 
 from __future__ import annotations
@@ -21,6 +23,47 @@ from llmnav.sim.sensors import LidarScan as Scan
 
 PARSE_TARGET_MS = 1.0
 VETO_TARGET_MS = 1.5  # one LiDAR scan's cost: the veto should be small next to it
+TICK_TARGET_MS = 1.0  # [ms] the motion layer's share of a 20 ms velocity tick
+TICKS = 500
+
+
+class _Sink:
+    sim_time = 0.0
+
+    def event(self, kind: str, **fields: object) -> None:
+        pass
+
+
+def _tick_overhead_ms() -> tuple[float, float]:
+    """Mean wall time [ms] of a raw and of a guarded velocity tick, driving toward a wall 2 m away.
+
+    The mean, not the median: the layer's scan every 0.1 s (one tick in five) is the cost that matters.
+    """
+    from llmnav.geometry import Pose2D
+    from llmnav.guard.view import PlannerWorld
+    from llmnav.scenario import parse_scenario
+    from llmnav.sim.world import World
+
+    scenario = parse_scenario(
+        {
+            "name": "bench",
+            "robot": "burger",
+            "bounds": {"x": [-1, 4], "y": [-2, 2]},
+            "walls": [{"id": "east", "center": [3.0, 0.0], "size": [0.2, 4.0]}],
+            "default_start": {"x": 0.0, "y": 0.0},
+        },
+        "bench",
+    )
+    with World(scenario) as world:
+        view = PlannerWorld(world, _Sink())
+        timings: dict[str, list[float]] = {"raw": [], "guarded": []}
+        for name, tick in (("raw", world.motion.velocity_tick), ("guarded", view.motion.velocity_tick)):
+            world.reset(Pose2D(0.8, 0.0, 0.0))
+            for _ in range(TICKS):
+                start = time.perf_counter()
+                tick(0.06, 0.1, 0.02)
+                timings[name].append(time.perf_counter() - start)
+    return statistics.fmean(timings["raw"]) * 1000.0, statistics.fmean(timings["guarded"]) * 1000.0
 
 
 def _answer(rng: random.Random) -> dict[str, object]:
@@ -107,6 +150,12 @@ def main() -> None:
     print(
         f"  veto check (360 rays) median {veto:.3f} ms vs target {VETO_TARGET_MS} ms "
         f"(ratio {veto / VETO_TARGET_MS:.2f})"
+    )
+    raw, guarded = _tick_overhead_ms()
+    extra = guarded - raw
+    print(
+        f"  velocity tick over {TICKS} ticks: raw {raw:.3f} ms, guarded {guarded:.3f} ms mean; the layer adds "
+        f"{extra:.3f} ms vs target {TICK_TARGET_MS} ms (ratio {extra / TICK_TARGET_MS:.2f})"
     )
 
 

@@ -1,4 +1,4 @@
-"""Benchmark of the embedded `local` backend (SmolLM2-135M via xllamacpp) against SPEC section E.
+"""Benchmark of the embedded `local` backend (SmolLM2-135M via xllamacpp) against docs/sources.md (M).
 
 Measures cold load, the first (cold-cache) stepwise decision, warm decisions (system prompt served from
 the KV cache), decode speed and the process's peak RSS, and prints them beside the targets.
@@ -17,7 +17,7 @@ from llmnav.backends.base import ChatRequest, ChatResult, Message
 from llmnav.backends.local import LocalBackend
 
 REPEATS = 5  # warm decisions measured
-# llama.cpp threads: SPEC E was measured with 2; on a busy 2-core box 1 is far faster (see local.py).
+# llama.cpp threads: docs/sources.md (M) was measured with 2; on a busy 2-core box 1 is far faster (local.py).
 THREADS = int(os.environ.get("LLMNAV_LOCAL_THREADS", "2"))
 MAX_TOKENS = 160  # [tokens] budget of one stepwise answer
 
@@ -89,7 +89,7 @@ STEP_SCHEMA = {
     "required": ["goal", "reasoning", "scene_description", "action"],
 }
 
-# Targets from SPEC section E (xllamacpp on these machines).
+# Targets: the measured speeds in docs/sources.md (M), xllamacpp on these machines.
 TARGET_LOAD = (0.9, 1.1)  # [s]
 TARGET_WARM = (1.6, 2.3)  # [s]
 TARGET_DECODE = (35.0, 40.0)  # [tok/s] generation under grammar

@@ -86,14 +86,14 @@ def main() -> None:
         f"[bench.sim] scenario {scenario.name} ({scenario.robot}), medians of {REPEATS} runs, load {load:.1f}"
     )
     print(f"  {'':<42} {'wall':>9} {'cpu':>9}")
-    _row("connect + world + robot", build_ms, "ms", "(SPEC ~35 ms, one sample)", cpu=False)
+    _row("connect + world + robot", build_ms, "ms", "(measured ~35 ms, one sample)", cpu=False)
 
     step_idle = _median_ms(lambda: world.step(240), per=240)
-    _row("physics step, idle robot", step_idle, "ms", "(SPEC 0.07-0.17 ms)")
+    _row("physics step, idle robot", step_idle, "ms", "(measured 0.07-0.17 ms)")
     world.robot.set_velocity(0.0, world.robot.spec.max_angular)
     step_moving = _median_ms(lambda: world.step(240), per=240)
     world.robot.halt()
-    _row("physics step, turning robot", step_moving, "ms", "(SPEC 0.07-0.17 ms)")
+    _row("physics step, turning robot", step_moving, "ms", "(measured 0.07-0.17 ms)")
     world.reset(start)
     world.step(24000)  # 100 s idle: contacts must not pile up and slow the steps
     step_late = _median_ms(lambda: world.step(240), per=240)
@@ -113,9 +113,9 @@ def main() -> None:
     )
 
     cam_big = _median_ms(lambda: world.camera.capture().jpeg_b64(80), repeats=5)
-    _row("camera 640x480 + JPEG/base64", cam_big, "ms", "(SPEC ~100 ms)")
+    _row("camera 640x480 + JPEG/base64", cam_big, "ms", "(measured ~100 ms)")
     cam_small = _median_ms(lambda: world.camera.capture(width=320, height=240).jpeg_b64(80), repeats=5)
-    _row("camera 320x240 + JPEG/base64", cam_small, "ms", "(SPEC ~25 ms)")
+    _row("camera 320x240 + JPEG/base64", cam_small, "ms", "(measured ~25 ms)")
     detect_ms = _median_ms(world.detector.detect, repeats=5)
     _row("detector (own 160x120 segmentation frame)", detect_ms, "ms", "")
 
@@ -136,12 +136,12 @@ def main() -> None:
     step_ms = _median_ms(lambda: decision(False))
     rtf = statistics.median(sim_times) / (step_ms / 1000.0)
     _row("decision step: 1 m move + LiDAR", step_ms, "ms", _target(step_ms, 60.0))
-    _row("  real-time factor (wall)", rtf, "x", "(SPEC ~55x)")
+    _row("  real-time factor (wall)", rtf, "x", "(measured ~55x)")
     sim_times.clear()
     step_cam_ms = _median_ms(lambda: decision(True))
     rtf_cam = statistics.median(sim_times) / (step_cam_ms / 1000.0)
     _row("decision step + 640x480 camera", step_cam_ms, "ms", _target(step_cam_ms, 150.0))
-    _row("  real-time factor (wall)", rtf_cam, "x", "(SPEC ~20x)")
+    _row("  real-time factor (wall)", rtf_cam, "x", "(measured ~20x)")
 
     world.reset(start)
     turn_ms = _median_ms(lambda: world.motion.rotate(math.pi / 2))

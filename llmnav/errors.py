@@ -77,12 +77,17 @@ def printable(text: str) -> str:
     return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
-def one_line(err: BaseException | str) -> str:
-    """An error (or any text) as one printable line: its first non-empty line, control characters escaped.
+def one_line(value: BaseException | str, limit: int | None = None) -> str:
+    """One printable line for logs and the terminal, at most `limit` characters (shortened with "…").
 
-    An error with no message gives its class name.
+    An error gives its message's first line (its class name when it has no message); a text (a server's
+    reply, an engine's complaint) is flattened, every run of whitespace becoming one space. Control
+    characters are escaped either way.
     """
-    text = str(err).strip()
-    if not text:
-        return type(err).__name__ if isinstance(err, BaseException) else ""
-    return printable(text.splitlines()[0].strip())
+    if isinstance(value, BaseException):
+        text = str(value).strip()
+        line = text.splitlines()[0].strip() if text else type(value).__name__
+    else:
+        line = " ".join(str(value).split())
+    line = printable(line)
+    return line if limit is None or len(line) <= limit else line[: limit - 1] + "…"

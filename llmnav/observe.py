@@ -14,15 +14,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from llmnav.backends.base import ChatRequest, ChatResult, Image, Message
+from llmnav.chat import ChatRequest, ChatResult, Image, Message
 from llmnav.errors import LlmnavError, one_line
 
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
+    from llmnav.guard.view import PlannerWorld
     from llmnav.planners.base import DriveOptions, EpisodeContext
     from llmnav.runlog import RunLog
     from llmnav.sim.sensors import Detection, LidarScan
-    from llmnav.sim.world import World
 
 
 @dataclass
@@ -61,7 +61,7 @@ def lidar_text(scan: LidarScan, options: DriveOptions) -> tuple[float | None, st
     return summary.front_m, summary.text()
 
 
-def observe(world: World, options: DriveOptions, log: RunLog, step: int) -> Observation:
+def observe(world: PlannerWorld, options: DriveOptions, log: RunLog, step: int) -> Observation:
     """Read the sensors `options.sensing` asks for, log the `observation` event, return it."""
     from llmnav.perception import detections_text
 

@@ -4,7 +4,7 @@ Pure functions on duck-typed inputs: a scan is anything with `.angles` [rad, CCW
 the heading] and `.ranges` [m, inf where nothing is within range] (optionally `.range_max` [m]); a
 detection anything with the fields of `llmnav.sim.sensors.Detection`.
 
-The LiDAR summary follows the stepwise source (SPEC A): the field of view centred on the heading is cut
+The LiDAR summary follows the stepwise source (docs/sources.md, A): the field of view centred on the heading is cut
 into N equal sectors, each reported by its closest reading and the angle of that reading, plus a front
 distance. Model-facing text uses degrees, positive = to the robot's left, and `inf` for "nothing within
 range"; a sector that no ray covers says "no data" (unknown is not the same as open).

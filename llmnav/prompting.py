@@ -24,7 +24,7 @@ from typing import Any
 from llmnav.errors import PromptTemplateError
 from llmnav.resources import resource_dir
 
-# The stepwise planner's system-prompt variants (SPEC A). "self-check" is the full prompt plus the
+# The stepwise planner's system-prompt variants (docs/sources.md, A). "self-check" is the full prompt plus the
 # `self_check` follow-up after every answer, so as a system prompt it resolves to `full`.
 STEPWISE_VARIANTS = ("full", "short", "full_noconstraints", "short_noconstraints", "no_lidar_guidelines")
 ALIASES = {"self-check": "full", "self_check_variant": "full"}

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from llmnav.backends.base import Image
+from llmnav.chat import Image
 from llmnav.errors import BadInputError, FolderLockedError, RunFolderError
 from llmnav.locking import LOCK_FILE, FolderLock, locked_by
 

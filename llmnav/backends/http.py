@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend
-from llmnav.errors import BackendSpecError, ModelError
+from llmnav.errors import BackendSpecError, ModelError, one_line
 
 if TYPE_CHECKING:
     import httpx
@@ -81,12 +81,6 @@ def redact(text: str, secrets: Iterable[str] = ()) -> str:
         if secret:
             text = text.replace(secret, "***")
     return _SECRET_QUERY.sub(r"\1***", text)
-
-
-def one_line(text: str, limit: int = REASON_CHARS) -> str:
-    """Collapse whitespace and shorten, so a server's words fit in a one-line error."""
-    flat = " ".join(str(text).split())
-    return flat if len(flat) <= limit else flat[: limit - 1] + "…"
 
 
 def parse_retry_delay(value: str, now: datetime | None = None) -> float | None:
@@ -148,12 +142,12 @@ def error_reason(response: httpx.Response) -> str:
         err = data["error"]
         if isinstance(err, dict):  # Gemini / OpenAI: {"error": {"message", "status"|"type", "code"}}
             message = err.get("message") or err.get("status") or err.get("type") or ""
-            return one_line(f"{reason}: {message}" if message else reason)
-        return one_line(f"{reason}: {err}")  # Ollama: {"error": "model not found"}
+            return one_line(f"{reason}: {message}" if message else reason, REASON_CHARS)
+        return one_line(f"{reason}: {err}", REASON_CHARS)  # Ollama: {"error": "model not found"}
     text = response.text.strip()
     if "html" in response.headers.get("content-type", "").lower() or text.lower().startswith(("<!doctype", "<html")):
         text = _HTML_TAG.sub(" ", _HTML_HIDDEN.sub(" ", text))  # a proxy's error page: its words, not markup
-    return one_line(f"{reason}: {text}" if text.strip() else reason)
+    return one_line(f"{reason}: {text}" if text.strip() else reason, REASON_CHARS)
 
 
 def backoff_delay(retry: int, base_s: float, max_s: float, rng: random.Random) -> float:

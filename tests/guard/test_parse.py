@@ -20,6 +20,7 @@ from llmnav.guard.schemas import (
     WaypointList,
     hybrid_choice_model,
     response_schema,
+    step_answer,
     target_choice_model,
 )
 
@@ -27,14 +28,8 @@ BOUNDS = ActionBounds(max_step_m=5.0)
 
 
 def answer(command: str = "FRONT", parameters: object = 1.5, **extra: object) -> str:
-    body: dict[str, object] = {
-        "goal": "reach the pellets",
-        "reasoning": "the aisle ahead is clear",
-        "scene_description": "a long aisle with shelves",
-        "action": {"command": command, "parameters": parameters},
-    }
-    body.update(extra)
-    return json.dumps(body)
+    texts = {"goal": "reach the pellets", "reasoning": "the aisle ahead is clear"}
+    return json.dumps(step_answer(command, parameters, **{**texts, **extra}))
 
 
 def assert_safe(result: GuardResult[StepAction]) -> None:

@@ -17,7 +17,7 @@ import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
-from llmnav.guard.schemas import ActionBounds, StepAction, response_schema
+from llmnav.guard.schemas import ActionBounds, StepAction, response_schema, step_answer
 from llmnav.metrics import summarize_run
 from llmnav.planners.base import DriveOptions
 from llmnav.runlog import RunRecord, read_run
@@ -29,13 +29,7 @@ TASK = "Go to the red box"
 
 
 def answer(command: str, parameters: float) -> str:
-    body = {
-        "goal": "reach the box",
-        "reasoning": f"{command} looks right",
-        "scene_description": "a room",
-        "action": {"command": command, "parameters": parameters},
-    }
-    return f"```json\n{json.dumps(body)}\n```"
+    return f"```json\n{json.dumps(step_answer(command, parameters, reasoning=f'{command} looks right'))}\n```"
 
 
 def script(path: Path, replies: list[str]) -> str:

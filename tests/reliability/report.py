@@ -13,7 +13,16 @@ from pathlib import Path
 from typing import Any
 
 DEFAULT = Path(__file__).parents[2] / ".pytest_cache" / "reliability.json"
-ORDER = ["guard fuzzing", "backend faults", "crash safety", "data safety", "bad input", "secrets", "fsm deadline"]
+PLANNERS = ["stepwise", "waypoints", "hybrid", "fsm", "oracle", "frontier"]
+ORDER = [
+    *(f"fuzz: {p}" for p in PLANNERS),
+    "backend faults",
+    "crash safety",
+    "data safety",
+    "bad input",
+    "secrets",
+    "fsm deadline",
+]
 # Categories whose "logs lost" count results lost or mislabelled: concurrent sweeps, resumes, kills.
 RESULT_CATEGORIES = ("data safety",)
 BAD_FIELDS = ("failures", "unsafe", "lost", "leaked", "crashes")

@@ -23,6 +23,7 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
+from llmnav.guard.schemas import step_answer
 from llmnav.metrics import summarize_run
 from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, RunLog, read_run
 from llmnav.scenario import load_scenario
@@ -33,9 +34,7 @@ LLMNAV = str(Path(sys.executable).parent / "llmnav")
 
 
 def answer(command: str, parameters: float) -> str:
-    body = {"goal": "find the box", "reasoning": "keep looking", "scene_description": "a room",
-            "action": {"command": command, "parameters": parameters}}
-    return f"```json\n{json.dumps(body)}\n```"
+    return f"```json\n{json.dumps(step_answer(command, parameters))}\n```"
 
 
 def replay_script(folder: Path, steps: int) -> str:

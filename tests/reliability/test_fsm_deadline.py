@@ -2,8 +2,12 @@
 latency (tick start → command published) at p99 ≤ 0.5 ms while a model generates in a worker thread.
 
 Quick subset: a scripted backend that sleeps 0.2 s per suggestion (the source's ≈ 5 Hz model) for a
-short run. Full run: the real local model (llama.cpp in process) answering the FSM's state JSON, plus a
-second thread keeping it generating all the time, for ≥ 10 000 ticks on maze_arena (≈ 200 s wall).
+short run. The load it adds is one worker thread that sleeps (no CPU) beside the simulation on one core;
+what it asserts is the controller's own work — every tick within P99_LIMIT_MS at p99 and none near a
+20 ms slot — because missed slots also count the detector and physics, which other processes on a
+loaded machine can delay (misses and the load average are recorded in the reliability table).
+Full run: the real local model (llama.cpp in process) answering the FSM's state JSON, plus a second
+thread keeping it generating all the time, for ≥ 10 000 ticks on maze_arena (≈ 200 s wall).
 """
 
 from __future__ import annotations
@@ -111,10 +115,10 @@ def test_fsm_keeps_its_deadline_with_a_slow_model_quick(
     ticks, missed, p99 = record(tally, [metrics])
     context = note_environment(tally, perception_ms)
     assert ticks == 400 and backend.calls > 0 and metrics["suggestions"] > 0, metrics
-    # The property, not a speed target (those are the full run's: 0 missed, p99 <= 0.5 ms): a loop that
-    # waited for this 200 ms model would lose a deadline and spend >= 200 ms in a tick for every call.
-    assert metrics["tick_latency_ms"]["max"] < 150.0, metrics["tick_latency_ms"]
-    assert missed < backend.calls, f"{missed} missed deadlines for {backend.calls} calls; {context}"
+    # The controller's own tick work (tick start -> command published) stays far inside the 20 ms slot:
+    # a loop that waited for this 200 ms model would spend >= 200 ms in a tick for every call.
+    assert p99 <= P99_LIMIT_MS, f"{metrics['tick_latency_ms']}; {missed} missed slots; {context}"
+    assert metrics["tick_latency_ms"]["max"] < 20.0, f"{metrics['tick_latency_ms']}; {context}"
 
 
 @pytest.mark.slow

@@ -1,5 +1,5 @@
-"""Guard fuzzing: hostile and malformed model answers, straight into the guard and through whole stepwise
-episodes in the simulator.
+"""Stepwise fuzzing: hostile and malformed model answers, straight into the guard and through whole stepwise
+episodes in the simulator (the other planners: test_fuzz_planners.py).
 
 Properties:
 - the guard never raises and classifies every answer (ok | parse | schema | bounds);
@@ -25,16 +25,16 @@ import pytest
 
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.guard.parse import parse_answer
-from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction
+from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, step_answer
 from llmnav.guard.veto import check_motion
 from llmnav.metrics import summarize_run
 from llmnav.planners.base import DriveOptions
+from llmnav.robot_specs import PR2
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 from llmnav.scenario import load_scenario
-from llmnav.sim.robot_specs import PR2
 
-CATEGORY = "guard fuzzing"
+CATEGORY = "fuzz: stepwise"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 MAX_STEP_M = 5.0  # [m] DriveOptions default
 BOUNDS = ActionBounds(max_step_m=MAX_STEP_M)
@@ -69,15 +69,7 @@ HOSTILE_PROSE = [
 ]
 
 
-def action(command: Any, parameters: Any, **extra: Any) -> dict[str, Any]:
-    body: dict[str, Any] = {
-        "goal": "reach the target",
-        "reasoning": "it seems right",
-        "scene_description": "a room with walls",
-        "action": {"command": command, "parameters": parameters},
-    }
-    body.update(extra)
-    return body
+action = step_answer
 
 
 def fenced(text: str) -> str:

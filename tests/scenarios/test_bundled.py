@@ -6,12 +6,12 @@ import math
 
 import pytest
 
+from llmnav.robot_specs import ROBOT_SPECS
 from llmnav.scenario import Scenario, list_scenarios, load_scenario
-from llmnav.sim.robot_specs import ROBOT_SPECS
 
 BUNDLED = ["corridor_a", "corridor_b", "corridor_c", "factory", "maze_arena"]
 
-# Source A's task list, verbatim (SPEC A).
+# Source A's task list, verbatim (docs/sources.md, A).
 FACTORY_TASKS = {
     "T1": ("Go to the pile of pellets", "target", "medium"),
     "T2": ("Find an object I can use to carry some beers", "target", "hard"),

@@ -1,0 +1,65 @@
+"""Grounding a command in the scenario's object list: exact name first, else the model picks from the list."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from llmnav.chat import ChatRequest, Message
+from llmnav.errors import InvalidActionError
+from llmnav.guard.ask import CallContext, GuardedAnswer, ask_guarded
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from llmnav.guard.schemas import TargetChoice
+    from llmnav.planners.waypoints.plan import ModelCall, Point
+    from llmnav.scenario import LabelledObject, Scenario, Task
+
+
+def ground_target(
+    scenario: Scenario,
+    task: Task,
+    call: ModelCall,
+    max_tries: int = 3,
+    *,
+    near: Point | None = None,
+    tolerance_m: float = 0.05,
+    step: int | None = None,
+    on_event: Callable[..., None] | None = None,
+) -> LabelledObject:
+    """The object a command refers to: exact-name match first, else the model picks from the list.
+
+    `near` (the final waypoint of a plan made already) settles an ambiguous command without a model call
+    when exactly one candidate's goal point lies within `tolerance_m` [m] of it. The model's pick goes
+    through `ask_guarded` (`max_tries` replies at most); `on_event` receives its `guard` events.
+    """
+    from llmnav.guard.schemas import response_schema, target_choice_model
+    from llmnav.prompting import render
+    from llmnav.tasks import named_objects
+
+    if task.targets and len(task.targets) == 1 and task.targets[0].object:
+        return scenario.object(task.targets[0].object)
+    named = named_objects(scenario, task.text)
+    if len(named) == 1:
+        return named[0]
+    candidates = named or list(scenario.objects)
+    if near is not None:
+        close = [o for o in candidates if math.dist(o.goal_point, near) <= tolerance_m]
+        if len(close) == 1:
+            return close[0]
+    model = target_choice_model(tuple(o.id for o in candidates))
+    listing = "\n".join(
+        f"- {o.id}: {o.label} at ({o.goal_point[0]:.1f}, {o.goal_point[1]:.1f})" for o in candidates
+    )
+    messages = (
+        Message("system", render("ground_system")),
+        Message("user", render("ground_user", command=task.text, objects=listing)),
+    )
+    request = ChatRequest(messages, response_schema(model), 0.0, 64)
+    answer: GuardedAnswer[TargetChoice] = ask_guarded(
+        CallContext(call, on_event), request, model, None, max_tries - 1, step=step, purpose="ground"
+    )
+    if answer.value is None:
+        raise InvalidActionError(f"the model named no listed object for '{task.text}' after {max_tries} tries")
+    return scenario.object(answer.value.object_id)
