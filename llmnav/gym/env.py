@@ -10,7 +10,7 @@ The environments wrap the existing `World` (physics, sensors), task resolution a
 (`llmnav.gym.wrappers`) is the wrapper `gymnasium.make` adds by default, as Gymnasium does cross-cutting
 behaviour.
 
-Observation (a `Dict`; every field below is always present):
+Observation (a `Dict`; `odom` and `task` always, the rest as `sensing` asks, by default all):
 - `image`: `Box(uint8, H×W×3)`, the front camera (RGB), `image_height` × `image_width` (default 120 × 160).
 - `lidar`: `Box(float32, (rays,))`, ranges [m] from the robot centre, counter-clockwise from the right edge
   of the field of view; readings beyond range are `range_m` (the scenario's LiDAR range).
@@ -82,6 +82,7 @@ class EnvOptions(BaseModel):
     task_text: str | None = None  # free wording; resolved like `llmnav drive --task`
     start_pose: int = Field(default=1, ge=1)  # 1-based, as on the CLI
     information: Information = "sensed"
+    sensing: tuple[Literal["lidar", "image", "detections"], ...] = ("lidar", "image", "detections")
     lidar_sectors: int = Field(default=8, ge=1, le=72)
     lidar_fov_deg: float = Field(default=90.0, gt=0, le=360)
     image_width: int = Field(default=160, ge=16, le=640)  # [px]
@@ -99,10 +100,20 @@ def _printable(text: str) -> str:
     return "".join(c if c in TASK_CHARSET else "?" for c in text)[:MAX_TASK_CHARS] or "?"
 
 
-def _has_display() -> bool:
+def human_render_problem() -> str | None:
+    """Why a window cannot open here (no display, or an OpenCV built without a GUI), or None."""
     import os
 
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return "render_mode='human' needs a display (DISPLAY is not set); use 'rgb_array'"
+    import cv2
+
+    if "GUI:                           NONE" in cv2.getBuildInformation():
+        return (
+            "render_mode='human' needs OpenCV with a GUI (llmnav installs the headless build: "
+            "pip install opencv-python); use 'rgb_array'"
+        )
+    return None
 
 
 class NavEnv(gym.Env[dict[str, Any], Any]):
@@ -112,9 +123,9 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
     """
 
     # "human" is declared only where a window can open, so checkers and users are never offered a mode
-    # that cannot work on this machine (`render_mode="human"` without a display raises a clear error).
+    # that cannot work on this machine (`render_mode="human"` there raises a clear error instead).
     metadata = {
-        "render_modes": ["rgb_array", *(["human"] if _has_display() else [])],
+        "render_modes": ["rgb_array", *(["human"] if human_render_problem() is None else [])],
         "render_fps": 10,
     }
 
@@ -124,8 +135,9 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         self.options = EnvOptions(**kwargs)
         if render_mode not in (None, "rgb_array", "human"):
             raise BadInputError(f"render_mode {render_mode!r}: use 'rgb_array' or 'human'")
-        if render_mode == "human" and not _has_display():
-            raise BadInputError("render_mode='human' needs a display (DISPLAY is not set); use 'rgb_array'")
+        problem = human_render_problem() if render_mode == "human" else None
+        if problem is not None:
+            raise BadInputError(problem)
         self.render_mode = render_mode
         self.scenario: Scenario = load_scenario(self.options.scenario)
         self._task_id, self._task_text = self.options.task_id, self.options.task_text
@@ -160,25 +172,25 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
     def _observation_space(self) -> spaces.Dict:
         o, lidar = self.options, self.world.lidar
         n = o.lidar_sectors
-        half = math.pi
-        sector_low = np.tile(np.array([0.0, -half], dtype=np.float32), (n, 1))
-        sector_high = np.tile(np.array([self.range_m, half], dtype=np.float32), (n, 1))
+        sector_low = np.tile(np.array([0.0, -math.pi], dtype=np.float32), (n, 1))
+        sector_high = np.tile(np.array([self.range_m, math.pi], dtype=np.float32), (n, 1))
         det_max = self._detection_range = max(self.scenario.sensors.detector.max_distance_m, 1.0)
         det_low = np.tile(np.array([-math.pi, 0.0, -1.0], dtype=np.float32), (MAX_DETECTIONS, 1))
         det_high = np.tile(np.array([math.pi, det_max, 1.0], dtype=np.float32), (MAX_DETECTIONS, 1))
         odom = np.array([ODOM_LIMIT_M, ODOM_LIMIT_M, math.pi], dtype=np.float32)
-        return spaces.Dict(
-            {
-                "image": spaces.Box(0, 255, (o.image_height, o.image_width, 3), np.uint8),
-                "lidar": spaces.Box(0.0, self.range_m, (len(lidar.angles),), np.float32),
-                "sectors": spaces.Box(sector_low, sector_high, dtype=np.float32),
-                "odom": spaces.Box(-odom, odom, dtype=np.float32),
-                "detections": spaces.Box(det_low, det_high, dtype=np.float32),
-                "detection_class": spaces.MultiDiscrete([len(self.labels) + 1] * MAX_DETECTIONS),
-                "detection_mask": spaces.MultiBinary(MAX_DETECTIONS),
-                "task": spaces.Text(MAX_TASK_CHARS, min_length=1, charset=TASK_CHARSET),
-            }
-        )
+        fields: dict[str, spaces.Space[Any]] = {}
+        if "image" in o.sensing:
+            fields["image"] = spaces.Box(0, 255, (o.image_height, o.image_width, 3), np.uint8)
+        if "lidar" in o.sensing:
+            fields["lidar"] = spaces.Box(0.0, self.range_m, (len(lidar.angles),), np.float32)
+            fields["sectors"] = spaces.Box(sector_low, sector_high, dtype=np.float32)
+        fields["odom"] = spaces.Box(-odom, odom, dtype=np.float32)
+        if "detections" in o.sensing:
+            fields["detections"] = spaces.Box(det_low, det_high, dtype=np.float32)
+            fields["detection_class"] = spaces.MultiDiscrete([len(self.labels) + 1] * MAX_DETECTIONS)
+            fields["detection_mask"] = spaces.MultiBinary(MAX_DETECTIONS)
+        fields["task"] = spaces.Text(MAX_TASK_CHARS, min_length=1, charset=TASK_CHARSET)
+        return spaces.Dict(fields)
 
     # --- the Gymnasium API --------------------------------------------------------------------------
     def reset(
@@ -347,40 +359,43 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         }
 
     def _observe(self) -> dict[str, Any]:
-        world = self.world
+        """Read the sensors. The LiDAR is always scanned (the veto judges every action on it)."""
+        world, sensing = self.world, self.options.sensing
         scan = world.lidar.scan()
         self.last_scan = scan
-        frame = world.camera.capture()
-        detections = world.detector.detect()
-        self.last_detections = detections
-        ranges = np.where(np.isfinite(scan.ranges), scan.ranges, self.range_m)
+        self.last_detections = world.detector.detect() if "detections" in sensing else []
+        obs: dict[str, Any] = {}
+        if "image" in sensing:
+            obs["image"] = np.ascontiguousarray(world.camera.capture().rgb, dtype=np.uint8).copy()
+        if "lidar" in sensing:
+            ranges = np.where(np.isfinite(scan.ranges), scan.ranges, self.range_m)
+            obs["lidar"] = np.clip(ranges, 0.0, self.range_m).astype(np.float32)
+            obs["sectors"] = self._sector_table(scan)
+        odom = world.robot.odom()
+        obs["odom"] = np.array([odom.x, odom.y, wrap_angle(odom.yaw)], dtype=np.float32)
+        if "detections" in sensing:
+            obs.update(self._detection_table(self.last_detections))
+        obs["task"] = _printable(self.task.text)
+        return obs
+
+    def _sector_table(self, scan: LidarScan) -> np.ndarray:
         sectors = lidar_sectors(scan, self.options.lidar_sectors, self.options.lidar_fov_deg)
         table = np.zeros((len(sectors), 2), dtype=np.float32)
         for i, s in enumerate(sectors):
             table[i, 0] = min(s.min_m, self.range_m)
             centre = (s.start_deg + s.end_deg) / 2.0
             table[i, 1] = math.radians(s.min_angle_deg if s.min_angle_deg is not None else centre)
-        det = np.zeros((MAX_DETECTIONS, 3), dtype=np.float32)
-        det_class = np.zeros(MAX_DETECTIONS, dtype=np.int64)
+        return table
+
+    def _detection_table(self, detections: list[Detection]) -> dict[str, np.ndarray]:
+        rows = np.zeros((MAX_DETECTIONS, 3), dtype=np.float32)
+        classes = np.zeros(MAX_DETECTIONS, dtype=np.int64)
         mask = np.zeros(MAX_DETECTIONS, dtype=np.int8)
-        det_max = self._detection_range
         for i, d in enumerate(sorted(detections, key=lambda d: d.distance_m)[:MAX_DETECTIONS]):
-            bearing = (math.radians(d.bearing_deg) + math.pi) % (2.0 * math.pi) - math.pi
-            det[i] = (bearing, min(d.distance_m, det_max), d.offset)
-            det_class[i] = self.labels.index(d.label) + 1
+            rows[i] = (wrap_angle(math.radians(d.bearing_deg)), min(d.distance_m, self._detection_range), d.offset)
+            classes[i] = self.labels.index(d.label) + 1
             mask[i] = 1
-        odom = world.robot.odom()
-        yaw = (odom.yaw + math.pi) % (2.0 * math.pi) - math.pi
-        return {
-            "image": np.ascontiguousarray(frame.rgb, dtype=np.uint8).copy(),
-            "lidar": np.clip(ranges, 0.0, self.range_m).astype(np.float32),
-            "sectors": table,
-            "odom": np.array([odom.x, odom.y, yaw], dtype=np.float32),
-            "detections": det,
-            "detection_class": det_class,
-            "detection_mask": mask,
-            "task": _printable(self.task.text),
-        }
+        return {"detections": rows, "detection_class": classes, "detection_mask": mask}
 
     def _render_frame(self) -> np.ndarray:
         """Top view (drawn once with llmnav's scenario drawing, then the robot per frame) + camera."""

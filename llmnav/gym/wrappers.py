@@ -267,7 +267,9 @@ def observation_text(env: gym.Env[Any, Any]) -> str:
     if base.last_scan is None:
         raise BadInputError("no observation yet: call reset() first")
     summary = summarize_scan(base.last_scan, base.options.lidar_sectors, base.options.lidar_fov_deg)
-    parts = [f"Task: {base.task.text}", summary.text(), detections_text(base.last_detections)]
+    parts = [f"Task: {base.task.text}", summary.text()]
+    if "detections" in base.options.sensing:
+        parts.append(detections_text(base.last_detections))
     text = "\n\n".join(parts)
     return "".join(c if c in TEXT_CHARSET else "?" for c in text)[:MAX_TEXT_CHARS]
 

@@ -249,10 +249,9 @@ def test_truncated_after_max_steps_and_sparse_reward() -> None:
 def test_bad_input_is_one_clear_error() -> None:
     with pytest.raises(Exception, match="extra"):
         FactoryEnv(task_id="T1", colour="red")
-    with pytest.raises(BadInputError, match="human"):
-        if llmnav.gym.env._has_display():
-            pytest.skip("a display exists here")
-        FactoryEnv(task_id="T1", render_mode="human")
+    if llmnav.gym.env.human_render_problem() is not None:
+        with pytest.raises(BadInputError, match="render_mode='human' needs"):
+            FactoryEnv(task_id="T1", render_mode="human")
     env = FactoryEnv(task_id="T1")
     env.reset(seed=0)
     with pytest.raises(BadInputError, match="action space"):
@@ -270,3 +269,11 @@ def test_rgb_array_render_shows_top_view_and_camera() -> None:
     assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
     assert frame.shape[1] > frame.shape[0]  # the camera beside the map
     assert frame.std() > 10  # not blank
+
+
+def test_sensing_selects_the_observation_fields() -> None:
+    env = FactoryEnv(task_id="T1", sensing=("lidar",))
+    obs, _ = env.reset(seed=0)
+    assert set(obs) == {"lidar", "sectors", "odom", "task"} == set(env.observation_space.spaces)
+    assert obs in env.observation_space
+    env.close()
