@@ -402,7 +402,9 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         import cv2
 
         if self._background is None:
-            self._background = _draw_background(self.scenario, self._targets())
+            from llmnav.reporting.topview import raster_scenario
+
+            self._background = raster_scenario(self.scenario, self._targets())
         image, to_px = self._background
         top = image.copy()
         points = np.array([to_px(p[0], p[1]) for p in self.trajectory], dtype=np.int32)
@@ -418,45 +420,6 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         scale = height / camera.shape[0]
         camera = cv2.resize(camera, (max(1, round(camera.shape[1] * scale)), height))
         return np.ascontiguousarray(np.concatenate([top, camera], axis=1), dtype=np.uint8)
-
-
-def _draw_background(scenario: Scenario, targets: list[tuple[float, float]]) -> tuple[np.ndarray, Any]:
-    """The scenario's top view as an RGB array, and the map → pixel transform."""
-    from llmnav.reporting.topview import _pyplot, draw_scenario
-
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(4.8, 4.8), dpi=100)
-    try:
-        draw_scenario(ax, scenario, labels=False)
-        for x, y in targets:
-            ax.plot([x], [y], marker="*", color="gold", markersize=12, markeredgecolor="k")
-        bx, by = scenario.bounds.x, scenario.bounds.y
-        ax.set_xlim(*bx)
-        ax.set_ylim(*by)
-        ax.set_axis_off()
-        fig.subplots_adjust(0, 0, 1, 1)
-        fig.canvas.draw()
-        rgba = np.asarray(fig.canvas.buffer_rgba())
-        image = np.ascontiguousarray(rgba[:, :, :3])
-        transform = ax.transData
-        height = image.shape[0]
-
-        def to_px(x: float, y: float) -> tuple[int, int]:
-            px, py = transform.transform((x, y))
-            return round(float(px)), round(height - float(py))
-
-        # Freeze the transform's numbers so the figure can be closed.
-        corners = np.array([to_px(bx[0], by[0]), to_px(bx[1], by[1])], dtype=float)
-    finally:
-        plt.close(fig)
-    (x0, y0), (x1, y1) = corners
-    sx = (x1 - x0) / (bx[1] - bx[0])
-    sy = (y1 - y0) / (by[1] - by[0])
-
-    def frozen(x: float, y: float) -> tuple[int, int]:
-        return round(x0 + (x - bx[0]) * sx), round(y0 + (y - by[0]) * sy)
-
-    return image, frozen
 
 
 class FactoryEnv(NavEnv):
