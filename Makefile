@@ -41,8 +41,8 @@ reliability: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q -m 'not live' tests/reliability
 
 lint: $(TEST_STAMP)
-	$(BIN)/ruff check llmnav tests bench
-	$(BIN)/mypy llmnav
+	$(BIN)/ruff check llmnav tests bench examples
+	$(BIN)/mypy llmnav examples
 	$(BIN)/lint-imports
 
 clean:

@@ -8,6 +8,7 @@ importing this module costs nothing for commands that never plot.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -198,3 +199,41 @@ def plot_scenario(scenario: Scenario, path: str | Path, *, task: Task | None = N
     finally:
         plt.close(fig)
     return out
+
+
+PixelMap = Callable[[float, float], tuple[int, int]]  # map point [m] -> image pixel (column, row)
+
+
+def raster_scenario(
+    scenario: Scenario, targets: Sequence[tuple[float, float]] = (), *, size_px: int = 480
+) -> tuple[Any, PixelMap]:
+    """The scenario's top view as an RGB array (for frames drawn many times a second), and map -> pixel.
+
+    Drawn once with `draw_scenario`; callers copy the array and draw moving things on it with OpenCV.
+    """
+    import numpy as np
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(size_px / 100, size_px / 100), dpi=100)
+    bx, by = scenario.bounds.x, scenario.bounds.y
+    try:
+        draw_scenario(ax, scenario, labels=False)
+        for x, y in targets:
+            ax.plot([x], [y], marker="*", color="gold", markersize=14, markeredgecolor="k", zorder=20)
+        ax.set_xlim(*bx)
+        ax.set_ylim(*by)
+        ax.set_axis_off()
+        fig.subplots_adjust(0, 0, 1, 1)
+        fig.canvas.draw()
+        image = np.ascontiguousarray(np.asarray(fig.canvas.buffer_rgba())[:, :, :3])
+        # The data -> display transform is affine: keep two corners' pixels so the figure can close.
+        (x0, y0), (x1, y1) = ax.transData.transform([(bx[0], by[0]), (bx[1], by[1])])
+    finally:
+        plt.close(fig)
+    height = image.shape[0]
+    sx, sy = (x1 - x0) / (bx[1] - bx[0]), (y1 - y0) / (by[1] - by[0])
+
+    def to_px(x: float, y: float) -> tuple[int, int]:
+        return round(x0 + (x - bx[0]) * sx), round(height - (y0 + (y - by[0]) * sy))
+
+    return image, to_px
