@@ -1,0 +1,311 @@
+"""An episode as a video: the top view with the moving robot beside the camera frame, and a caption.
+
+Each decision gets `seconds_per_step` of video: the robot moves along the trajectory samples logged
+between this decision and the next, the right half shows the camera image the model was sent, and the
+caption names the decision, the executed action and the model's one-line reasoning. The map is drawn
+once with matplotlib (`llmnav.reporting.topview.draw_scenario`); frames are composed with OpenCV.
+
+MP4 goes through OpenCV's VideoWriter with the first codec this OpenCV build can write (`CODECS`);
+GIF through Pillow (matplotlib's own dependency), at half size. Either way the file holds exactly
+`frames` frames at `fps`, so its duration is frames / fps.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from llmnav.errors import BadInputError
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from llmnav.view.model import RunView, StepView
+
+PANEL_W, PANEL_H = 640, 480  # [px] each half of the picture
+CAPTION_H = 72  # [px] caption bar under the picture
+CODECS = ("avc1", "mp4v")  # H.264 when the build has an encoder for it, else MPEG-4 part 2
+GIF_SCALE = 0.5  # GIFs are large: half size
+ROBOT_PX = 9  # [px] robot marker radius on the map
+_FFMPEG_LOG_ENV = "OPENCV_FFMPEG_LOGLEVEL"
+
+
+@dataclass
+class VideoInfo:
+    """What was written."""
+
+    path: Path
+    frames: int
+    fps: float
+    codec: str
+    width: int
+    height: int
+
+    @property
+    def duration_s(self) -> float:
+        """[s] frames / fps."""
+        return self.frames / self.fps
+
+
+@dataclass
+class _MapImage:
+    """The drawn map and the world → pixel mapping of its axes."""
+
+    pixels: np.ndarray  # BGR, PANEL_H × PANEL_W
+    sx: float
+    ox: float
+    sy: float
+    oy: float
+
+    def to_px(self, x: float, y: float) -> tuple[int, int]:
+        return (round(self.sx * x + self.ox), round(self.sy * y + self.oy))
+
+
+def _draw_map(view: RunView) -> _MapImage:
+    """The top view (scenario, oracle path, whole trajectory faint) as a BGR image and its mapping."""
+    import cv2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from llmnav.reporting.topview import draw_scenario
+
+    fig = plt.figure(figsize=(PANEL_W / 100, PANEL_H / 100), dpi=100)
+    ax = fig.add_axes((0.08, 0.08, 0.9, 0.88))
+    try:
+        if view.scenario is not None:
+            draw_scenario(ax, view.scenario)
+        else:
+            ax.set_aspect("equal")
+        if view.oracle:
+            ax.plot(*zip(*view.oracle, strict=True), "--", color="0.35", lw=1.2, zorder=5.5)
+        if view.trajectory:
+            xs, ys = [p[0] for p in view.trajectory], [p[1] for p in view.trajectory]
+            ax.plot(xs, ys, "-", color="tab:blue", lw=1.0, alpha=0.35, zorder=5)
+            if view.scenario is None:
+                ax.set_xlim(min(xs) - 1, max(xs) + 1)
+                ax.set_ylim(min(ys) - 1, max(ys) + 1)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.label.set_fontsize(8)
+        ax.yaxis.label.set_fontsize(8)
+        fig.canvas.draw()
+        rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
+        # Display coordinates have y up from the bottom; image rows go down from the top.
+        (x0, y0), (x1, y1) = ax.transData.transform([(0.0, 0.0), (1.0, 1.0)])
+        height = rgba.shape[0]
+        pixels = cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR)
+        if pixels.shape[:2] != (PANEL_H, PANEL_W):
+            pixels = cv2.resize(pixels, (PANEL_W, PANEL_H))
+        return _MapImage(pixels, x1 - x0, x0, -(y1 - y0), height - y0)
+    finally:
+        plt.close(fig)
+
+
+def _camera(view: RunView, step: StepView | None) -> np.ndarray:
+    """The camera image of a decision fitted into the right panel, or a panel saying there is none."""
+    import cv2
+    import numpy as np
+
+    panel = np.full((PANEL_H, PANEL_W, 3), 235, np.uint8)
+    path = view.image_files.get(step.image) if step is not None and step.image else None
+    image = cv2.imread(str(path)) if path is not None else None
+    if image is None:
+        text = "no camera image sent" if step is None or not step.image else "camera image missing"
+        cv2.putText(panel, text, (170, PANEL_H // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (90, 90, 90), 2, cv2.LINE_AA)
+        return panel
+    scale = min(PANEL_W / image.shape[1], PANEL_H / image.shape[0])
+    w, h = max(1, int(image.shape[1] * scale)), max(1, int(image.shape[0] * scale))
+    resized = cv2.resize(image, (w, h))
+    top, left = (PANEL_H - h) // 2, (PANEL_W - w) // 2
+    panel[top : top + h, left : left + w] = resized
+    return panel
+
+
+def _ascii(text: str) -> str:
+    """OpenCV's fonts draw ASCII only: replace the rest (model text may hold anything)."""
+    swaps = {"°": " deg", "—": "-", "–": "-", "…": "...", "×": "x", "→": "->", "ω": "w"}
+    for old, new in swaps.items():
+        text = text.replace(old, new)
+    return "".join(ch if 32 <= ord(ch) < 127 else "?" for ch in text)
+
+
+def _caption(step: StepView | None, total: int) -> list[str]:
+    if step is None:
+        return ["no decision was logged", ""]
+    first = f"{step.label} of {total}: {step.action_text}"
+    second = f"reasoning: {step.reasoning}" if step.reasoning else ""
+    return [_ascii(first)[:110], _ascii(second)[:110]]
+
+
+def _segments(view: RunView) -> list[tuple[StepView | None, list[list[float]]]]:
+    """Per decision, the trajectory samples from it to the next decision (by simulation time)."""
+    poses = [e for e in view.record.events if e.get("type") == "pose" and isinstance(e.get("pose"), list)]
+    steps = view.steps
+    if not steps:
+        return [(None, [e["pose"] for e in poses])]
+    out: list[tuple[StepView | None, list[list[float]]]] = []
+    for i, step in enumerate(steps):
+        start = step.t_sim
+        end = steps[i + 1].t_sim if i + 1 < len(steps) else math.inf
+        inside: list[list[float]] = []
+        if isinstance(start, (int, float)) and isinstance(end, (int, float)):
+            inside = [
+                e["pose"] for e in poses if isinstance(e.get("t_sim"), (int, float)) and start <= e["t_sim"] < end
+            ]
+        if not inside:  # no timed samples: straight from the pose before to the pose after
+            inside = [p for p in (step.pose_before, step.pose_after) if isinstance(p, list) and len(p) >= 3]
+        out.append((step, inside))
+    return out
+
+
+def _frames(view: RunView, fps: float, seconds_per_step: float) -> Iterator[np.ndarray]:
+    import cv2
+    import numpy as np
+
+    base = _draw_map(view)
+    per_step = max(1, round(fps * seconds_per_step))
+    segments = _segments(view)
+    trail: list[tuple[int, int]] = []
+    number = 0  # frames so far; its clock in the corner also keeps every frame distinct (GIF writers merge twins)
+    last_pose: list[float] | None = view.trajectory[0] if view.trajectory else None
+    for step, samples in segments:
+        camera = _camera(view, step)
+        lines = _caption(step, len(view.steps))
+        for k in range(per_step):
+            if samples:
+                pose = samples[min(len(samples) - 1, (k * len(samples)) // per_step)]
+                last_pose = pose
+            else:
+                pose = last_pose  # type: ignore[assignment]
+            top = base.pixels.copy()
+            if pose is not None and len(pose) >= 2:
+                cx, cy = base.to_px(float(pose[0]), float(pose[1]))
+                if not trail or trail[-1] != (cx, cy):
+                    trail.append((cx, cy))
+                if len(trail) > 1:
+                    cv2.polylines(top, [np.array(trail, np.int32)], False, (176, 108, 43), 2, cv2.LINE_AA)
+                cv2.circle(top, (cx, cy), ROBOT_PX, (140, 63, 213), -1, cv2.LINE_AA)
+                yaw = float(pose[2]) if len(pose) > 2 else 0.0
+                tip = (round(cx + 2.2 * ROBOT_PX * math.cos(yaw)), round(cy - 2.2 * ROBOT_PX * math.sin(yaw)))
+                cv2.line(top, (cx, cy), tip, (20, 20, 20), 2, cv2.LINE_AA)
+            frame = np.full((PANEL_H + CAPTION_H, 2 * PANEL_W, 3), 255, np.uint8)
+            frame[:PANEL_H, :PANEL_W] = top
+            frame[:PANEL_H, PANEL_W:] = camera
+            clock = f"{number / fps:7.2f} s"
+            cv2.putText(
+                frame,
+                clock,
+                (2 * PANEL_W - 110, PANEL_H + 28),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.6,
+                (90, 90, 90),
+                1,
+                cv2.LINE_AA,
+            )
+            number += 1
+            for row, text in enumerate(lines):
+                cv2.putText(
+                    frame,
+                    text,
+                    (12, PANEL_H + 28 + 30 * row),
+                    cv2.FONT_HERSHEY_SIMPLEX,
+                    0.62,
+                    (25, 25, 25),
+                    1,
+                    cv2.LINE_AA,
+                )
+            yield frame
+
+
+def frame_count(view: RunView, fps: float, seconds_per_step: float) -> int:
+    """How many frames the video of a run has."""
+    return max(1, len(view.steps)) * max(1, round(fps * seconds_per_step))
+
+
+def writable_codec(probe_dir: Path) -> str | None:
+    """The first of `CODECS` this OpenCV build can write to an .mp4 here (None: none can)."""
+    import os
+
+    import cv2
+
+    # A codec without an encoder makes FFmpeg and OpenCV print several error lines: quiet while probing.
+    saved_env = os.environ.get(_FFMPEG_LOG_ENV)
+    saved_level = cv2.utils.logging.getLogLevel()
+    os.environ[_FFMPEG_LOG_ENV] = "-8"  # AV_LOG_QUIET
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        for codec in CODECS:
+            path = probe_dir / f".codec-probe-{codec}.mp4"
+            writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*codec), 10.0, (64, 48))
+            try:
+                if writer.isOpened():
+                    return codec
+            finally:
+                writer.release()
+                path.unlink(missing_ok=True)
+        return None
+    finally:
+        cv2.utils.logging.setLogLevel(saved_level)
+        if saved_env is None:
+            os.environ.pop(_FFMPEG_LOG_ENV, None)
+        else:
+            os.environ[_FFMPEG_LOG_ENV] = saved_env
+
+
+def render_video(view: RunView, out: Path, *, fps: float = 10.0, seconds_per_step: float = 1.0) -> VideoInfo:
+    """Write the episode to `out` (.mp4 or .gif); returns what was written."""
+    suffix = out.suffix.lower()
+    if suffix not in (".mp4", ".gif"):
+        raise BadInputError(f"--video {out}: give a file ending in .mp4 or .gif")
+    if fps <= 0 or seconds_per_step <= 0:
+        raise BadInputError("--fps and --seconds-per-step must be positive")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise BadInputError(f"--video {out}: cannot create its folder: {err.strerror or err}") from None
+    width, height = 2 * PANEL_W, PANEL_H + CAPTION_H
+    tmp = out.with_name(out.stem + ".partial" + out.suffix)
+    if suffix == ".gif":
+        info = _write_gif(view, tmp, fps, seconds_per_step, width, height)
+    else:
+        info = _write_mp4(view, tmp, fps, seconds_per_step, width, height)
+    tmp.replace(out)
+    info.path = out
+    return info
+
+
+def _write_mp4(view: RunView, tmp: Path, fps: float, sps: float, width: int, height: int) -> VideoInfo:
+    import cv2
+
+    codec = writable_codec(tmp.parent)
+    if codec is None:
+        raise BadInputError("this OpenCV build can write no MP4 codec here; use --video FILE.gif")
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*codec), fps, (width, height))
+    frames = 0
+    try:
+        for frame in _frames(view, fps, sps):
+            writer.write(frame)
+            frames += 1
+    finally:
+        writer.release()
+    return VideoInfo(tmp, frames, fps, codec, width, height)
+
+
+def _write_gif(view: RunView, tmp: Path, fps: float, sps: float, width: int, height: int) -> VideoInfo:
+    import cv2
+    from PIL import Image
+
+    size = (round(width * GIF_SCALE), round(height * GIF_SCALE))
+    images: list[Any] = []
+    for frame in _frames(view, fps, sps):
+        small = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
+        images.append(Image.fromarray(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)).quantize(colors=128))
+    # GIF delays are whole centiseconds: fps values that do not divide 100 are rounded to the nearest.
+    delay_ms = 10 * round(100 / fps)
+    images[0].save(tmp, save_all=True, append_images=images[1:], duration=delay_ms, loop=0, optimize=False, disposal=1)
+    return VideoInfo(tmp, len(images), 1000 / delay_ms, "gif", *size)

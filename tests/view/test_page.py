@@ -1,0 +1,168 @@
+"""`llmnav view` pages without a browser: content, escaping of hostile model text, partial logs, size,
+bad input and the refusal to overwrite files that are not ours."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import pytest
+from markupsafe import escape
+
+from llmnav.errors import BadInputError
+from llmnav.view.api import write_view
+
+from .conftest import HOSTILE
+from .logs import decisions, events, last_reply
+
+ENTRY = "from llmnav.cli import main; main()"
+
+
+def llmnav(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-c", ENTRY, *args], capture_output=True, text=True, timeout=180)
+
+
+def step_buttons(page: str) -> list[str]:
+    return re.findall(r'<button type="button" data-step="(\d+)"', page)
+
+
+@pytest.mark.parametrize("kind", ["stepwise", "hybrid", "fsm", "waypoints", "killed"])
+def test_one_entry_per_decision_and_every_reply_is_on_the_page(runs, tmp_path, kind):
+    out = write_view(runs[kind], tmp_path / f"{kind}.html").page
+    page = out.read_text(encoding="utf-8")
+    keys = decisions(runs[kind])
+    assert keys, "the fixture run logged no decision"
+    assert step_buttons(page) == [str(i) for i in range(len(keys))]
+    assert len(re.findall(r'<section class="step" ', page)) == len(keys)
+    for key in keys:
+        reply = last_reply(runs[kind], key)
+        if reply is not None:
+            assert str(escape(reply)) in page
+
+
+def test_hostile_model_text_is_escaped_everywhere(runs, tmp_path):
+    page = write_view(runs["stepwise"], tmp_path / "p.html").page.read_text(encoding="utf-8")
+    assert any(
+        HOSTILE in e.get("reply", {}).get("text", "") for e in events(runs["stepwise"]) if e["type"] == "llm_call"
+    )
+    assert HOSTILE not in page
+    assert "<script>alert" not in page and "onerror=alert(2)>" not in page
+    assert "&lt;/script&gt;&lt;script&gt;alert(1)&lt;/script&gt;" in page
+    # exactly one script element: the page's own
+    assert page.count("<script") == 1
+
+
+def test_header_and_camera_images_and_sectors(runs, tmp_path):
+    page = write_view(runs["stepwise"], tmp_path / "p.html").page.read_text(encoding="utf-8")
+    images = list((runs["stepwise"] / "images").glob("*.jpg"))
+    assert images and page.count("data:image/jpeg;base64,") == len(images)
+    assert "Go to the red box" in page and "stepwise" in page and "completed" in page
+    assert page.count('class="wedge ') >= 8  # the default 8 LiDAR sectors of the first observation
+    assert 'alt="Camera image sent to the model at step 1' in page
+
+
+def test_killed_run_says_what_is_missing(runs, tmp_path):
+    page = write_view(runs["killed"], tmp_path / "k.html").page.read_text(encoding="utf-8")
+    assert "no end event" in page and "summary.json is missing" in page
+    assert "incomplete last line" in page
+    assert "no action logged" in page  # the cut step
+
+
+def test_fsm_page_has_profile_and_suggestion_outcomes(runs, tmp_path):
+    page = write_view(runs["fsm"], tmp_path / "f.html").page.read_text(encoding="utf-8")
+    verdicts = [e["verdict"] for e in events(runs["fsm"]) if e.get("kind") == "suggestion"]
+    assert {"accepted", "parse", "bounds"} <= set(verdicts)
+    assert 'class="base"' in page and 'class="fused"' in page
+    for verdict in set(verdicts):
+        assert f'class="mark-{verdict}"' in page
+
+
+def test_waypoint_page_shows_attempts_and_replans(runs, tmp_path):
+    page = write_view(runs["waypoints"], tmp_path / "w.html").page.read_text(encoding="utf-8")
+    attempts = [e for e in events(runs["waypoints"]) if e.get("kind") == "waypoint_attempt"]
+    replans = [e for e in events(runs["waypoints"]) if e.get("kind") == "replan"]
+    assert any(not a["valid"] for a in attempts) and replans
+    assert page.count('class="attempt"') + page.count('class="attempt valid"') == sum(
+        1 for a in attempts if a["points"]
+    )
+    assert page.count('class="replan"') == sum(1 for r in replans if r.get("obstacle"))
+
+
+def test_sweep_page_links_every_run_and_writes_missing_run_pages(sweep, tmp_path):
+    result = write_view(sweep)
+    page = result.page.read_text(encoding="utf-8")
+    assert result.kind == "sweep" and result.page == sweep / "view.html"
+    run_dirs = sorted(p.parent for p in sweep.rglob("run.jsonl"))
+    assert len(run_dirs) == 4
+    for run_dir in run_dirs:
+        assert (run_dir / "view.html").is_file()
+        assert f'href="{run_dir.name}/view.html"' in page
+    assert "Episodes (stepwise source" in page and "data:image/png;base64," in page
+    assert page.count('class="success-map"') == 2  # lidar_sectors=3 and =8
+
+
+def test_thirty_step_page_with_640x480_images_stays_small(runs, tmp_path):
+    """30 decisions of the recorded stepwise run's shape, each with its own 640×480 camera JPEG."""
+    import json
+
+    import cv2
+    import numpy as np
+
+    src = runs["stepwise"]
+    lines = [json.loads(line) for line in (src / "run.jsonl").read_text().splitlines()]
+    config = lines[0]
+    step1 = [e for e in lines if e.get("step") == 1]
+    run = tmp_path / "thirty"
+    (run / "images").mkdir(parents=True)
+    out_lines = [config]
+    rng = np.random.default_rng(0)
+    for k in range(1, 31):
+        # a noisy picture compresses like a camera frame, not like a flat colour
+        picture = (rng.normal(128, 40, (480, 640, 3)).clip(0, 255)).astype(np.uint8)
+        picture = cv2.GaussianBlur(picture, (0, 0), 2.0)
+        ok, jpeg = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        digest = f"{k:064x}"
+        (run / "images" / f"{digest}.jpg").write_bytes(jpeg.tobytes())
+        for e in step1:
+            e = dict(e, step=k)
+            if e["type"] == "observation":
+                e["image"] = digest
+            out_lines.append(e)
+    (run / "run.jsonl").write_text("\n".join(json.dumps(e) for e in out_lines) + "\n")
+    page = write_view(run, tmp_path / "thirty.html").page
+    images = sum(p.stat().st_size for p in (run / "images").iterdir())
+    assert len(step_buttons(page.read_text(encoding="utf-8"))) == 30
+    assert page.stat().st_size < 5_000_000, (page.stat().st_size, images)
+
+
+def test_not_a_run_nor_a_sweep_is_one_line_exit_2(tmp_path):
+    (tmp_path / "empty").mkdir()
+    for target in (tmp_path / "empty", tmp_path / "absent"):
+        result = llmnav("view", str(target))
+        assert result.returncode == 2, result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
+
+
+def test_unreadable_log_is_one_line_exit_2(tmp_path):
+    run = tmp_path / "broken"
+    run.mkdir()
+    (run / "run.jsonl").write_text('{"type": "config"}\nnot json at all\n{"type": "end"}\n')
+    result = llmnav("view", str(run))
+    assert result.returncode == 2 and "line 2" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
+
+
+def test_out_onto_a_foreign_file_is_refused_unless_forced(runs, tmp_path):
+    foreign = tmp_path / "notes.html"
+    foreign.write_text("my own notes")
+    with pytest.raises(BadInputError, match="--force"):
+        write_view(runs["hybrid"], foreign)
+    assert foreign.read_text() == "my own notes"
+    result = llmnav("view", str(runs["hybrid"]), "--out", str(foreign))
+    assert result.returncode == 2 and foreign.read_text() == "my own notes"
+    # our own page may be rewritten; a foreign one only with --force
+    ours = write_view(runs["hybrid"], tmp_path / "ours.html").page
+    write_view(runs["hybrid"], ours)
+    write_view(runs["hybrid"], foreign, force=True)
+    assert '<meta name="generator" content="llmnav view">' in foreign.read_text()
