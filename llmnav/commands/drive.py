@@ -104,6 +104,9 @@ def drive(
     replay_loose: Annotated[
         bool, typer.Option("--replay-loose", help="Replay: answer in order even when prompts differ.")
     ] = False,
+    view_page: Annotated[
+        bool, typer.Option("--view", help="Write the run's HTML page (view.html) at the end and print its path.")
+    ] = False,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
     from llmnav.planners.base import DriveOptions
@@ -160,6 +163,11 @@ def drive(
         from llmnav.reporting.live import print_result
 
         print_result(console, summary)
+    if view_page:
+        from llmnav.commands.common import err_console
+        from llmnav.view.api import write_view
+
+        err_console.print(f"page: {write_view(spec.out_dir).page}", highlight=False, soft_wrap=True)
     raise typer.Exit(exit_code(summary))
 
 

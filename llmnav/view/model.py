@@ -354,6 +354,7 @@ def _fsm_steps(record: RunRecord) -> list[StepView]:
             else:
                 step.missing.append("no verdict logged (the run ended before the answer was due)")
             steps.append(step)
+        _place_by_time(steps, record)
         return steps
     for i, event in enumerate(e for e in record.of_type("planner") if e.get("kind") == "fsm_state"):
         pose = event.get("pose")
@@ -363,6 +364,22 @@ def _fsm_steps(record: RunRecord) -> list[StepView]:
         step.verdict = f"{event.get('previous')} → {event.get('state')}"
         steps.append(step)
     return steps
+
+
+def _place_by_time(steps: list[StepView], record: RunRecord) -> None:
+    """Give decisions without poses the trajectory sample logged last before them (by sim time)."""
+    import bisect
+
+    samples = [
+        (float(e["t_sim"]), e["pose"])
+        for e in record.of_type("pose")
+        if isinstance(e.get("t_sim"), (int, float)) and isinstance(e.get("pose"), list)
+    ]
+    times = [t for t, _ in samples]
+    for step in steps:
+        if step.pose_before is None and isinstance(step.t_sim, (int, float)) and samples:
+            index = max(0, bisect.bisect_right(times, float(step.t_sim)) - 1)
+            step.pose_before = step.pose_after = samples[index][1]
 
 
 def _stepped(record: RunRecord) -> list[StepView]:

@@ -166,3 +166,17 @@ def test_out_onto_a_foreign_file_is_refused_unless_forced(runs, tmp_path):
     write_view(runs["hybrid"], ours)
     write_view(runs["hybrid"], foreign, force=True)
     assert '<meta name="generator" content="llmnav view">' in foreign.read_text()
+
+
+def test_drive_view_writes_the_page_and_prints_its_path(tmp_path):
+    from .conftest import SMALL
+
+    out = tmp_path / "run"
+    result = llmnav(
+        "drive", "--scenario", SMALL, "--task-id", "T1", "--planner", "oracle", "--out", str(out), "--view", "--json"
+    )
+    assert result.returncode == 0, result.stderr
+    page = out / "view.html"
+    assert f"page: {page}" in result.stderr and page.is_file()
+    assert "page:" not in result.stdout  # --json keeps stdout to the summary
+    assert len(step_buttons(page.read_text(encoding="utf-8"))) == len(decisions(out))
