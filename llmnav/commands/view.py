@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from llmnav.commands.common import cli_errors, err_console
+from llmnav.errors import BadInputError
 
 
 @cli_errors
@@ -23,6 +24,13 @@ def view(
     ] = None,
     fps: Annotated[float, typer.Option("--fps", help="Video frames per second.")] = 10.0,
     seconds_per_step: Annotated[float, typer.Option("--seconds-per-step", help="Video seconds per decision.")] = 1.0,
+    screenshot: Annotated[
+        Path | None, typer.Option("--screenshot", help="Also save a PNG of the page as headless Chromium shows it.")
+    ] = None,
+    step: Annotated[
+        int | None, typer.Option("--step", min=1, help="Decision (1-based) the page opens at and the screenshot shows.")
+    ] = None,
+    size: Annotated[str, typer.Option("--size", help="Screenshot window size WIDTHxHEIGHT in pixels.")] = "1280x800",
 ) -> None:
     """Write one self-contained HTML page of a run (or of a sweep); optionally a video of the run."""
     from llmnav.view.api import write_view
@@ -36,8 +44,21 @@ def view(
             highlight=False,
             soft_wrap=True,
         )
+    if screenshot is not None:
+        from llmnav.view.shot import screenshot as take
+
+        width, height = _size(size)
+        err_console.print(f"screenshot: {take(result.page, screenshot, step=step, width=width, height=height)}")
     typer.echo(str(result.page))
     if open_page:
         import webbrowser
 
-        webbrowser.open(result.page.resolve().as_uri())
+        webbrowser.open(result.page.resolve().as_uri() + (f"#step={step}" if step is not None else ""))
+
+
+def _size(text: str) -> tuple[int, int]:
+    """`1280x800` → (1280, 800)."""
+    width, sep, height = text.lower().partition("x")
+    if not (sep and width.isdigit() and height.isdigit() and 100 <= int(width) <= 4000 and 100 <= int(height) <= 4000):
+        raise BadInputError(f"--size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 1280x800")
+    return int(width), int(height)

@@ -79,14 +79,18 @@ class Page:
         return int(self.page.locator("section.step.selected").get_attribute("data-step"))
 
     def assert_not_blank(self, out: Path) -> None:
-        import cv2
-        import numpy as np
-
         self.page.screenshot(path=str(out))
-        pixels = cv2.imread(str(out))
-        assert pixels is not None and pixels.shape[0] > 100
-        colours = np.unique(pixels.reshape(-1, 3)[::7], axis=0)
-        assert pixels.std() > 20 and len(colours) > 50, "the screenshot is (nearly) blank"
+        assert_not_blank(out)
+
+
+def assert_not_blank(png: Path) -> None:
+    import cv2
+    import numpy as np
+
+    pixels = cv2.imread(str(png))
+    assert pixels is not None and pixels.shape[0] > 100
+    colours = np.unique(pixels.reshape(-1, 3)[::7], axis=0)
+    assert pixels.std() > 20 and len(colours) > 50, "the screenshot is (nearly) blank"
 
 
 @pytest.mark.parametrize("kind", ["stepwise", "hybrid", "fsm", "waypoints", "killed"])
@@ -131,3 +135,19 @@ def test_sweep_page_in_chromium_links_to_run_pages(browser, sweep, tmp_path):
     view.page.wait_for_load_state()
     assert view.page.locator("nav.steps button[data-step]").count() >= 1
     assert view.problems == []
+
+
+def test_view_screenshot_opens_the_asked_step(browser, runs, tmp_path):
+    """`llmnav view --screenshot` (how the README's picture is made) with Chromium's own --screenshot."""
+    import cv2
+    import numpy as np
+
+    from llmnav.view.shot import screenshot
+
+    page = write_view(runs["stepwise"], tmp_path / "p.html").page
+    first = screenshot(page, tmp_path / "first.png", width=900, height=600)
+    last = screenshot(page, tmp_path / "last.png", step=len(decisions(runs["stepwise"])), width=900, height=600)
+    assert_not_blank(first)
+    a, b = cv2.imread(str(first)), cv2.imread(str(last))
+    assert a.shape == b.shape == (600, 900, 3)
+    assert np.abs(a.astype(int) - b.astype(int)).mean() > 1.0  # another decision is shown

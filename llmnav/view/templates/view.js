@@ -29,7 +29,7 @@
       if (focusList) { button.focus(); }
     }
     if (status) { status.textContent = sections[index].getAttribute("aria-label") || ""; }
-    if (history.replaceState) { history.replaceState(null, "", "#step-" + (index + 1)); }
+    if (history.replaceState) { history.replaceState(null, "", "#step=" + (index + 1)); }
   }
 
   buttons.forEach(function (b) {
@@ -49,7 +49,8 @@
     else if (e.key === "Home") { e.preventDefault(); select(0, true); }
     else if (e.key === "End") { e.preventDefault(); select(sections.length - 1, true); }
   });
-  var match = /^#step-(\d+)$/.exec(location.hash);
+  // "#step=K" (not an element id, so the browser does not scroll to it) opens decision K (1-based).
+  var match = /^#step=(\d+)$/.exec(location.hash);
   select(match ? Math.min(Number(match[1]) - 1, sections.length - 1) : 0, false);
   window.llmnavView = { select: select, count: sections.length, current: function () { return current; } };
 }());
