@@ -7,8 +7,6 @@ Skipped, with the reason, where Chromium or the Playwright package is missing; C
 
 from __future__ import annotations
 
-import os
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -16,6 +14,7 @@ from typing import Any
 import pytest
 
 from llmnav.view.api import write_view
+from llmnav.view.shot import find_browser
 
 from .logs import decisions, last_reply
 
@@ -30,17 +29,10 @@ CHROMIUM_FLAGS = [
 ]
 
 
-def chromium_path() -> str | None:
-    for candidate in (os.environ.get("LLMNAV_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium")):
-        if candidate and Path(candidate).is_file() and os.access(candidate, os.X_OK):
-            return candidate
-    return None
-
-
 @pytest.fixture(scope="module")
 def browser(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
     sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
-    executable = chromium_path()
+    executable = find_browser()
     if executable is None:
         pytest.skip("no Chromium at /usr/bin/chromium or on PATH (CI installs Debian's chromium)")
     profile = tmp_path_factory.mktemp("chromium-profile")  # a fresh --user-data-dir

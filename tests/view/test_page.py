@@ -103,7 +103,8 @@ def test_sweep_page_links_every_run_and_writes_missing_run_pages(sweep, tmp_path
 
 
 def test_thirty_step_page_with_640x480_images_stays_small(runs, tmp_path):
-    """30 decisions of the recorded stepwise run's shape, each with its own 640×480 camera JPEG."""
+    """30 decisions shaped like the recorded stepwise run's first one, each with its own 640×480 camera JPEG
+    and the whole history re-sent (`--history all`: request k holds every earlier exchange)."""
     import json
 
     import cv2
@@ -111,11 +112,13 @@ def test_thirty_step_page_with_640x480_images_stays_small(runs, tmp_path):
 
     src = runs["stepwise"]
     lines = [json.loads(line) for line in (src / "run.jsonl").read_text().splitlines()]
-    config = lines[0]
     step1 = [e for e in lines if e.get("step") == 1]
+    first_call = next(e for e in step1 if e["type"] == "llm_call")
+    system, turn = first_call["request"]["messages"][0], first_call["request"]["messages"][-1]
     run = tmp_path / "thirty"
     (run / "images").mkdir(parents=True)
-    out_lines = [config]
+    out_lines = [lines[0]]
+    history: list[dict] = []
     rng = np.random.default_rng(0)
     for k in range(1, 31):
         # a noisy picture compresses like a camera frame, not like a flat colour
@@ -124,11 +127,15 @@ def test_thirty_step_page_with_640x480_images_stays_small(runs, tmp_path):
         ok, jpeg = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, 80])
         digest = f"{k:064x}"
         (run / "images" / f"{digest}.jpg").write_bytes(jpeg.tobytes())
+        user = dict(turn, images=[digest])
         for e in step1:
             e = dict(e, step=k)
             if e["type"] == "observation":
                 e["image"] = digest
+            if e["type"] == "llm_call":
+                e = dict(e, request=dict(e["request"], messages=[system, *history, user]))
             out_lines.append(e)
+        history += [user, {"role": "assistant", "text": first_call["reply"]["text"]}]
     (run / "run.jsonl").write_text("\n".join(json.dumps(e) for e in out_lines) + "\n")
     page = write_view(run, tmp_path / "thirty.html").page
     images = sum(p.stat().st_size for p in (run / "images").iterdir())

@@ -25,8 +25,15 @@
     mark(buttons, index); mark(markers, index); mark(overlays, index);
     var button = buttons[index];
     if (button) {
-      button.scrollIntoView({ block: "nearest" });
-      if (focusList) { button.focus(); }
+      // Scroll the list only, never the window (the map and the header stay where the reader left them).
+      var list = document.getElementById("step-list"), item = button.parentNode;
+      if (list && item) {
+        if (item.offsetTop < list.scrollTop) { list.scrollTop = item.offsetTop; }
+        else if (item.offsetTop + item.offsetHeight > list.scrollTop + list.clientHeight) {
+          list.scrollTop = item.offsetTop + item.offsetHeight - list.clientHeight;
+        }
+      }
+      if (focusList) { button.focus({ preventScroll: true }); }
     }
     if (status) { status.textContent = sections[index].getAttribute("aria-label") || ""; }
     if (history.replaceState) { history.replaceState(null, "", "#step=" + (index + 1)); }
