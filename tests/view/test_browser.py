@@ -137,9 +137,9 @@ def test_view_screenshot_opens_the_asked_step(browser, runs, tmp_path):
     from llmnav.view.shot import screenshot
 
     page = write_view(runs["stepwise"], tmp_path / "p.html").page
-    first = screenshot(page, tmp_path / "first.png", width=900, height=600)
-    last = screenshot(page, tmp_path / "last.png", step=len(decisions(runs["stepwise"])), width=900, height=600)
+    first = screenshot(page, tmp_path / "first.png", width=1280, height=800)
+    last = screenshot(page, tmp_path / "last.png", step=len(decisions(runs["stepwise"])), width=1280, height=800)
     assert_not_blank(first)
     a, b = cv2.imread(str(first)), cv2.imread(str(last))
-    assert a.shape == b.shape == (600, 900, 3)
+    assert a.shape == b.shape == (800, 1280, 3)
     assert np.abs(a.astype(int) - b.astype(int)).mean() > 1.0  # another decision is shown
