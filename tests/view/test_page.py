@@ -187,3 +187,24 @@ def test_drive_view_writes_the_page_and_prints_its_path(tmp_path):
     assert f"page: {page}" in result.stderr and page.is_file()
     assert "page:" not in result.stdout  # --json keeps stdout to the summary
     assert len(step_buttons(page.read_text(encoding="utf-8"))) == len(decisions(out))
+
+
+def test_run_whose_scenario_is_gone_still_gets_a_page(runs, tmp_path):
+    import json
+    import shutil
+
+    run = tmp_path / "moved"
+    shutil.copytree(runs["hybrid"], run, ignore=shutil.ignore_patterns("view.html"))
+    lines = (run / "run.jsonl").read_text(encoding="utf-8").splitlines()
+    config = json.loads(lines[0])
+    config.update(scenario="nowhere", scenario_file=str(tmp_path / "gone.yaml"))
+    (run / "run.jsonl").write_text("\n".join([json.dumps(config), *lines[1:]]) + "\n", encoding="utf-8")
+    page = write_view(run, tmp_path / "m.html").page.read_text(encoding="utf-8")
+    assert "cannot be loaded: no map is drawn" in page
+    assert len(step_buttons(page)) == len(decisions(run))
+    assert 'class="trajectory"' in page  # the driven path is still drawn
+
+
+def test_video_of_a_sweep_is_refused(sweep, tmp_path):
+    with pytest.raises(BadInputError, match="needs a run folder"):
+        write_view(sweep, tmp_path / "s.html", video=tmp_path / "s.mp4")
