@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+PROFILE_FILE = "velocity_profile.png"  # where the FSM planner leaves the figure in its run folder
+
 
 def plot_velocity_profile(run_dir: Path, out: Path) -> Path | None:
     """Draw linear and angular velocity from the run's `cmd` records; None when there are none."""

@@ -1,4 +1,4 @@
-"""Geometry for the page's SVG figures: world shapes, poses, LiDAR wedges and line charts as numbers.
+"""Geometry for the page's SVG figures: world shapes, poses and LiDAR wedges as numbers.
 
 The templates turn these plain records into SVG elements (through Jinja's escaping `xmlattr`), so no
 markup is assembled here. World figures use metres with y flipped (SVG's y grows downwards): a world
@@ -191,53 +191,3 @@ def lidar_wedges(lidar: LidarView, radius_px: float = POLAR_RADIUS_PX) -> dict[s
         if metres < reach and (metres >= reach / 8):
             rings.append({"r": round(metres * scale, 2), "label": f"{metres:g} m"})
     return {"wedges": wedges, "rings": rings, "radius": radius_px, "range_max": lidar.range_max_m, "reach": reach}
-
-
-# --- line charts -----------------------------------------------------------------------------------
-
-
-@dataclass
-class Chart:
-    """A chart's coordinate mapping: data (t, value) → pixels inside a plot area."""
-
-    width: float
-    height: float
-    t0: float
-    t1: float
-    v0: float
-    v1: float
-    pad: float = 36.0
-
-    def x(self, t: float) -> float:
-        """Pixel x of a time."""
-        span = (self.t1 - self.t0) or 1.0
-        return round(self.pad + (t - self.t0) / span * (self.width - self.pad - 8), 2)
-
-    def y(self, v: float) -> float:
-        """Pixel y of a value."""
-        span = (self.v1 - self.v0) or 1.0
-        return round(8 + (self.v1 - v) / span * (self.height - 28), 2)
-
-    def polyline(self, ts: Sequence[float], vs: Sequence[float | None]) -> str:
-        """`points` of the samples that have a value."""
-        return " ".join(f"{self.x(t):g},{self.y(v):g}" for t, v in zip(ts, vs, strict=True) if v is not None)
-
-    def ticks(self, count: int = 5) -> dict[str, list[dict[str, Any]]]:
-        """Axis ticks: positions and labels."""
-        ts = [self.t0 + (self.t1 - self.t0) * k / (count - 1) for k in range(count)]
-        vs = [self.v0 + (self.v1 - self.v0) * k / 2 for k in range(3)]
-        return {
-            "t": [{"x": self.x(t), "label": f"{t:.0f}"} for t in ts],
-            "v": [{"y": self.y(v), "label": f"{v:.2g}"} for v in vs],
-        }
-
-
-def chart_for(ts: Sequence[float], series: Sequence[Sequence[float | None]], width: float, height: float) -> Chart:
-    """A chart whose ranges cover every series (with a little head room)."""
-    values = [v for s in series for v in s if v is not None and math.isfinite(v)]
-    low, high = (min(values), max(values)) if values else (0.0, 1.0)
-    if high - low < 1e-9:
-        low, high = low - 0.5, high + 0.5
-    pad = (high - low) * 0.08
-    t0, t1 = (min(ts), max(ts)) if ts else (0.0, 1.0)
-    return Chart(width, height, t0, t1 if t1 > t0 else t0 + 1.0, low - pad, high + pad)

@@ -133,38 +133,53 @@ def _overlay(step: Any) -> dict[str, Any]:
     }
 
 
-def _fsm_charts(view: RunView) -> dict[str, Any] | None:
-    from llmnav.view.drawing import chart_for
+STRIP_W, STRIP_PAD = 760, 36  # [px] suggestion-outcome strip: width and left margin
 
+
+def _velocity_profile(view: RunView) -> str | None:
+    """The FSM's velocity-profile figure (`llmnav.reporting.velocity`) as a PNG data URI.
+
+    The planner draws it at the end of a run; a run cut short gets it drawn now.
+    """
+    from llmnav.reporting.velocity import PROFILE_FILE, plot_velocity_profile
+
+    path: Path | None = view.run_dir / PROFILE_FILE
+    with tempfile.TemporaryDirectory(prefix="llmnav-view-") as tmp:
+        if path is None or not path.is_file():
+            path = plot_velocity_profile(view.run_dir, Path(tmp) / PROFILE_FILE)
+        if path is None:
+            return None
+        return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _fsm_charts(view: RunView) -> dict[str, Any] | None:
+    """The velocity profile and a strip of suggestion outcomes over simulation time."""
     fsm = view.fsm
     if fsm is None:
         return None
-    panels = []
-    for index, name in ((0, "linear v [m/s]"), (1, "angular ω [rad/s]")):
-        base = [b[index] for b in fsm.base]
-        raw = [r[index] if r is not None else None for r in fsm.raw]
-        fused = [f[index] for f in fsm.fused]
-        chart = chart_for(fsm.t, [base, raw, fused], 760, 170)
-        raw_points = [{"x": chart.x(t), "y": chart.y(v)} for t, v in zip(fsm.t, raw, strict=True) if v is not None]
-        panels.append(
-            {
-                "name": name,
-                "base": chart.polyline(fsm.t, base),
-                "fused": chart.polyline(fsm.t, fused),
-                "raw": raw_points[:2000],
-                "ticks": chart.ticks(),
-            }
-        )
     verdicts: dict[str, int] = {}
     for s in fsm.suggestions:
         verdicts[str(s.get("verdict"))] = verdicts.get(str(s.get("verdict")), 0) + 1
     t1 = max([*fsm.t, *(float(s.get("t_recv") or 0) for s in fsm.suggestions), 1.0])
-    strip = chart_for([0.0, t1], [[0.0, 1.0]], 760, 60)
+    span = STRIP_W - STRIP_PAD - 8
     marks = [
-        {"x": strip.x(float(s.get("t_recv") or 0.0)), "verdict": str(s.get("verdict")), "detail": s.get("detail")}
+        {
+            "x": round(STRIP_PAD + float(s.get("t_recv") or 0.0) / t1 * span, 2),
+            "verdict": str(s.get("verdict")),
+            "detail": s.get("detail"),
+            "t": s.get("t_recv"),
+        }
         for s in fsm.suggestions
     ]
-    return {"panels": panels, "verdicts": verdicts, "marks": marks, "states": fsm.states, "samples": len(fsm.t)}
+    ticks = [{"x": round(STRIP_PAD + k / 4 * span, 2), "label": f"{t1 * k / 4:.0f}"} for k in range(5)]
+    return {
+        "profile": _velocity_profile(view),
+        "verdicts": verdicts,
+        "marks": marks,
+        "ticks": ticks,
+        "states": fsm.states,
+        "samples": len(fsm.t),
+    }
 
 
 def run_context(view: RunView) -> dict[str, Any]:

@@ -73,7 +73,7 @@ def test_fsm_page_has_profile_and_suggestion_outcomes(runs, tmp_path):
     page = write_view(runs["fsm"], tmp_path / "f.html").page.read_text(encoding="utf-8")
     verdicts = [e["verdict"] for e in events(runs["fsm"]) if e.get("kind") == "suggestion"]
     assert {"accepted", "parse", "bounds"} <= set(verdicts)
-    assert 'class="base"' in page and 'class="fused"' in page
+    assert '<img class="chart" src="data:image/png;base64,' in page and 'alt="FSM command profile' in page
     for verdict in set(verdicts):
         assert f'class="mark-{verdict}"' in page
 
