@@ -5,12 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from llmnav.ablate import MANIFEST_FILE
 from llmnav.errors import BadInputError
 from llmnav.runlog import RUN_FILE
 from llmnav.view.page import PAGE_FILE, check_out, run_page, sweep_page, write_page
 from llmnav.view.video import VideoInfo, render_video
-
-MANIFEST_FILE = "manifest.json"  # an ablation folder's index (llmnav.ablate writes it)
 
 
 @dataclass

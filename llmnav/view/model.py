@@ -190,6 +190,8 @@ class RunView:
         models = sorted({c.model for s in self.steps for c in s.calls if c.model})
         calls = [c for s in self.steps for c in s.calls]
         oracle_m = polyline_length(self.oracle) if self.oracle else None
+        path_m = summary.get("path_length_m")
+        ratio = path_m / oracle_m if isinstance(path_m, (int, float)) and oracle_m else None
         return {
             "task": task.get("text") or summary.get("task_text"),
             "task_id": task.get("id"),
@@ -206,6 +208,7 @@ class RunView:
             "success": summary.get("success"),
             "path_length_m": summary.get("path_length_m"),
             "oracle_length_m": oracle_m,
+            "oracle_ratio": ratio,
             "iterations": summary.get("iterations"),
             "llm_calls": len(calls),
             "model_time_s": sum(c.latency_s or 0.0 for c in calls),
@@ -264,9 +267,18 @@ def describe_action(action: dict[str, Any]) -> str:
     return text
 
 
-def parse_lidar(text: str | None, front_m: float | None) -> LidarView | None:
+def as_pose(value: Any) -> list[float] | None:
+    """A logged pose [x, y(, yaw)] as floats; None for anything else (a log may hold odd values)."""
+    if not isinstance(value, list) or len(value) < 2:
+        return None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value[:3]):
+        return None
+    return [float(v) for v in value[:3]]
+
+
+def parse_lidar(text: Any, front_m: Any) -> LidarView | None:
     """The sectors of an observation's LiDAR text (`llmnav.perception.LidarSummary.text`); None if absent."""
-    if not text:
+    if not isinstance(text, str) or not text:
         return None
     sectors: list[Sector] = []
     for match in _SECTOR_LINE.finditer(text):
@@ -314,7 +326,7 @@ def _call_view(event: dict[str, Any], previous: list[MessageView]) -> CallView:
         purpose=str(event.get("purpose") or "call"),
         new_messages=new,
         messages=messages,
-        reply=str(reply.get("text", "")) if reply else None,
+        reply=(reply["text"] if isinstance(reply.get("text"), str) else "") if reply else None,
         error=str(event["error"]) if event.get("error") is not None else None,
         model=str(reply["model"]) if reply and reply.get("model") else None,
         latency_s=float(latency) if isinstance(latency, (int, float)) else None,
@@ -357,7 +369,7 @@ def _fsm_steps(record: RunRecord) -> list[StepView]:
         _place_by_time(steps, record)
         return steps
     for i, event in enumerate(e for e in record.of_type("planner") if e.get("kind") == "fsm_state"):
-        pose = event.get("pose")
+        pose = as_pose(event.get("pose"))
         step = StepView(i, f"State {event.get('state')}", None, pose_before=pose, pose_after=pose)
         step.t_sim = event.get("t_sim")
         step.notes.append(f"{event.get('previous')} → {event.get('state')} (sign {event.get('sign')})")
@@ -371,9 +383,9 @@ def _place_by_time(steps: list[StepView], record: RunRecord) -> None:
     import bisect
 
     samples = [
-        (float(e["t_sim"]), e["pose"])
+        (float(e["t_sim"]), pose)
         for e in record.of_type("pose")
-        if isinstance(e.get("t_sim"), (int, float)) and isinstance(e.get("pose"), list)
+        if isinstance(e.get("t_sim"), (int, float)) and (pose := as_pose(e.get("pose"))) is not None
     ]
     times = [t for t, _ in samples]
     for step in steps:
@@ -399,9 +411,11 @@ def _stepped(record: RunRecord) -> list[StepView]:
             name = "Leg" if planner == "waypoints" else "Step"
             step = by_step[key] = StepView(len(by_step), f"{name} {key}", key, t_sim=event.get("t_sim"))
         if kind == "observation":
-            step.pose_before = step.pose_before or event.get("pose")
-            step.image = step.image or event.get("image")
-            step.lidar_text = event.get("lidar_text")
+            step.pose_before = step.pose_before or as_pose(event.get("pose"))
+            image = event.get("image")
+            step.image = step.image or (image if isinstance(image, str) else None)
+            text = event.get("lidar_text")
+            step.lidar_text = text if isinstance(text, str) else None
             step.lidar = parse_lidar(event.get("lidar_text"), event.get("lidar_front_m"))
             step.detections = [d for d in event.get("detections") or [] if isinstance(d, dict)]
         elif kind == "llm_call":
@@ -415,8 +429,8 @@ def _stepped(record: RunRecord) -> list[StepView]:
         elif kind == "action":
             step.actions.append(event)
             if step.pose_before is None:
-                step.pose_before = event.get("pose_before")
-            step.pose_after = event.get("pose_after") or step.pose_after
+                step.pose_before = as_pose(event.get("pose_before"))
+            step.pose_after = as_pose(event.get("pose_after")) or step.pose_after
         elif event.get("kind") == "waypoint_attempt":
             step.attempts.append(event)
         elif event.get("kind") == "replan":
@@ -427,7 +441,7 @@ def _stepped(record: RunRecord) -> list[StepView]:
 
 
 def _fsm_view(record: RunRecord) -> FsmView | None:
-    planner = [e for e in record.of_type("planner")]
+    planner = record.of_type("planner")
     cmds = [e for e in planner if e.get("kind") == "cmd" and isinstance(e.get("base"), list)]
     if not cmds and record.config.get("planner") != "fsm":
         return None
@@ -481,12 +495,18 @@ def build_run_view(run_dir: Path) -> RunView:
 
     run_dir = Path(run_dir)
     record = read_run(run_dir)
-    summary = load_run(run_dir).summary
+    missing: list[str] = []
+    try:
+        summary = load_run(run_dir).summary
+    except (IndexError, KeyError, TypeError, ValueError) as err:
+        # Malformed fields (a pose with one number, a string for a number) defeat the metrics; the page
+        # still shows every event, and says why the figures are absent.
+        summary = dict(record.summary or {})
+        missing.append(f"the run's figures cannot be computed from this log ({type(err).__name__}: {err})")
     scenario = scenario_of(record.config)
     planner = record.config.get("planner")
     steps = _fsm_steps(record) if planner == "fsm" else _stepped(record)
     _mark_missing(steps, record, planner)
-    missing: list[str] = []
     if not record.complete:
         missing.append("the run has no end event: it was cut short (killed or still running)")
     if record.summary is None:
@@ -504,9 +524,9 @@ def build_run_view(run_dir: Path) -> RunView:
     if len(images) < len(wanted):
         missing.append(f"{len(wanted) - len(images)} camera image(s) referenced by the log are missing")
     task = _task(record.config, scenario)
-    start = record.config.get("start_pose")
+    start = as_pose(record.config.get("start_pose"))
     oracle = None
-    if scenario is not None and task is not None and isinstance(start, list) and len(start) >= 3:
+    if scenario is not None and task is not None and start is not None and len(start) >= 3:
         oracle = oracle_points(scenario, task, start)
     if not steps:
         missing.append("no decision was logged")
@@ -517,7 +537,7 @@ def build_run_view(run_dir: Path) -> RunView:
         scenario=scenario,
         task=task,
         steps=steps,
-        trajectory=[p for p in record.poses() if isinstance(p, list) and len(p) >= 2],
+        trajectory=[p for p in (as_pose(e.get("pose")) for e in record.of_type("pose")) if p is not None],
         oracle=oracle,
         fsm=_fsm_view(record) if planner == "fsm" else None,
         missing=missing,

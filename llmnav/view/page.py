@@ -274,6 +274,7 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
     """Everything the sweep template needs; writes the run pages that are missing."""
     import json
 
+    from llmnav.ablate import MANIFEST_FILE
     from llmnav.score import build_tables, find_run_dirs, load_run, varying_keys
 
     runs = [load_run(d) for d in find_run_dirs([root])]
@@ -286,7 +287,7 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
         links[run.run_dir] = _href(page, out)
     manifest: dict[str, Any] = {}
     try:
-        loaded = json.loads((root / "manifest.json").read_text(encoding="utf-8"))
+        loaded = json.loads((root / MANIFEST_FILE).read_text(encoding="utf-8"))
         manifest = loaded if isinstance(loaded, dict) else {}
     except (OSError, ValueError):
         manifest = {}

@@ -144,19 +144,24 @@ def _caption(step: StepView | None, total: int) -> list[str]:
 
 def _segments(view: RunView) -> list[tuple[StepView | None, list[list[float]]]]:
     """Per decision, the trajectory samples from it to the next decision (by simulation time)."""
-    poses = [e for e in view.record.events if e.get("type") == "pose" and isinstance(e.get("pose"), list)]
+    from llmnav.view.model import as_pose
+
+    timed: list[tuple[float | None, list[float]]] = []  # (sim time, pose) of every trajectory sample
+    for event in view.record.events:
+        pose = as_pose(event.get("pose")) if event.get("type") == "pose" else None
+        if pose is not None:
+            stamp = event.get("t_sim")
+            timed.append((float(stamp) if isinstance(stamp, (int, float)) else None, pose))
     steps = view.steps
     if not steps:
-        return [(None, [e["pose"] for e in poses])]
+        return [(None, [pose for _, pose in timed])]
     out: list[tuple[StepView | None, list[list[float]]]] = []
     for i, step in enumerate(steps):
         start = step.t_sim
         end = steps[i + 1].t_sim if i + 1 < len(steps) else math.inf
         inside: list[list[float]] = []
         if isinstance(start, (int, float)) and isinstance(end, (int, float)):
-            inside = [
-                e["pose"] for e in poses if isinstance(e.get("t_sim"), (int, float)) and start <= e["t_sim"] < end
-            ]
+            inside = [pose for stamp, pose in timed if stamp is not None and start <= stamp < end]
         if not inside:  # no timed samples: straight from the pose before to the pose after
             inside = [p for p in (step.pose_before, step.pose_after) if isinstance(p, list) and len(p) >= 3]
         out.append((step, inside))

@@ -208,3 +208,28 @@ def test_run_whose_scenario_is_gone_still_gets_a_page(runs, tmp_path):
 def test_video_of_a_sweep_is_refused(sweep, tmp_path):
     with pytest.raises(BadInputError, match="needs a run folder"):
         write_view(sweep, tmp_path / "s.html", video=tmp_path / "s.mp4")
+
+
+def test_odd_field_types_in_a_log_do_not_break_the_page(runs, tmp_path):
+    """A log edited by hand or written by another version: wrong types show as text, never crash."""
+    import json
+
+    config = json.loads((runs["stepwise"] / "run.jsonl").read_text(encoding="utf-8").splitlines()[0])
+    odd = [
+        {"type": "observation", "step": 1, "pose": "here", "lidar_text": 42, "detections": "none", "image": 7},
+        {"type": "llm_call", "step": 1, "purpose": None, "request": {"messages": "x"}, "reply": "plain"},
+        {"type": "llm_call", "step": 1, "request": None, "reply": {"text": None, "latency_s": "slow"}},
+        {"type": "guard", "step": 1, "outcome": None, "error": {"nested": True}, "attempt": "first"},
+        {"type": "action", "step": 1, "command": None, "parameters": {"a": 1}, "pose_before": [1], "pose_after": None},
+        {"type": "planner", "step": 1, "kind": "waypoint_attempt", "points": "none", "valid": "yes"},
+        {"type": "planner", "step": 1, "kind": "replan", "pose": [1, 2], "obstacle": "far"},
+        {"type": "action", "step": "two", "command": "FRONT", "parameters": 1.0},
+        {"type": "pose", "pose": [1.0]},
+        {"type": "end"},
+    ]
+    run = tmp_path / "odd"
+    run.mkdir()
+    (run / "run.jsonl").write_text("\n".join(json.dumps(e) for e in [config, *odd]) + "\n", encoding="utf-8")
+    result = write_view(run, tmp_path / "o.html", video=tmp_path / "o.gif", fps=2, seconds_per_step=0.5)
+    assert step_buttons(result.page.read_text(encoding="utf-8")) == ["0", "1"]  # step 1 and step "two"
+    assert result.video is not None and result.video.frames == 2
