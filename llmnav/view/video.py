@@ -6,8 +6,9 @@ caption names the decision, the executed action and the model's one-line reasoni
 once with matplotlib (`llmnav.reporting.topview.draw_scenario`); frames are composed with OpenCV.
 
 MP4 goes through OpenCV's VideoWriter with the first codec this OpenCV build can write (`CODECS`);
-GIF through Pillow (matplotlib's own dependency), at half size. Either way the file holds exactly
-`frames` frames at `fps`, so its duration is frames / fps.
+GIF through Pillow (matplotlib's own dependency), at half size. When no MP4 codec can be written, the
+video falls back to a GIF beside the asked path (same name, .gif), and `VideoInfo.path` says so.
+Either way the file holds exactly `frames` frames at `fps`, so its duration is frames / fps.
 """
 
 from __future__ import annotations
@@ -274,22 +275,22 @@ def render_video(view: RunView, out: Path, *, fps: float = 10.0, seconds_per_ste
     except OSError as err:
         raise BadInputError(f"--video {out}: cannot create its folder: {err.strerror or err}") from None
     width, height = 2 * PANEL_W, PANEL_H + CAPTION_H
+    codec = writable_codec(out.parent) if suffix == ".mp4" else None
+    if suffix == ".mp4" and codec is None:  # the GIF fallback: this OpenCV build encodes no MP4 codec
+        out = out.with_suffix(".gif")
     tmp = out.with_name(out.stem + ".partial" + out.suffix)
-    if suffix == ".gif":
+    if codec is None:
         info = _write_gif(view, tmp, fps, seconds_per_step, width, height)
     else:
-        info = _write_mp4(view, tmp, fps, seconds_per_step, width, height)
+        info = _write_mp4(view, tmp, codec, fps, seconds_per_step, width, height)
     tmp.replace(out)
     info.path = out
     return info
 
 
-def _write_mp4(view: RunView, tmp: Path, fps: float, sps: float, width: int, height: int) -> VideoInfo:
+def _write_mp4(view: RunView, tmp: Path, codec: str, fps: float, sps: float, width: int, height: int) -> VideoInfo:
     import cv2
 
-    codec = writable_codec(tmp.parent)
-    if codec is None:
-        raise BadInputError("this OpenCV build can write no MP4 codec here; use --video FILE.gif")
     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*codec), fps, (width, height))
     frames = 0
     try:

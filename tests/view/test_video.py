@@ -68,3 +68,12 @@ def test_video_needs_mp4_or_gif(runs, tmp_path):
     with pytest.raises(BadInputError, match=r"\.mp4 or \.gif"):
         write_view(runs["hybrid"], tmp_path / "p.html", video=tmp_path / "x.avi")
     assert not (tmp_path / "p.html").exists()  # refused before anything was written
+
+
+def test_mp4_falls_back_to_gif_when_no_codec_can_be_written(runs, tmp_path, monkeypatch):
+    from llmnav.view import video
+
+    monkeypatch.setattr(video, "CODECS", ("zzzz",))  # a codec no OpenCV build encodes
+    info = write_view(runs["hybrid"], tmp_path / "p.html", video=tmp_path / "v.mp4", fps=5, seconds_per_step=0.2).video
+    assert info is not None and info.path == tmp_path / "v.gif" and info.codec == "gif"
+    assert (tmp_path / "v.gif").is_file() and not (tmp_path / "v.mp4").exists()
