@@ -2,6 +2,7 @@
 // Plain JavaScript, no dependencies; it only shows and hides content that is already in the page.
 (function () {
   "use strict";
+  document.documentElement.classList.add("js");
   var sections = Array.prototype.slice.call(document.querySelectorAll("section.step"));
   if (!sections.length) { return; }
   var buttons = Array.prototype.slice.call(document.querySelectorAll("nav.steps button[data-step]"));
@@ -21,7 +22,7 @@
   function select(index, focusList) {
     if (index < 0 || index >= sections.length) { return; }
     current = index;
-    sections.forEach(function (s, i) { s.classList.toggle("selected", i === index); s.hidden = i !== index; });
+    sections.forEach(function (s, i) { s.classList.toggle("selected", i === index); });
     mark(buttons, index); mark(markers, index); mark(overlays, index);
     var button = buttons[index];
     if (button) {
