@@ -108,11 +108,6 @@ class StepView:
         return [g for g in self.guards if g.get("outcome") == "veto"]
 
     @property
-    def corrections(self) -> list[dict[str, Any]]:
-        """Guard verdicts other than ok and veto (each one led to a correction round or the end)."""
-        return [g for g in self.guards if g.get("outcome") not in ("ok", "veto")]
-
-    @property
     def latency_s(self) -> float:
         """Model time of the decision [s]."""
         return sum(c.latency_s or 0.0 for c in self.calls)
@@ -138,14 +133,6 @@ class StepView:
             if call.reply:
                 return reasoning_of(call.reply)
         return ""
-
-    @property
-    def last_reply(self) -> str | None:
-        """The last raw reply of the decision."""
-        for call in reversed(self.calls):
-            if call.reply is not None:
-                return call.reply
-        return None
 
 
 @dataclass
@@ -455,7 +442,7 @@ def _fsm_view(record: RunRecord) -> FsmView | None:
     )
 
 
-def _mark_missing(steps: list[StepView], record: RunRecord, planner: str | None) -> None:
+def _mark_missing(steps: list[StepView], planner: str | None) -> None:
     """Say what each decision lacks (a killed run stops mid-decision)."""
     model_planner = planner in ("stepwise", "hybrid", "waypoints")
     for step in steps:
@@ -506,7 +493,7 @@ def build_run_view(run_dir: Path) -> RunView:
     scenario = scenario_of(record.config)
     planner = record.config.get("planner")
     steps = _fsm_steps(record) if planner == "fsm" else _stepped(record)
-    _mark_missing(steps, record, planner)
+    _mark_missing(steps, planner)
     if not record.complete:
         missing.append("the run has no end event: it was cut short (killed or still running)")
     if record.summary is None:
