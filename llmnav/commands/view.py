@@ -35,8 +35,10 @@ def view(
     """Write one self-contained HTML page of a run (or of a sweep); optionally a video of the run."""
     from llmnav.view.api import write_view
 
+    width, height = _size(size)  # bad flags fail before anything is written
+    if screenshot is not None and screenshot.suffix.lower() != ".png":
+        raise BadInputError(f"--screenshot {screenshot}: give a file ending in .png")
     result = write_view(folder, out, force=force, video=video, fps=fps, seconds_per_step=seconds_per_step)
-    err_console.print(f"page: {result.page}", highlight=False, soft_wrap=True)
     if result.video is not None:
         v = result.video
         err_console.print(
@@ -47,7 +49,6 @@ def view(
     if screenshot is not None:
         from llmnav.view.shot import screenshot as take
 
-        width, height = _size(size)
         err_console.print(f"screenshot: {take(result.page, screenshot, step=step, width=width, height=height)}")
     typer.echo(str(result.page))
     if open_page:

@@ -44,7 +44,7 @@ def test_mp4_holds_one_second_per_decision_at_10_fps(runs, tmp_path):
     assert declared == read == expected_frames
     assert read / fps == pytest.approx(len(decisions(runs["stepwise"])) * 1.0)
     assert first is not None and first.shape[1] == 1280 and first.std() > 20  # map beside camera, not blank
-    assert f"{expected_frames} frames" in result.stderr
+    assert f"{expected_frames} frames" in result.stderr and result.stdout.strip() == str(tmp_path / "p.html")
 
 
 def test_gif_frame_count_and_durations_match(runs, tmp_path):
