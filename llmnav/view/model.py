@@ -34,6 +34,7 @@ _SECTOR_LINE = re.compile(
     re.MULTILINE,
 )
 _RANGE_MAX = re.compile(r"inf = nothing within (\d+(?:\.\d+)?) m")
+_IMAGE_HASH = re.compile(r"[0-9a-f]{64}")  # images are stored under their sha256 (llmnav.runlog)
 
 
 @dataclass
@@ -505,6 +506,8 @@ def build_run_view(run_dir: Path) -> RunView:
     images: dict[str, Path] = {}
     wanted = {s.image for s in steps if s.image}
     for digest in sorted(wanted):
+        if not _IMAGE_HASH.fullmatch(digest):  # a hand-made log could name ../../anything: only hashes
+            continue
         path = run_dir / IMAGES_DIR / f"{digest}.jpg"
         if path.is_file():
             images[digest] = path

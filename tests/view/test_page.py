@@ -233,3 +233,18 @@ def test_odd_field_types_in_a_log_do_not_break_the_page(runs, tmp_path):
     result = write_view(run, tmp_path / "o.html", video=tmp_path / "o.gif", fps=2, seconds_per_step=0.5)
     assert step_buttons(result.page.read_text(encoding="utf-8")) == ["0", "1"]  # step 1 and step "two"
     assert result.video is not None and result.video.frames == 2
+
+
+def test_an_image_name_in_the_log_cannot_reach_outside_the_images_folder(runs, tmp_path):
+    import json
+
+    secret = tmp_path / "secret.jpg"
+    secret.write_bytes(b"\xff\xd8 not for the page \xff\xd9")
+    run = tmp_path / "run"
+    (run / "images").mkdir(parents=True)
+    config = json.loads((runs["stepwise"] / "run.jsonl").read_text(encoding="utf-8").splitlines()[0])
+    sneaky = {"type": "observation", "step": 1, "pose": [1.0, 1.0, 0.0], "image": "../../secret"}
+    (run / "run.jsonl").write_text(json.dumps(config) + "\n" + json.dumps(sneaky) + "\n", encoding="utf-8")
+    assert (run / "images" / "../../secret.jpg").resolve() == secret.resolve()
+    page = write_view(run, tmp_path / "p.html").page.read_text(encoding="utf-8")
+    assert "data:image/jpeg" not in page and "is missing from the run folder" in page
