@@ -222,7 +222,14 @@ def run_page(run_dir: Path) -> str:
 
 
 def _href(target: Path, page: Path) -> str:
-    return Path(os.path.relpath(target.resolve(), page.parent.resolve())).as_posix()
+    """A relative link that stays a path whatever the folder names hold (`:`, `#`, `?`, spaces).
+
+    The `./` prefix keeps a folder named like `javascript:...` from being read as a URL scheme.
+    """
+    from urllib.parse import quote
+
+    relative = Path(os.path.relpath(target.resolve(), page.parent.resolve())).as_posix()
+    return quote(relative if relative.startswith("../") else "./" + relative)
 
 
 def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, str]]:

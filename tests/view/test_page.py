@@ -90,6 +90,8 @@ def test_waypoint_page_shows_attempts_and_replans(runs, tmp_path):
 
 
 def test_sweep_page_links_every_run_and_writes_missing_run_pages(sweep, tmp_path):
+    from urllib.parse import quote
+
     result = write_view(sweep)
     page = result.page.read_text(encoding="utf-8")
     assert result.kind == "sweep" and result.page == sweep / "view.html"
@@ -97,7 +99,7 @@ def test_sweep_page_links_every_run_and_writes_missing_run_pages(sweep, tmp_path
     assert len(run_dirs) == 4
     for run_dir in run_dirs:
         assert (run_dir / "view.html").is_file()
-        assert f'href="{run_dir.name}/view.html"' in page
+        assert f'href="./{quote(run_dir.name)}/view.html"' in page
     assert "Episodes (stepwise source" in page and "data:image/png;base64," in page
     assert page.count('class="success-map"') == 2  # lidar_sectors=3 and =8
 
@@ -248,3 +250,13 @@ def test_an_image_name_in_the_log_cannot_reach_outside_the_images_folder(runs, t
     assert (run / "images" / "../../secret.jpg").resolve() == secret.resolve()
     page = write_view(run, tmp_path / "p.html").page.read_text(encoding="utf-8")
     assert "data:image/jpeg" not in page and "is missing from the run folder" in page
+
+
+def test_sweep_links_stay_paths_whatever_a_folder_is_called(runs, tmp_path):
+    import shutil
+
+    root = tmp_path / "sweep"
+    shutil.copytree(runs["hybrid"], root / "javascript:alert(1)", ignore=shutil.ignore_patterns("view.html"))
+    page = write_view(root).page.read_text(encoding="utf-8")
+    assert 'href="./javascript%3Aalert%281%29/view.html"' in page
+    assert 'href="javascript:' not in page
