@@ -260,3 +260,15 @@ def test_sweep_links_stay_paths_whatever_a_folder_is_called(runs, tmp_path):
     page = write_view(root).page.read_text(encoding="utf-8")
     assert 'href="./javascript%3Aalert%281%29/view.html"' in page
     assert 'href="javascript:' not in page
+
+
+def test_ablate_view_writes_the_sweep_page(tmp_path):
+    from .conftest import SMALL
+
+    out = tmp_path / "sweep"
+    args = ("ablate", "--scenario", SMALL, "--tasks", "T1", "--poses", "1", "--planner", "oracle", "--out", str(out))
+    result = llmnav(*args, "--view")
+    assert result.returncode == 0, result.stderr
+    assert f"page: {out / 'view.html'}" in " ".join(result.stdout.split())
+    page = (out / "view.html").read_text(encoding="utf-8")
+    assert page.count('<table class="runs"') == 1 and (out / "T1-p1-t1" / "view.html").is_file()
