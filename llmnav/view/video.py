@@ -1,7 +1,8 @@
 """An episode as a video: the top view with the moving robot beside the camera frame, and a caption.
 
-Each decision gets `seconds_per_step` of video: the robot moves along the trajectory samples logged
-between this decision and the next, the right half shows the camera image the model was sent, and the
+Each decision gets `seconds_per_step` of video per executed action (at least one: a waypoint leg that
+drives five waypoints lasts five times as long as a turn). The robot moves along the trajectory
+samples logged between this decision and the next, the right half shows the camera image sent, and the
 caption names the decision, the executed action and the model's one-line reasoning. The map is drawn
 once with matplotlib (`llmnav.reporting.topview.draw_scenario`); frames are composed with OpenCV.
 
@@ -174,7 +175,7 @@ def _frames(view: RunView, fps: float, seconds_per_step: float) -> Iterator[np.n
     import numpy as np
 
     base = _draw_map(view)
-    per_step = max(1, round(fps * seconds_per_step))
+    per_action = max(1, round(fps * seconds_per_step))
     segments = _segments(view)
     trail: list[tuple[int, int]] = []
     number = 0  # frames so far; its clock in the corner also keeps every frame distinct (GIF writers merge twins)
@@ -182,6 +183,7 @@ def _frames(view: RunView, fps: float, seconds_per_step: float) -> Iterator[np.n
     for step, samples in segments:
         camera = _camera(view, step)
         lines = _caption(step, len(view.steps))
+        per_step = per_action * _actions(step)
         for k in range(per_step):
             if samples:
                 pose = samples[min(len(samples) - 1, (k * len(samples)) // per_step)]
@@ -228,9 +230,9 @@ def _frames(view: RunView, fps: float, seconds_per_step: float) -> Iterator[np.n
             yield frame
 
 
-def frame_count(view: RunView, fps: float, seconds_per_step: float) -> int:
-    """How many frames the video of a run has."""
-    return max(1, len(view.steps)) * max(1, round(fps * seconds_per_step))
+def _actions(step: StepView | None) -> int:
+    """How many `seconds_per_step` slots a decision gets: one per executed action, at least one."""
+    return max(1, len(step.actions)) if step is not None else 1
 
 
 def writable_codec(probe_dir: Path) -> str | None:

@@ -38,3 +38,12 @@ def last_reply(run_dir: Path, step: Any) -> str | None:
         return calls[step]["reply"]["text"] if step < len(calls) else None
     mine = [c for c in calls if c.get("step") == step]
     return mine[-1]["reply"]["text"] if mine else None
+
+
+def video_slots(run_dir: Path) -> int:
+    """Seconds-per-step slots of a run's video: per decision, its logged actions (at least one)."""
+    evs = events(run_dir)
+    if evs[0].get("planner") == "fsm":
+        return max(1, len(decisions(run_dir)))
+    actions = [e.get("step") for e in evs if e["type"] == "action"]
+    return sum(max(1, actions.count(key)) for key in decisions(run_dir)) or 1

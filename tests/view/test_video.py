@@ -10,7 +10,7 @@ import pytest
 from llmnav.errors import BadInputError
 from llmnav.view.api import write_view
 
-from .logs import decisions
+from .logs import decisions, video_slots
 
 ENTRY = "from llmnav.cli import main; main()"
 
@@ -25,7 +25,7 @@ def test_mp4_holds_one_second_per_decision_at_10_fps(runs, tmp_path):
         capture_output=True, text=True, timeout=180,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    expected_frames = len(decisions(runs["stepwise"])) * 10
+    expected_frames = video_slots(runs["stepwise"]) * 10
     capture = cv2.VideoCapture(str(out))
     try:
         assert capture.isOpened()
@@ -42,7 +42,7 @@ def test_mp4_holds_one_second_per_decision_at_10_fps(runs, tmp_path):
         capture.release()
     assert fps == pytest.approx(10.0)
     assert declared == read == expected_frames
-    assert read / fps == pytest.approx(len(decisions(runs["stepwise"])) * 1.0)
+    assert read / fps == pytest.approx(video_slots(runs["stepwise"]) * 1.0)
     assert first is not None and first.shape[1] == 1280 and first.std() > 20  # map beside camera, not blank
     assert f"{expected_frames} frames" in result.stderr and result.stdout.strip() == str(tmp_path / "p.html")
 
@@ -53,7 +53,7 @@ def test_gif_frame_count_and_durations_match(runs, tmp_path):
     out = tmp_path / "episode.gif"
     info = write_view(runs["hybrid"], tmp_path / "p.html", video=out, fps=5, seconds_per_step=0.4).video
     assert info is not None
-    expected_frames = len(decisions(runs["hybrid"])) * 2
+    expected_frames = video_slots(runs["hybrid"]) * 2
     with Image.open(out) as gif:
         frames = gif.n_frames
         durations = []
@@ -77,3 +77,17 @@ def test_mp4_falls_back_to_gif_when_no_codec_can_be_written(runs, tmp_path, monk
     info = write_view(runs["hybrid"], tmp_path / "p.html", video=tmp_path / "v.mp4", fps=5, seconds_per_step=0.2).video
     assert info is not None and info.path == tmp_path / "v.gif" and info.codec == "gif"
     assert (tmp_path / "v.gif").is_file() and not (tmp_path / "v.mp4").exists()
+
+
+def test_waypoint_leg_lasts_one_slot_per_waypoint_driven(runs, tmp_path):
+    from PIL import Image
+
+    legs = decisions(runs["waypoints"])
+    slots = video_slots(runs["waypoints"])
+    assert slots > len(legs)  # the leg drove several waypoints
+    info = write_view(
+        runs["waypoints"], tmp_path / "p.html", video=tmp_path / "w.gif", fps=4, seconds_per_step=0.5
+    ).video
+    assert info is not None and info.frames == slots * 2
+    with Image.open(tmp_path / "w.gif") as gif:
+        assert gif.n_frames == slots * 2
