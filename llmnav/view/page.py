@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from jinja2 import Environment
 
     from llmnav.score import Run, Table
-    from llmnav.view.model import RunView
+    from llmnav.view.model import RunView, StepView
 
 PAGE_FILE = "view.html"  # default page name inside a run or sweep folder
 GENERATOR = "llmnav view"  # the page's <meta name="generator">: how `write_page` knows its own files
@@ -48,7 +48,7 @@ def environment() -> Environment:
     )
     env.filters["num"] = _num
     env.filters["pose"] = _pose
-    env.filters["json_pretty"] = _json_pretty
+    env.filters["joined"] = _joined
     return env
 
 
@@ -72,10 +72,11 @@ def _pose(pose: Any) -> str:
     return f"x {x:.2f} m, y {y:.2f} m{yaw}"
 
 
-def _json_pretty(value: Any) -> str:
-    import json
-
-    return json.dumps(value, indent=1, ensure_ascii=False, default=str)
+def _joined(value: Any, separator: str = ", ") -> str:
+    """A logged list as text; anything else (a hand-edited log) as it is."""
+    if isinstance(value, (list, tuple)):
+        return separator.join(str(item) for item in value)
+    return "" if value is None else str(value)
 
 
 def data_uri(path: Path) -> str | None:
@@ -89,7 +90,7 @@ def data_uri(path: Path) -> str | None:
 # --- the run page --------------------------------------------------------------------------------
 
 
-def _marker(step: Any) -> dict[str, Any] | None:
+def _marker(step: StepView) -> dict[str, Any] | None:
     from llmnav.view.drawing import svg_point
 
     pose = step.pose_before or step.pose_after
@@ -99,35 +100,37 @@ def _marker(step: Any) -> dict[str, Any] | None:
     return {"index": step.index, "cx": x, "cy": y, "label": step.label}
 
 
-def _overlay(step: Any) -> dict[str, Any]:
+def _overlay(step: StepView) -> dict[str, Any]:
     """What the map shows for the selected decision: poses, waypoint attempts, replans."""
-    from llmnav.view.drawing import arrow, points_attr
+    from llmnav.view.drawing import arrow, points_attr, svg_point
+    from llmnav.view.model import as_pose
 
-    def ok_pose(p: Any) -> bool:
-        return isinstance(p, list) and len(p) >= 3
+    def heading(pose: list[float] | None) -> dict[str, float] | None:
+        return arrow(pose, ARROW_M) if pose is not None and len(pose) >= 3 else None
 
     attempts = []
     for a in step.attempts:
-        pts = [p for p in a.get("points") or [] if isinstance(p, (list, tuple)) and len(p) >= 2]
-        if pts:
-            start = step.pose_before if ok_pose(step.pose_before) else pts[0]
+        raw = a.get("points")
+        points = [p for p in (as_pose(q) for q in (raw if isinstance(raw, list) else [])) if p is not None]
+        if points:
+            start = step.pose_before or points[0]
             attempts.append(
-                {"points": points_attr([start, *pts]), "valid": bool(a.get("valid")), "number": a.get("attempt")}
+                {"points": points_attr([start, *points]), "valid": bool(a.get("valid")), "number": a.get("attempt")}
             )
     replans = []
     for r in step.replans:
-        pose, obstacle = r.get("pose"), r.get("obstacle")
+        obstacle = as_pose(r.get("obstacle"))
         replans.append(
             {
-                "pose": arrow(pose, ARROW_M) if ok_pose(pose) else None,
-                "obstacle": obstacle if isinstance(obstacle, list) and len(obstacle) >= 2 else None,
+                "pose": heading(as_pose(r.get("pose"))),
+                "obstacle": None if obstacle is None else svg_point(obstacle[0], obstacle[1]),
                 "reason": r.get("reason"),
             }
         )
     return {
         "index": step.index,
-        "before": arrow(step.pose_before, ARROW_M) if ok_pose(step.pose_before) else None,
-        "after": arrow(step.pose_after, ARROW_M) if ok_pose(step.pose_after) else None,
+        "before": heading(step.pose_before),
+        "after": heading(step.pose_after),
         "attempts": attempts,
         "replans": replans,
     }
