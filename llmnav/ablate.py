@@ -173,9 +173,7 @@ def load_grid_file(path: Path) -> dict[str, Any]:
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "(file)"
-        raise BadInputError(
-            f"--grid {path}: {where}: {getattr(err, 'problem', None) or 'invalid YAML'}"
-        ) from None
+        raise BadInputError(f"--grid {path}: {where}: {getattr(err, 'problem', None) or 'invalid YAML'}") from None
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -261,15 +259,11 @@ def expand(grid: GridSpec) -> list[Episode]:
         available = len(scenario.start_poses(scenario.task(task_id)))
         poses = grid.poses or list(range(1, available + 1))
         if max(poses) > available:
-            raise BadInputError(
-                f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}"
-            )
+            raise BadInputError(f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}")
         for pose, trial, combo in itertools.product(poses, range(1, grid.trials + 1), combos):
             seed = episode_seed(grid.seed, task_id, pose, trial)
             try:
-                options = DriveOptions.model_validate(
-                    {**grid.options, **_factor_options(combo), "seed": seed}
-                )
+                options = DriveOptions.model_validate({**grid.options, **_factor_options(combo), "seed": seed})
             except ValidationError as err:
                 raise BadInputError(f"grid value: {_validation_message(err)}") from None
             key = episode_key(task_id, pose, trial, {k: v for k, v in combo.items() if k in varying})
@@ -321,9 +315,7 @@ class Ablation:
         for ep in self.episodes:
             self.entries.setdefault(
                 ep.key,
-                ManifestEntry(
-                    ep.key, ep.dir_name, ep.task_id, ep.start_pose, ep.trial, ep.seed, dict(ep.factors)
-                ),
+                ManifestEntry(ep.key, ep.dir_name, ep.task_id, ep.start_pose, ep.trial, ep.seed, dict(ep.factors)),
             )
 
     @property
@@ -551,9 +543,7 @@ def _run_ray(
         if not ray.is_initialized():  # a caller (or a test) may have connected already
             ray.init(address=address or "auto", log_to_driver=False)
     except (ConnectionError, RuntimeError, ValueError) as err:
-        raise BadInputError(
-            f"--ray {address or 'auto'}: cannot connect: {str(err).splitlines()[0]}"
-        ) from None
+        raise BadInputError(f"--ray {address or 'auto'}: cannot connect: {str(err).splitlines()[0]}") from None
     remote = ray.remote(execute_episode)
     pending = {remote.remote(runner, spec): ep for ep, spec in specs}
     try:
@@ -584,6 +574,4 @@ def table_keys(ablation: Ablation) -> list[str]:
 
 def describe_episodes(episodes: Iterable[Episode]) -> list[list[str]]:
     """Rows for `--dry-run`: key, task, pose, trial, seed, backend."""
-    return [
-        [ep.key, ep.task_id, str(ep.start_pose), str(ep.trial), str(ep.seed), ep.backend] for ep in episodes
-    ]
+    return [[ep.key, ep.task_id, str(ep.start_pose), str(ep.trial), str(ep.seed), ep.backend] for ep in episodes]

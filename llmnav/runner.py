@@ -116,15 +116,11 @@ def build_config(
 
 def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
     """LiDAR and camera configs: the scenario's defaults, the camera at the requested resolution."""
-    camera = scenario.sensors.camera.model_copy(
-        update={"width": options.image_width, "height": options.image_height}
-    )
+    camera = scenario.sensors.camera.model_copy(update={"width": options.image_width, "height": options.image_height})
     return {"lidar": scenario.sensors.lidar, "camera": camera}
 
 
-def run_episode(
-    spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None
-) -> dict[str, Any]:
+def run_episode(spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None) -> dict[str, Any]:
     """Run one episode and return its summary (also written to `summary.json`)."""
     from llmnav.planners.base import get_planner
     from llmnav.runlog import RunLog
@@ -197,9 +193,7 @@ def _run_logged(
     except BaseException as err:  # a bug or Ctrl-C: keep the log valid, then let it propagate
         crash = err
         reason = (
-            "interrupted"
-            if isinstance(err, KeyboardInterrupt)
-            else f"crash: {type(err).__name__}: {one_line(err)}"
+            "interrupted" if isinstance(err, KeyboardInterrupt) else f"crash: {type(err).__name__}: {one_line(err)}"
         )
         outcome = EpisodeOutcome("aborted", reason)
     finally:

@@ -228,9 +228,7 @@ def _cached_length(key: _ScenarioKey, task_id: str, x: float, y: float) -> float
     return None if path is None else path.length_m
 
 
-def oracle_length(
-    scenario: Scenario, task: Task | str, start_pose_index_or_pose: int | Pose2D
-) -> float | None:
+def oracle_length(scenario: Scenario, task: Task | str, start_pose_index_or_pose: int | Pose2D) -> float | None:
     """The oracle's path length [m] (`OraclePath.length_m`), cached; None without targets or path.
 
     An int is a 1-based index into the task's start poses (as `llmnav drive --start-pose`); a Pose2D is
@@ -243,9 +241,7 @@ def oracle_length(
         poses = scenario.start_poses(task_obj)
         index = int(start_pose_index_or_pose)
         if not 1 <= index <= len(poses):
-            raise BadInputError(
-                f"start pose {index} of task {task_obj.id} does not exist (1-based, 1..{len(poses)})"
-            )
+            raise BadInputError(f"start pose {index} of task {task_obj.id} does not exist (1-based, 1..{len(poses)})")
         pose = poses[index - 1].pose()
     if not task_obj.targets:
         return None
@@ -287,9 +283,7 @@ class Drive:
         return self.last is None or self.last.ok
 
 
-def log_action(
-    ctx: EpisodeContext, step: int, command: str, parameters: object, result: MotionResult
-) -> None:
+def log_action(ctx: EpisodeContext, step: int, command: str, parameters: object, result: MotionResult) -> None:
     """One `action` event for a motion (and a line in the live view)."""
     ctx.log.sim_time = ctx.world.sim_time
     ctx.log.event(
@@ -364,9 +358,7 @@ def run_untargeted(ctx: EpisodeContext, drive: Drive) -> EpisodeOutcome:
         rotate_by(ctx, math.pi / 2, drive)
         if not drive.ok:
             return EpisodeOutcome("failed", failure_reason(drive.last), iterations=drive.steps)
-    return EpisodeOutcome(
-        "completed", "rotated 360 degrees", iterations=drive.steps, metrics={"travelled_m": 0.0}
-    )
+    return EpisodeOutcome("completed", "rotated 360 degrees", iterations=drive.steps, metrics={"travelled_m": 0.0})
 
 
 class OraclePlanner(Planner):
@@ -416,7 +408,5 @@ class OraclePlanner(Planner):
                 face_point(ctx, path.target_point, drive)
             metrics["travelled_m"] = round(drive.travelled_m, 4)
             if not drive.ok:
-                return EpisodeOutcome(
-                    "failed", failure_reason(drive.last), iterations=drive.steps, metrics=metrics
-                )
+                return EpisodeOutcome("failed", failure_reason(drive.last), iterations=drive.steps, metrics=metrics)
             return EpisodeOutcome("completed", "reached target", iterations=drive.steps, metrics=metrics)

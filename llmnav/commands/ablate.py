@@ -20,32 +20,20 @@ def ablate(
     scenario: Annotated[str | None, typer.Option("--scenario", help="Scenario name or file.")] = None,
     tasks: Annotated[str | None, typer.Option("--tasks", help=f"Task ids ({_LIST}) or 'all'.")] = None,
     poses: Annotated[str | None, typer.Option("--poses", help="Start poses: 1-5, 1,3 or all.")] = None,
-    trials: Annotated[
-        int | None, typer.Option("--trials", min=1, help="Trials per task, pose and condition.")
-    ] = None,
-    seed: Annotated[
-        int | None, typer.Option("--seed", help="Base seed (episode seeds derive from it).")
-    ] = None,
-    lidar_sectors: Annotated[
-        str | None, typer.Option("--lidar-sectors", help=f"e.g. 3,5,8 ({_LIST}).")
-    ] = None,
+    trials: Annotated[int | None, typer.Option("--trials", min=1, help="Trials per task, pose and condition.")] = None,
+    seed: Annotated[int | None, typer.Option("--seed", help="Base seed (episode seeds derive from it).")] = None,
+    lidar_sectors: Annotated[str | None, typer.Option("--lidar-sectors", help=f"e.g. 3,5,8 ({_LIST}).")] = None,
     prompt: Annotated[str | None, typer.Option("--prompt", help=f"Prompt variants ({_LIST}).")] = None,
     history: Annotated[str | None, typer.Option("--history", help=f"0, 1, 2, all ({_LIST}).")] = None,
-    sensing: Annotated[
-        str | None, typer.Option("--sensing", help=f"e.g. lidar+image,image ({_LIST}).")
-    ] = None,
+    sensing: Annotated[str | None, typer.Option("--sensing", help=f"e.g. lidar+image,image ({_LIST}).")] = None,
     backend: Annotated[str | None, typer.Option("--backend", help=f"Backend specs ({_LIST}).")] = None,
     assist: Annotated[str | None, typer.Option("--assist", help=f"none, ema, llm ({_LIST}).")] = None,
     planner: Annotated[str | None, typer.Option("--planner", help=f"Planners ({_LIST}).")] = None,
-    grid: Annotated[
-        Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")
-    ] = None,
+    grid: Annotated[Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")] = None,
     name: Annotated[
         str | None, typer.Option("--name", help="Ablation name (default from scenario and factors).")
     ] = None,
-    out: Annotated[
-        Path | None, typer.Option("--out", help="Ablation folder (default ablations/<name>).")
-    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Ablation folder (default ablations/<name>).")] = None,
     workers: Annotated[int, typer.Option("--workers", min=1, help="Parallel worker processes.")] = 1,
     ray: Annotated[
         str | None, typer.Option("--ray", help="Run as Ray tasks on this cluster address ('auto' for local).")

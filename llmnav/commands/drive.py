@@ -65,38 +65,20 @@ def drive(
         typer.Option(help="Scenario name or YAML path (default: the one the task names, else factory)."),
     ] = None,
     start_pose: Annotated[int, typer.Option("--start-pose", help="Start pose K (1-based) of the task.")] = 1,
-    backend: Annotated[
-        str, typer.Option(help="Model backend spec NAME[:ARG], e.g. ollama:llama3.1.")
-    ] = "local",
-    planner: Annotated[
-        str, typer.Option(help="stepwise | waypoints | fsm | hybrid | oracle | frontier")
-    ] = "hybrid",
+    backend: Annotated[str, typer.Option(help="Model backend spec NAME[:ARG], e.g. ollama:llama3.1.")] = "local",
+    planner: Annotated[str, typer.Option(help="stepwise | waypoints | fsm | hybrid | oracle | frontier")] = "hybrid",
     sensing: Annotated[str, typer.Option(help="Comma list of lidar, image, detections.")] = "lidar,image",
     lidar_sectors: Annotated[int, typer.Option("--lidar-sectors", help="LiDAR sectors in the summary.")] = 8,
-    lidar_fov: Annotated[
-        float, typer.Option("--lidar-fov", help="LiDAR summary field of view in degrees.")
-    ] = 90.0,
+    lidar_fov: Annotated[float, typer.Option("--lidar-fov", help="LiDAR summary field of view in degrees.")] = 90.0,
     prompt: Annotated[str, typer.Option(help="Prompt variant (see prompts/).")] = "full",
     history: Annotated[str, typer.Option(help="Previous exchanges re-sent: all | 0 | 1 | 2.")] = "all",
-    self_check: Annotated[
-        bool, typer.Option("--self-check", help="Ask the model to confirm each answer.")
-    ] = False,
-    max_iterations: Annotated[
-        int, typer.Option("--max-iterations", help="Decision steps before failing.")
-    ] = 30,
+    self_check: Annotated[bool, typer.Option("--self-check", help="Ask the model to confirm each answer.")] = False,
+    max_iterations: Annotated[int, typer.Option("--max-iterations", help="Decision steps before failing.")] = 30,
     seed: Annotated[int, typer.Option(help="Simulation and model seed.")] = 0,
-    out: Annotated[
-        Path | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")
-    ] = None,
-    realtime: Annotated[
-        bool, typer.Option("--realtime", help="Pace the simulation to the wall clock.")
-    ] = False,
-    quiet: Annotated[
-        bool, typer.Option("--quiet", help="One progress line instead of the live view.")
-    ] = False,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print only one JSON summary at the end.")
-    ] = False,
+    out: Annotated[Path | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")] = None,
+    realtime: Annotated[bool, typer.Option("--realtime", help="Pace the simulation to the wall clock.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="One progress line instead of the live view.")] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print only one JSON summary at the end.")] = False,
     assist: Annotated[str, typer.Option(help="FSM assist: none | ema | llm.")] = "none",
     obstacle: Annotated[
         list[str] | None, typer.Option(help="Drop an unexpected box obstacle at X,Y metres (repeatable).")

@@ -92,8 +92,7 @@ def check_motion(
     # The cone in which the far end of the corridor is seen must be covered by rays.
     if not _covered(offsets, math.atan2(half_width, length)):
         return _blocked(
-            f"the LiDAR does not see the path {direction}, so the move cannot be checked; "
-            "choose another action"
+            f"the LiDAR does not see the path {direction}, so the move cannot be checked; choose another action"
         )
 
     # Finite returns in the robot frame, with `along` measured in the direction of motion. A reading

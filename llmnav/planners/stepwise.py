@@ -155,9 +155,7 @@ class _Episode:
                 self._show(step, answer, obs, state)
         except _Abort as err:
             return self._outcome("aborted", str(err), step)
-        return self._outcome(
-            "failed", f"max iterations ({options.max_iterations}) reached without COMPLETE", step
-        )
+        return self._outcome("failed", f"max iterations ({options.max_iterations}) reached without COMPLETE", step)
 
     def _preface(self) -> str:
         """The task line, on the first turn or whenever the history window has dropped it."""
@@ -200,9 +198,7 @@ class _Episode:
         attempt = 1
         while True:
             result: GuardResult[StepAction] = parse_answer(text, StepAction, bounds=self.bounds)
-            self.ctx.log.event(
-                "guard", step=step, outcome=result.outcome, error=result.error, attempt=attempt
-            )
+            self.ctx.log.event("guard", step=step, outcome=result.outcome, error=result.error, attempt=attempt)
             if result.ok and result.value is not None:
                 return result.value, text
             if state.corrections >= self.options.max_corrections:
@@ -225,9 +221,7 @@ class _Episode:
             blocked = self._veto(answer, obs)
             if blocked is None:
                 return answer, text
-            self.ctx.log.event(
-                "guard", step=step, outcome="veto", error=blocked.reason, attempt=state.vetoes + 1
-            )
+            self.ctx.log.event("guard", step=step, outcome="veto", error=blocked.reason, attempt=state.vetoes + 1)
             if state.vetoes >= self.options.max_vetoes:
                 tried = f"every proposed motion was blocked ({state.vetoes} vetoes)"
                 raise _Abort(f"safety veto: {tried}; last: {blocked.reason}")
@@ -236,9 +230,7 @@ class _Episode:
             state.turn += [Message("assistant", text), Message("user", veto_message(blocked))]
             answer, text = self._guarded(step, state, self._ask(step, state, "veto"))
 
-    def _self_check(
-        self, step: int, state: _StepState, answer: StepAction, text: str
-    ) -> tuple[StepAction, str]:
+    def _self_check(self, step: int, state: _StepState, answer: StepAction, text: str) -> tuple[StepAction, str]:
         """Ask the model to confirm its answer; a revised answer goes through the guard again."""
         assert self.self_check_text is not None
         self.counters.self_checks += 1
@@ -284,9 +276,7 @@ class _Episode:
                 f"by a collision with {result.collision_with}."
             )
         elif not result.ok:
-            self.feedback = (
-                f"Your last action ({describe_action(answer)}) stopped early ({result.stopped_reason})."
-            )
+            self.feedback = f"Your last action ({describe_action(answer)}) stopped early ({result.stopped_reason})."
         return result
 
     def _log_action(self, step: int, answer: StepAction, result: MotionResult | None) -> None:

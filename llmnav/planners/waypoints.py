@@ -142,9 +142,7 @@ def validate_waypoints(
             problems.append(f"{name} is outside every corridor with the {margin} m margin")
         gap = math.dist(previous, (x, y))
         if index < len(points) and gap < rules.spacing_m:
-            problems.append(
-                f"{name} is {gap:.2f} m from the previous point; keep at least {rules.spacing_m} m"
-            )
+            problems.append(f"{name} is {gap:.2f} m from the previous point; keep at least {rules.spacing_m} m")
         blocked = _segment_blocked(previous, (x, y), grid, extra_obstacles or [], obstacle_radius_m)
         if blocked is not None:
             (bx, by), seen = blocked
@@ -215,9 +213,7 @@ def ground_target(
             return close[0]
     model = target_choice_model(tuple(o.id for o in candidates))
     schema = response_schema(model)
-    listing = "\n".join(
-        f"- {o.id}: {o.label} at ({o.goal_point[0]:.1f}, {o.goal_point[1]:.1f})" for o in candidates
-    )
+    listing = "\n".join(f"- {o.id}: {o.label} at ({o.goal_point[0]:.1f}, {o.goal_point[1]:.1f})" for o in candidates)
     messages = [
         Message("system", render("ground_system")),
         Message("user", render("ground_user", command=task.text, objects=listing)),
@@ -414,9 +410,7 @@ class WaypointPlanner(Planner):
             while True:
                 start = world.robot.pose()
                 if preset:  # `llmnav plan --execute`: the plan was made already; it is validated again
-                    problems = validate_waypoints(
-                        preset, (start.x, start.y), target.goal_point, scenario, grid, rules
-                    )
+                    problems = validate_waypoints(preset, (start.x, start.y), target.goal_point, scenario, grid, rules)
                     attempt = Attempt(1, 0.0, preset, problems, "bounds" if problems else "ok")
                     plan = PlanResult(target.id, target.goal_point, [attempt])
                     log_attempt(attempt)
@@ -585,8 +579,7 @@ def plan_summary(plan: PlanResult) -> dict[str, Any]:
         "planning_time_s": round(plan.planning_time_s, 3),
         "wgsr": plan.wgsr,
         "attempts": [
-            {"number": a.number, "points": a.points, "valid": a.valid, "problems": a.problems}
-            for a in plan.attempts
+            {"number": a.number, "points": a.points, "valid": a.valid, "problems": a.problems} for a in plan.attempts
         ],
     }
 

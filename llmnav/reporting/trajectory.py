@@ -57,9 +57,7 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
         if start is not None:
             oracle = oracle_points(scenario, task, start)
             if oracle:
-                ax.plot(
-                    *zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=5.5
-                )
+                ax.plot(*zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=5.5)
         if poses:
             xs, ys = [p[0] for p in poses], [p[1] for p in poses]
             ax.plot(xs, ys, "-", color="tab:blue", lw=2.0, label="robot path", zorder=5)

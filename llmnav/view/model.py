@@ -173,8 +173,8 @@ class RunView:
     def header(self) -> dict[str, Any]:
         """The page header's fields (absent ones are None)."""
         config, summary = self.config, self.summary
-        task = config.get("task") or {}
-        options = config.get("options") or {}
+        task = as_dict(config.get("task"))
+        options = as_dict(config.get("options"))
         models = sorted({c.model for s in self.steps for c in s.calls if c.model})
         calls = [c for s in self.steps for c in s.calls]
         oracle_m = polyline_length(self.oracle) if self.oracle else None
@@ -209,6 +209,11 @@ class RunView:
 
 
 # --- small readers -------------------------------------------------------------------------------
+
+
+def as_dict(value: Any) -> dict[str, Any]:
+    """A logged mapping; an empty one for anything else (a log may hold odd values)."""
+    return value if isinstance(value, dict) else {}
 
 
 def sum_tokens(calls: list[CallView]) -> dict[str, int]:
@@ -429,12 +434,14 @@ def _stepped(record: RunRecord) -> list[StepView]:
 
 
 def _fsm_view(record: RunRecord) -> FsmView | None:
+    from llmnav.reporting.velocity import well_formed_cmd
+
     planner = record.of_type("planner")
-    cmds = [e for e in planner if e.get("kind") == "cmd" and isinstance(e.get("base"), list)]
+    cmds = [e for e in planner if e.get("kind") == "cmd" and well_formed_cmd(e)]
     if not cmds and record.config.get("planner") != "fsm":
         return None
     return FsmView(
-        t=[float(e.get("t_sim") or 0.0) for e in cmds],
+        t=[float(e.get("t_sim", 0.0)) for e in cmds],
         base=[e["base"] for e in cmds],
         raw=[e.get("raw") if isinstance(e.get("raw"), list) else None for e in cmds],
         fused=[e["fused"] if isinstance(e.get("fused"), list) else e["base"] for e in cmds],
@@ -463,7 +470,7 @@ def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
 
     from llmnav.scenario import Task
 
-    record = config.get("task") or {}
+    record = as_dict(config.get("task"))
     if scenario is not None and record.get("id"):
         try:
             return scenario.task(str(record["id"]))
@@ -486,7 +493,7 @@ def build_run_view(run_dir: Path) -> RunView:
     missing: list[str] = []
     try:
         summary = load_run(run_dir).summary
-    except (IndexError, KeyError, TypeError, ValueError) as err:
+    except (AttributeError, IndexError, KeyError, TypeError, ValueError) as err:
         # Malformed fields (a pose with one number, a string for a number) defeat the metrics; the page
         # still shows every event, and says why the figures are absent.
         summary = dict(record.summary or {})

@@ -163,11 +163,16 @@ def _fsm_charts(view: RunView) -> dict[str, Any] | None:
     verdicts: dict[str, int] = {}
     for s in fsm.suggestions:
         verdicts[str(s.get("verdict"))] = verdicts.get(str(s.get("verdict")), 0) + 1
-    t1 = max([*fsm.t, *(float(s.get("t_recv") or 0) for s in fsm.suggestions), 1.0])
+
+    def received(s: dict[str, Any]) -> float:
+        value = s.get("t_recv")
+        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
+
+    t1 = max([*fsm.t, *(received(s) for s in fsm.suggestions), 1.0])
     span = STRIP_W - STRIP_PAD - 8
     marks = [
         {
-            "x": round(STRIP_PAD + float(s.get("t_recv") or 0.0) / t1 * span, 2),
+            "x": round(STRIP_PAD + received(s) / t1 * span, 2),
             "verdict": str(s.get("verdict")),
             "detail": s.get("detail"),
             "t": s.get("t_recv"),
@@ -175,7 +180,10 @@ def _fsm_charts(view: RunView) -> dict[str, Any] | None:
         for s in fsm.suggestions
     ]
     ticks = [{"x": round(STRIP_PAD + k / 4 * span, 2), "label": f"{t1 * k / 4:.0f}"} for k in range(5)]
+    from llmnav.view.model import as_dict
+
     return {
+        "assist": as_dict(view.config.get("options")).get("assist"),
         "profile": _velocity_profile(view),
         "verdicts": verdicts,
         "marks": marks,
@@ -190,8 +198,10 @@ def run_context(view: RunView) -> dict[str, Any]:
     from llmnav.view.drawing import lidar_wedges, map_frame, points_attr, scenario_shapes, svg_point
 
     frame = map_frame(view.scenario, view.trajectory)
-    options = view.config.get("options") or {}
-    added = options.get("obstacles") or []
+    from llmnav.view.model import as_dict, as_pose
+
+    raw = as_dict(view.config.get("options")).get("obstacles")
+    added = [p for p in (as_pose(o) for o in (raw if isinstance(raw, list) else [])) if p is not None]
     shapes = scenario_shapes(view.scenario, added) if view.scenario is not None else None
     trajectory = view.trajectory
     images = {h: data_uri(p) for h, p in view.image_files.items()}
@@ -199,7 +209,6 @@ def run_context(view: RunView) -> dict[str, Any]:
         "generator": GENERATOR,
         "view": view,
         "header": view.header,
-        "config": view.config,
         "frame": frame,
         "shapes": shapes,
         "trajectory": points_attr(trajectory) if len(trajectory) > 1 else None,
