@@ -195,22 +195,32 @@ def _fsm_charts(view: RunView) -> dict[str, Any] | None:
 
 def run_context(view: RunView) -> dict[str, Any]:
     """Everything the run template needs."""
-    from llmnav.view.drawing import lidar_wedges, map_frame, points_attr, scenario_shapes, svg_point
-
-    frame = map_frame(view.scenario, view.trajectory)
+    from llmnav.view.basemap import draw_base_map, page_size
+    from llmnav.view.drawing import lidar_wedges, points_attr, svg_point
     from llmnav.view.model import as_dict, as_pose
 
     raw = as_dict(view.config.get("options")).get("obstacles")
-    added = [p for p in (as_pose(o) for o in (raw if isinstance(raw, list) else [])) if p is not None]
-    shapes = scenario_shapes(view.scenario, added) if view.scenario is not None else None
+    added = [(p[0], p[1]) for p in (as_pose(o) for o in (raw if isinstance(raw, list) else [])) if p is not None]
+    scenario = view.scenario
+    if scenario is not None and added:
+        from llmnav.baselines.oracle import with_added_obstacles
+
+        scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
+    base = draw_base_map(scenario, *page_size(scenario), trajectory=view.trajectory)
     trajectory = view.trajectory
     images = {h: data_uri(p) for h, p in view.image_files.items()}
+    metre = base.metre_px
     return {
         "generator": GENERATOR,
         "view": view,
         "header": view.header,
-        "frame": frame,
-        "shapes": shapes,
+        "map": {
+            "src": "data:image/png;base64," + base64.b64encode(base.png()).decode("ascii"),
+            "width": base.width,
+            "height": base.height,
+            "transform": f"matrix({base.sx:.4f} 0 0 {base.sy:.4f} {base.ox:.2f} {base.oy:.2f})",
+            "marker_m": round(7.0 / metre, 3),  # [m] a 7-pixel marker at the picture's scale
+        },
         "trajectory": points_attr(trajectory) if len(trajectory) > 1 else None,
         "start": svg_point(*trajectory[0][:2]) if trajectory else None,
         "end": svg_point(*trajectory[-1][:2]) if trajectory else None,

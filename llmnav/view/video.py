@@ -4,7 +4,7 @@ Each decision gets `seconds_per_step` of video per executed action (at least one
 drives five waypoints lasts five times as long as a turn). The robot moves along the trajectory
 samples logged between this decision and the next, the right half shows the camera image sent, and the
 caption names the decision, the executed action and the model's one-line reasoning. The map is drawn
-once with matplotlib (`llmnav.reporting.topview.draw_scenario`); frames are composed with OpenCV.
+once (`llmnav.view.basemap`, which uses `llmnav.reporting.topview`); frames are composed with OpenCV.
 
 MP4 goes through OpenCV's VideoWriter with the first codec this OpenCV build can write (`CODECS`);
 GIF through Pillow (matplotlib's own dependency), at half size. When no MP4 codec can be written, the
@@ -50,62 +50,6 @@ class VideoInfo:
     def duration_s(self) -> float:
         """[s] frames / fps."""
         return self.frames / self.fps
-
-
-@dataclass
-class _MapImage:
-    """The drawn map and the world → pixel mapping of its axes."""
-
-    pixels: np.ndarray  # BGR, PANEL_H × PANEL_W
-    sx: float
-    ox: float
-    sy: float
-    oy: float
-
-    def to_px(self, x: float, y: float) -> tuple[int, int]:
-        return (round(self.sx * x + self.ox), round(self.sy * y + self.oy))
-
-
-def _draw_map(view: RunView) -> _MapImage:
-    """The top view (scenario, oracle path, whole trajectory faint) as a BGR image and its mapping."""
-    import cv2
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from llmnav.reporting.topview import draw_scenario
-
-    fig = plt.figure(figsize=(PANEL_W / 100, PANEL_H / 100), dpi=100)
-    ax = fig.add_axes((0.08, 0.08, 0.9, 0.88))
-    try:
-        if view.scenario is not None:
-            draw_scenario(ax, view.scenario)
-        else:
-            ax.set_aspect("equal")
-        if view.oracle:
-            ax.plot(*zip(*view.oracle, strict=True), "--", color="0.35", lw=1.2, zorder=5.5)
-        if view.trajectory:
-            xs, ys = [p[0] for p in view.trajectory], [p[1] for p in view.trajectory]
-            ax.plot(xs, ys, "-", color="tab:blue", lw=1.0, alpha=0.35, zorder=5)
-            if view.scenario is None:
-                ax.set_xlim(min(xs) - 1, max(xs) + 1)
-                ax.set_ylim(min(ys) - 1, max(ys) + 1)
-        ax.tick_params(labelsize=7)
-        ax.xaxis.label.set_fontsize(8)
-        ax.yaxis.label.set_fontsize(8)
-        fig.canvas.draw()
-        rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
-        # Display coordinates have y up from the bottom; image rows go down from the top.
-        (x0, y0), (x1, y1) = ax.transData.transform([(0.0, 0.0), (1.0, 1.0)])
-        height = rgba.shape[0]
-        pixels = cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR)
-        if pixels.shape[:2] != (PANEL_H, PANEL_W):
-            pixels = cv2.resize(pixels, (PANEL_W, PANEL_H))
-        return _MapImage(pixels, x1 - x0, x0, -(y1 - y0), height - y0)
-    finally:
-        plt.close(fig)
 
 
 def _camera(view: RunView, step: StepView | None) -> np.ndarray:
@@ -174,7 +118,11 @@ def _frames(view: RunView, fps: float, seconds_per_step: float) -> Iterator[np.n
     import cv2
     import numpy as np
 
-    base = _draw_map(view)
+    from llmnav.view.basemap import draw_base_map
+
+    base = draw_base_map(
+        view.scenario, PANEL_W, PANEL_H, oracle=view.oracle, trajectory=view.trajectory, faint_paths=True
+    )
     per_action = max(1, round(fps * seconds_per_step))
     segments = _segments(view)
     trail: list[tuple[int, int]] = []
