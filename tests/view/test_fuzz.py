@@ -40,7 +40,7 @@ events = st.lists(
 configs = st.dictionaries(st.sampled_from(["task", "options", "start_pose", "backend", "information"]), json_values)
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(events=events, planner=st.sampled_from(["stepwise", "hybrid", "fsm", "waypoints", "oracle"]), extra=configs)
 def test_any_event_fields_give_a_page(tmp_path_factory, events, planner, extra):
     run = Path(tmp_path_factory.mktemp("fuzz"))
