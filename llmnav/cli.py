@@ -24,6 +24,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("ablate", "ablate", "ablate"),
     ("backends", "backends", "backends"),
     ("transcribe", "transcribe", "transcribe"),
+    ("view", "view", "view"),
 ]
 _GROUPS: list[tuple[str, str]] = [("scenarios", "scenarios")]
 

@@ -63,4 +63,3 @@ BURGER = RobotSpec(
 )
 
 ROBOT_SPECS: dict[str, RobotSpec] = {"pr2": PR2, "burger": BURGER}
-

@@ -127,8 +127,8 @@ def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
 
 def _check_obstacles(scenario: Scenario, start: Pose2D, options: DriveOptions) -> None:
     """Added obstacles inside the world and clear of the robot's start (bad input, before any folder)."""
-    from llmnav.scenario import check_added_obstacles
     from llmnav.robot_specs import ROBOT_SPECS
+    from llmnav.scenario import check_added_obstacles
 
     robot = ROBOT_SPECS.get(scenario.robot)
     clearance = (robot.radius_m if robot else 0.3) + _ADDED_OBSTACLE_SIZE_M * math.sqrt(0.5)

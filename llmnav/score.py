@@ -159,9 +159,7 @@ def _task_sort_key(task: str) -> tuple[Any, ...]:
     return (task.rstrip("0123456789"), int(digits) if digits else -1, task)
 
 
-def group_runs(
-    runs: Sequence[Run], keys: Sequence[str], *, by_task: bool = True
-) -> list[tuple[str, str, list[Run]]]:
+def group_runs(runs: Sequence[Run], keys: Sequence[str], *, by_task: bool = True) -> list[tuple[str, str, list[Run]]]:
     """(task, condition label, runs) groups in a stable order (task number, then first appearance)."""
     groups: dict[tuple[str, str], list[Run]] = defaultdict(list)
     for run in runs:
@@ -282,9 +280,7 @@ def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
 
 def path_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     """Source A, Table 2 style, successful runs only: path length and its ratio to Oracle and Frontier."""
-    successful = [
-        r for r in runs if r.summary.get("success") and _num(r.summary.get("path_length_m")) is not None
-    ]
+    successful = [r for r in runs if r.summary.get("success") and _num(r.summary.get("path_length_m")) is not None]
     if not successful:
         return None
     oracle = _oracle_lengths(successful)
@@ -417,8 +413,7 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         # Validation outcomes pooled over the group's suggestions, as shares (the source's figure).
         suggestions = sum(_values(group, _metric("suggestions")))
         shares = {
-            name: (sum(_values(group, get)) / suggestions if suggestions else None)
-            for name, get in outcomes.items()
+            name: (sum(_values(group, get)) / suggestions if suggestions else None) for name, get in outcomes.items()
         }
         rows.append(
             [task, cond, str(len(group))]

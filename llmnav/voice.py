@@ -100,9 +100,7 @@ def read_wav(path: Path) -> np.ndarray:
 # --- numbers as people say them -------------------------------------------------------------------
 
 _NUMBER_WORDS = {w: i for i, w in enumerate(_ONES)} | {"oh": 0, "o": 0, "a": 1}
-_NUMBER_WORDS |= {w: 10 + i for i, w in enumerate(_TEENS)} | {
-    w: 10 * i for i, w in enumerate(_TENS) if w != "_"
-}
+_NUMBER_WORDS |= {w: 10 + i for i, w in enumerate(_TEENS)} | {w: 10 * i for i, w in enumerate(_TENS) if w != "_"}
 
 
 def _below_hundred(n: int) -> str:
@@ -124,11 +122,7 @@ def spoken_numbers(number: str) -> list[str]:
     if 100 <= n <= 999:
         hundreds, rest = divmod(n, 100)
         for head in [_ONES[hundreds] + " hundred"] + (["a hundred"] if hundreds == 1 else []):
-            forms += (
-                [head]
-                if rest == 0
-                else [f"{head} and {_below_hundred(rest)}", f"{head} {_below_hundred(rest)}"]
-            )
+            forms += [head] if rest == 0 else [f"{head} and {_below_hundred(rest)}", f"{head} {_below_hundred(rest)}"]
         if rest >= 10:
             forms.append(f"{_ONES[hundreds]} {_below_hundred(rest)}")  # "one fourteen"
     elif n < 100:
@@ -310,9 +304,7 @@ def transcribe(path: Path, scenarios: list[Scenario], *, free: bool = False) -> 
         words, _, _ = _run(_decoder("free"), audio)
         if not words:
             raise BadInputError(f"{path}: no speech recognised")
-        return Transcript(
-            words, words[:1].upper() + words[1:], float("nan"), time.perf_counter() - started, False
-        )
+        return Transcript(words, words[:1].upper() + words[1:], float("nan"), time.perf_counter() - started, False)
     lookup = _decoder("grammar").lookup_word
     grammar = build_grammar(scenarios, lambda w: lookup(w) is not None)
     words, score, frames = _decode_grammar(audio, grammar.jsgf)
@@ -325,9 +317,7 @@ def transcribe(path: Path, scenarios: list[Scenario], *, free: bool = False) -> 
     if task_text is None:
         raise BadInputError(f"{path}: heard '{words}', which names no known target")
     if fit < MIN_FIT:
-        raise BadInputError(
-            f"{path}: heard '{words}' with low confidence ({confidence:.2f}); not a known command"
-        )
+        raise BadInputError(f"{path}: heard '{words}' with low confidence ({confidence:.2f}); not a known command")
     return Transcript(words, task_text, confidence, seconds, True)
 
 

@@ -85,9 +85,7 @@ def _convert(node: Any, defs: dict[str, Any], depth: int) -> Any:
     if not isinstance(node, dict):
         return node
     if depth > _MAX_REF_DEPTH:
-        raise BackendSpecError(
-            "gemini: the answer schema is recursive; Gemini's responseSchema cannot express it"
-        )
+        raise BackendSpecError("gemini: the answer schema is recursive; Gemini's responseSchema cannot express it")
     if "$ref" in node:  # siblings of $ref (description) win over the referenced schema's
         merged = {**_resolve(node["$ref"], defs), **{k: v for k, v in node.items() if k != "$ref"}}
         return _convert(merged, defs, depth + 1)

@@ -247,9 +247,7 @@ class JsonHttpClient:
                 failure = _transport_reason(err)
             else:
                 if response.status_code < 400:
-                    return HttpReply(
-                        self._decode(response), response.status_code, attempt, time.perf_counter() - t0
-                    )
+                    return HttpReply(self._decode(response), response.status_code, attempt, time.perf_counter() - t0)
                 failure = f"HTTP {response.status_code} {error_reason(response)}"
                 if response.status_code not in RETRY_STATUSES:
                     break
@@ -258,16 +256,13 @@ class JsonHttpClient:
                 break
             if server_delay is not None and server_delay > self.options.retry_after_max_s:
                 failure += (
-                    f"; server asks to wait {server_delay:.0f} s, over the "
-                    f"{self.options.retry_after_max_s:.0f} s limit"
+                    f"; server asks to wait {server_delay:.0f} s, over the {self.options.retry_after_max_s:.0f} s limit"
                 )
                 break
             delay = (
                 server_delay
                 if server_delay is not None
-                else backoff_delay(
-                    attempt, self.options.backoff_base_s, self.options.backoff_max_s, self._rng
-                )
+                else backoff_delay(attempt, self.options.backoff_base_s, self.options.backoff_max_s, self._rng)
             )
             log.info(
                 "%s: %s; retry %d/%d in %.2f s",
@@ -280,9 +275,7 @@ class JsonHttpClient:
             self._sleep(delay)
         elapsed = time.perf_counter() - t0
         noun = "attempt" if attempt == 1 else "attempts"
-        raise ModelError(
-            self.redact(f"{self.label}: {failure} ({attempt} {noun} in {elapsed:.1f} s, {method} {url})")
-        )
+        raise ModelError(self.redact(f"{self.label}: {failure} ({attempt} {noun} in {elapsed:.1f} s, {method} {url})"))
 
     def _send(
         self, method: str, url: str, body: dict[str, Any] | None, timeout: httpx.Timeout | None, budget_s: float

@@ -113,9 +113,7 @@ class OllamaBackend(HttpBackend):
         names = [m.get("name", "") for m in reply.data.get("models", []) if isinstance(m, dict)]
         if model_listed(model, names):
             return BackendStatus(True, f"server at {host}, model {model} present")
-        return BackendStatus(
-            False, f"server at {host}, but model {model} is not pulled (ollama pull {model})"
-        )
+        return BackendStatus(False, f"server at {host}, but model {model} is not pulled (ollama pull {model})")
 
 
 def _int_or_none(value: object) -> int | None:

@@ -122,9 +122,7 @@ class OpenAIBackend(HttpBackend):
         content = message.get("content")
         if not isinstance(content, str):
             refusal = message.get("refusal")
-            raise ModelError(
-                f"openai: model refused: {refusal}" if refusal else "openai: reply has no content"
-            )
+            raise ModelError(f"openai: model refused: {refusal}" if refusal else "openai: reply has no content")
         usage = data.get("usage") or {}
         return ChatResult(
             text=content,

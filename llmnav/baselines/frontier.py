@@ -245,9 +245,7 @@ class _Explorer:
         if self.frontiers >= self.config.max_frontiers:
             return f"exploration budget spent ({self.frontiers} frontiers) without detecting a target"
         if self.world.sim_time >= self.config.max_sim_time_s:
-            return (
-                f"exploration budget spent ({self.world.sim_time:.0f} s sim time) without detecting a target"
-            )
+            return f"exploration budget spent ({self.world.sim_time:.0f} s sim time) without detecting a target"
         return None
 
     def metrics(self, final_leg: float | None = None) -> dict[str, float | int]:

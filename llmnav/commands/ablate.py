@@ -54,6 +54,9 @@ def ablate(
     plots: Annotated[
         bool, typer.Option("--plots", help="Write each run's trajectory.png (slower; off by default).")
     ] = False,
+    view_page: Annotated[
+        bool, typer.Option("--view", help="Write the sweep's HTML page (and its runs' pages) at the end.")
+    ] = False,
 ) -> None:
     """Run an ablation grid (resumable: run it again to finish it), then print the tables by factor."""
     from llmnav import ablate as lib
@@ -88,6 +91,10 @@ def ablate(
             on_result=progress.advance,
         )
     _print_results(ablation)
+    if view_page:
+        from llmnav.view.api import write_view
+
+        console.print(f"page: {esc(str(write_view(ablation.root).page))}", highlight=False, soft_wrap=True)
     _note_inapplicable(spec)  # after the work: a failure stays one error line
 
 

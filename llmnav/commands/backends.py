@@ -61,7 +61,5 @@ def backends() -> None:
     table.add_column("description", style="dim")
     for row in collect_rows():
         mark = {True: "[green]yes[/]", False: "[yellow]no[/]", None: "[red]broken[/]"}[row.ready]
-        table.add_row(
-            escape(row.name), mark, escape(row.example), escape(row.detail), escape(row.description)
-        )
+        table.add_row(escape(row.name), mark, escape(row.example), escape(row.detail), escape(row.description))
     console.print(table)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from pydantic import ValidationError
 
-from llmnav.commands.common import cli_errors, console, err_console, fail, path_option, print_data
+from llmnav.commands.common import cli_errors, console, err_console, esc, fail, path_option, print_data
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -119,6 +119,9 @@ def drive(
     replay_loose: Annotated[
         bool, typer.Option("--replay-loose", help="Replay: answer in order even when prompts differ.")
     ] = False,
+    view_page: Annotated[
+        bool, typer.Option("--view", help="Write the run's HTML page (view.html) at the end and print its path.")
+    ] = False,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
     from llmnav.planners.base import DriveOptions
@@ -179,6 +182,10 @@ def drive(
         from llmnav.reporting.live import print_result
 
         print_result(console, summary)
+    if view_page:
+        from llmnav.view.api import write_view
+
+        err_console.print(f"page: {esc(str(write_view(spec.out_dir).page))}", highlight=False, soft_wrap=True)
     if summary.get("trajectory_error"):  # the run is kept, but a missing figure is not a silent success
         raise fail(f"trajectory.png not written: {summary['trajectory_error']}", 1)
     raise typer.Exit(exit_code(summary))

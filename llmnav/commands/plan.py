@@ -19,18 +19,12 @@ if TYPE_CHECKING:
 
 @cli_errors
 def plan(
-    task: Annotated[
-        str | None, typer.Option("--task", help="Command naming a target, e.g. 'Go to room 101'.")
-    ] = None,
+    task: Annotated[str | None, typer.Option("--task", help="Command naming a target, e.g. 'Go to room 101'.")] = None,
     task_audio: Annotated[
         Path | None, typer.Option("--task-audio", help="A spoken command (WAV) instead of --task.")
     ] = None,
-    asr_free: Annotated[
-        bool, typer.Option("--asr-free", help="Voice: open language model, no grammar.")
-    ] = False,
-    scenario: Annotated[
-        str | None, typer.Option(help="Scenario (default: the corridor the task names).")
-    ] = None,
+    asr_free: Annotated[bool, typer.Option("--asr-free", help="Voice: open language model, no grammar.")] = False,
+    scenario: Annotated[str | None, typer.Option(help="Scenario (default: the corridor the task names).")] = None,
     start_pose: Annotated[int, typer.Option("--start-pose", help="Start pose K (1-based).")] = 1,
     backend: Annotated[str, typer.Option(help="Model backend spec NAME[:ARG].")] = "local",
     max_generations: Annotated[int, typer.Option("--max-generations", help="Attempts before giving up.")] = 5,
@@ -71,9 +65,7 @@ def plan(
         target = ground_target(sc, resolved.task, clock)
         grounding_s = clock.elapsed_s()
         start = resolved.start.pose()
-        result = generate_plan(
-            sc, target, start, call, max_generations=max_generations, grid=build_grid(sc), seed=seed
-        )
+        result = generate_plan(sc, target, start, call, max_generations=max_generations, grid=build_grid(sc), seed=seed)
         result.planning_time_s += grounding_s
         if plot_path is not None:
             from llmnav.reporting.planplot import plot_plan

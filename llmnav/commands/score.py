@@ -39,9 +39,7 @@ def score(
         OutputFormat, typer.Option("--format", help="rich (terminal), md, csv or json.")
     ] = OutputFormat.rich,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
-    plot: Annotated[
-        Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")
-    ] = None,
+    plot: Annotated[Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")] = None,
 ) -> None:
     """Turn run logs into the sources' tables: episodes, path length, waypoints, FSM; plus statistics."""
     from llmnav.score import build_tables, compare_groups, load_runs, varying_keys

@@ -17,9 +17,7 @@ def audio_task(path: Path, scenario: str | None, free: bool, *, quiet: bool = Fa
 
     transcript = transcribe(path, scenarios_for(scenario), free=free)
     if not quiet:
-        confidence = (
-            "n/a" if transcript.confidence != transcript.confidence else f"{transcript.confidence:.2f}"
-        )
+        confidence = "n/a" if transcript.confidence != transcript.confidence else f"{transcript.confidence:.2f}"
         err_console.print(
             f"heard: “{esc(transcript.words)}” → [bold]{esc(transcript.task_text)}[/] "
             f"(confidence {confidence}, {transcript.seconds:.2f} s)",
@@ -31,12 +29,8 @@ def audio_task(path: Path, scenario: str | None, free: bool, *, quiet: bool = Fa
 @cli_errors
 def transcribe(
     audio: Annotated[Path, typer.Argument(help="A PCM WAV file (any rate, mono or stereo).")],
-    scenario: Annotated[
-        str | None, typer.Option(help="Scenario whose names form the grammar (default: all).")
-    ] = None,
-    asr_free: Annotated[
-        bool, typer.Option("--asr-free", help="Open language model instead of the grammar.")
-    ] = False,
+    scenario: Annotated[str | None, typer.Option(help="Scenario whose names form the grammar (default: all).")] = None,
+    asr_free: Annotated[bool, typer.Option("--asr-free", help="Open language model instead of the grammar.")] = False,
 ) -> None:
     """Print the task a spoken command names (nothing else, for scripts)."""
     print_data(printable(audio_task(audio, scenario, asr_free, quiet=True)))

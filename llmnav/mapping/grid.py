@@ -179,9 +179,7 @@ def near_bounds(geometry: GridGeometry, bounds: Bounds, within_m: float) -> np.n
     return np.asarray(near_x | near_y)
 
 
-def nearest_free_cell(
-    blocked: np.ndarray, geometry: GridGeometry, x: float, y: float, reach_m: float
-) -> Cell | None:
+def nearest_free_cell(blocked: np.ndarray, geometry: GridGeometry, x: float, y: float, reach_m: float) -> Cell | None:
     """The cell of (x, y) if free, else the free cell nearest to (x, y) within `reach_m` [m] (None: none).
 
     Lets a planner start from a pose that lies inside the inflation (the robot brushed past a corner).

@@ -39,18 +39,14 @@ def plot_conditions(runs: Sequence[Run], keys: Sequence[str], out_dir: Path) -> 
         labels = [cond for cond, _ in groups]
         score_mean, score_sd, rate, rate_se = [], [], [], []
         for _, group in groups:
-            scores = [
-                float(r.summary["score"]) for r in group if isinstance(r.summary.get("score"), (int, float))
-            ]
+            scores = [float(r.summary["score"]) for r in group if isinstance(r.summary.get("score"), (int, float))]
             d = describe(scores)
             score_mean.append(d.mean if d.n else math.nan)
             score_sd.append(d.sd if d.n > 1 else 0.0)
             p = sum(1 for r in group if r.summary.get("success")) / len(group)
             rate.append(p)
             rate_se.append(math.sqrt(p * (1 - p) / len(group)))  # binomial standard error
-        fig, axes = plt.subplots(
-            1, 2, figsize=(max(6.0, 1.2 * len(labels) + 3), 3.6), constrained_layout=True
-        )
+        fig, axes = plt.subplots(1, 2, figsize=(max(6.0, 1.2 * len(labels) + 3), 3.6), constrained_layout=True)
         positions = list(range(len(labels)))
         axes[0].bar(positions, score_mean, yerr=score_sd, capsize=4, color="#4c72b0")
         axes[0].set_ylabel("score S (mean ± SD)")
@@ -59,9 +55,7 @@ def plot_conditions(runs: Sequence[Run], keys: Sequence[str], out_dir: Path) -> 
         for ax in axes:
             ax.set_ylim(0, 1.05)
             tilt = len(labels) > 3
-            ax.set_xticks(
-                positions, labels, rotation=30 if tilt else 0, ha="right" if tilt else "center", fontsize=8
-            )
+            ax.set_xticks(positions, labels, rotation=30 if tilt else 0, ha="right" if tilt else "center", fontsize=8)
         fig.suptitle(f"{task} by {', '.join(keys)}" if keys else task)
         path = out_dir / f"{_safe(task)}.png"
         fig.savefig(path, dpi=110)

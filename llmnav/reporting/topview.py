@@ -142,9 +142,7 @@ def _label(
 def _draw_start_poses(ax: Axes, scenario: Scenario, task: Task | None) -> None:
     """Numbered arrows for the start poses (all tasks' when `task` is None)."""
     tasks = [task] if task is not None else scenario.tasks
-    length = 0.06 * max(
-        scenario.bounds.x[1] - scenario.bounds.x[0], scenario.bounds.y[1] - scenario.bounds.y[0]
-    )
+    length = 0.06 * max(scenario.bounds.x[1] - scenario.bounds.x[0], scenario.bounds.y[1] - scenario.bounds.y[0])
     length = min(max(length, 0.3), 1.0)  # [m] arrow length, readable at any map size
     seen: dict[tuple[float, float, float], int] = {}
     cmap = _pyplot().get_cmap("tab10")

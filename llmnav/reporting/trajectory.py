@@ -22,7 +22,7 @@ SAME_SPOT_M = 0.15  # [m] step ends closer than this share one label
 HEADING_ARROW_M = 0.8  # [m] length of the start and end heading arrows
 
 
-def _oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tuple[float, float]] | None:
+def oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tuple[float, float]] | None:
     """The oracle's path from the start pose, or None when there is no baseline or no target path."""
     if task.kind != "target":
         return None
@@ -55,11 +55,9 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
         draw_scenario(ax, scenario)
         start = record.config.get("start_pose") or (poses[0] if poses else None)
         if start is not None:
-            oracle = _oracle_points(scenario, task, start)
+            oracle = oracle_points(scenario, task, start)
             if oracle:
-                ax.plot(
-                    *zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=5.5
-                )
+                ax.plot(*zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=5.5)
         if poses:
             xs, ys = [p[0] for p in poses], [p[1] for p in poses]
             ax.plot(xs, ys, "-", color="tab:blue", lw=2.0, label="robot path", zorder=5)

@@ -34,11 +34,7 @@ def create_shape(p: Any, client: int, shape: Shape) -> int:
         assert shape.size is not None
         half = (shape.size[0] / 2.0, shape.size[1] / 2.0, shape.height / 2.0)
         vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=shape.color, physicsClientId=client)
-        col = (
-            p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client)
-            if shape.solid
-            else -1
-        )
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client) if shape.solid else -1
     else:
         assert shape.radius is not None
         vis = p.createVisualShape(
@@ -49,9 +45,7 @@ def create_shape(p: Any, client: int, shape: Shape) -> int:
             physicsClientId=client,
         )
         col = (
-            p.createCollisionShape(
-                p.GEOM_CYLINDER, radius=shape.radius, height=shape.height, physicsClientId=client
-            )
+            p.createCollisionShape(p.GEOM_CYLINDER, radius=shape.radius, height=shape.height, physicsClientId=client)
             if shape.solid
             else -1
         )
@@ -66,7 +60,5 @@ def create_shape(p: Any, client: int, shape: Shape) -> int:
         )
     )
     if shape.solid:
-        p.setCollisionFilterGroupMask(
-            body, -1, SCENERY_GROUP, ROBOT_GROUP | RAY_GROUP, physicsClientId=client
-        )
+        p.setCollisionFilterGroupMask(body, -1, SCENERY_GROUP, ROBOT_GROUP | RAY_GROUP, physicsClientId=client)
     return body

@@ -55,9 +55,7 @@ class Robot:
         self.max_linear_acc = (
             max_linear_acc if max_linear_acc is not None else max(1.0, 2.0 * spec.max_linear)
         )  # [m/s^2]
-        self.max_angular_acc = (
-            max_angular_acc if max_angular_acc is not None else 2.0 * spec.max_angular
-        )  # [rad/s^2]
+        self.max_angular_acc = max_angular_acc if max_angular_acc is not None else 2.0 * spec.max_angular  # [rad/s^2]
         self._z = spec.height_m / 2.0 + 0.001  # [m] base centre height (a hair above the floor)
         col = p.createCollisionShape(
             p.GEOM_CYLINDER, radius=spec.radius_m, height=spec.height_m, physicsClientId=client

@@ -94,9 +94,7 @@ class Lidar:
         start = self._start
         starts = np.column_stack((pose.x + start * dx, pose.y + start * dy, z))
         ends = np.column_stack((pose.x + range_m * dx, pose.y + range_m * dy, z))
-        hits = self._p.rayTestBatch(
-            starts.tolist(), ends.tolist(), numThreads=0, physicsClientId=self._client
-        )
+        hits = self._p.rayTestBatch(starts.tolist(), ends.tolist(), numThreads=0, physicsClientId=self._client)
         fractions = np.fromiter((h[2] if h[0] >= 0 else np.inf for h in hits), dtype=float, count=n)
         ranges = start + fractions * (range_m - start)  # inf where nothing was hit
         if cfg.noise_std_m > 0.0:

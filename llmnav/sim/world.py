@@ -92,15 +92,9 @@ class World:
         lidar_cfg = lidar or sensors.lidar
         camera_cfg = camera or sensors.camera
         # Mount heights come from the robot spec unless the scenario or caller set them explicitly.
-        lidar_h = (
-            lidar_cfg.mount_height_m
-            if "mount_height_m" in lidar_cfg.model_fields_set
-            else spec.lidar_height_m
-        )
+        lidar_h = lidar_cfg.mount_height_m if "mount_height_m" in lidar_cfg.model_fields_set else spec.lidar_height_m
         camera_h = (
-            camera_cfg.mount_height_m
-            if "mount_height_m" in camera_cfg.model_fields_set
-            else spec.camera_height_m
+            camera_cfg.mount_height_m if "mount_height_m" in camera_cfg.model_fields_set else spec.camera_height_m
         )
         self.lidar = Lidar(p, client, self.robot, lidar_cfg, mount_height_m=lidar_h)
         self.camera = Camera(

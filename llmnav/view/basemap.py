@@ -1,0 +1,116 @@
+"""The top view both the page and the video draw on: `llmnav.reporting.topview.draw_scenario` as a picture.
+
+The map is drawn once with matplotlib and kept with the affine mapping of its axes, world [m] → pixel
+(x right, y down), so the page's SVG layers and the video's robot land exactly on it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from llmnav.scenario import Scenario
+
+DPI = 100
+AXES_BOX = (0.08, 0.08, 0.9, 0.88)  # left, bottom, width, height of the axes in the figure
+MARGIN_M = 1.0  # [m] around the trajectory when there is no scenario to frame it
+
+
+@dataclass
+class BaseMap:
+    """A drawn top view and its world → pixel mapping: px = sx·x + ox, py = sy·y + oy."""
+
+    pixels: np.ndarray  # BGR
+    sx: float
+    ox: float
+    sy: float
+    oy: float
+
+    @property
+    def width(self) -> int:
+        """Pixels."""
+        return int(self.pixels.shape[1])
+
+    @property
+    def height(self) -> int:
+        """Pixels."""
+        return int(self.pixels.shape[0])
+
+    @property
+    def metre_px(self) -> float:
+        """Pixels per metre."""
+        return abs(self.sx)
+
+    def to_px(self, x: float, y: float) -> tuple[int, int]:
+        """Pixel of a world point."""
+        return (round(self.sx * x + self.ox), round(self.sy * y + self.oy))
+
+    def png(self) -> bytes:
+        """The picture as PNG bytes."""
+        import cv2
+
+        ok, encoded = cv2.imencode(".png", self.pixels, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        return encoded.tobytes() if ok else b""
+
+
+def draw_base_map(
+    scenario: Scenario | None,
+    width_px: int,
+    height_px: int,
+    *,
+    oracle: Sequence[Sequence[float]] | None = None,
+    trajectory: Sequence[Sequence[float]] = (),
+    faint_paths: bool = False,
+) -> BaseMap:
+    """The scenario's top view (or an empty frame around the trajectory), optionally with the paths."""
+    import cv2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from llmnav.reporting.topview import draw_scenario
+
+    fig = plt.figure(figsize=(width_px / DPI, height_px / DPI), dpi=DPI)
+    ax = fig.add_axes(AXES_BOX)
+    try:
+        if scenario is not None:
+            draw_scenario(ax, scenario)
+        else:
+            ax.set_aspect("equal")
+            points = list(trajectory) or [(0.0, 0.0)]
+            xs, ys = [float(p[0]) for p in points], [float(p[1]) for p in points]
+            ax.set_xlim(min(xs) - MARGIN_M, max(xs) + MARGIN_M)
+            ax.set_ylim(min(ys) - MARGIN_M, max(ys) + MARGIN_M)
+            ax.grid(True, linewidth=0.3, alpha=0.4)
+        if faint_paths and oracle:
+            ax.plot([p[0] for p in oracle], [p[1] for p in oracle], "--", color="0.35", lw=1.2, zorder=5.5)
+        if faint_paths and trajectory:
+            ax.plot([p[0] for p in trajectory], [p[1] for p in trajectory], color="tab:blue", lw=1.0, alpha=0.35)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.label.set_fontsize(8)
+        ax.yaxis.label.set_fontsize(8)
+        fig.canvas.draw()
+        rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
+        # Display coordinates have y up from the bottom; image rows go down from the top.
+        (x0, y0), (x1, y1) = ax.transData.transform([(0.0, 0.0), (1.0, 1.0)])
+        rows = rgba.shape[0]
+        pixels = cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR)
+        return BaseMap(pixels, float(x1 - x0), float(x0), float(-(y1 - y0)), float(rows - y0))
+    finally:
+        plt.close(fig)
+
+
+def page_size(scenario: Scenario | None, width_px: int = 720) -> tuple[int, int]:
+    """A picture size that fits the map's aspect ratio (with room for the axes)."""
+    if scenario is None:
+        return width_px, round(width_px * 0.75)
+    (x0, x1), (y0, y1) = scenario.bounds.x, scenario.bounds.y
+    aspect = (y1 - y0) / max(x1 - x0, 1e-6)
+    height = aspect * width_px * AXES_BOX[2] / AXES_BOX[3] + 20
+    return width_px, int(min(max(height, 260), 1100))

@@ -1,0 +1,542 @@
+"""What a run page shows, as plain data: one run folder read back and arranged by decision.
+
+`build_run_view` reads the folder with the run-log reader (`llmnav.runlog.read_run`), takes the summary
+the way `llmnav score` does (`llmnav.score.load_run`: summary.json, or recomputed for a run cut short),
+and groups the events into decisions:
+
+- stepwise, hybrid, waypoints, oracle, frontier: one decision per logged `step` value (a waypoint
+  decision is one leg: its grounding, every generation attempt with its verdict, the replans);
+- fsm: one decision per model suggestion (its verdict: accepted, stale, bounds, parse); an FSM without
+  a model has one decision per state change.
+
+Everything here tolerates missing fields and missing events: a killed run shows what it logged and each
+decision says what it lacks. Nothing here renders HTML (see `llmnav.view.page`).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from llmnav.runlog import IMAGES_DIR, RunRecord, read_run
+
+if TYPE_CHECKING:
+    from llmnav.scenario import Scenario, Task
+
+REASONING_CHARS = 160  # one line of reasoning in captions and the step list
+
+_SECTOR_LINE = re.compile(
+    r"^\s*\d+\.\s*([+-]?\d+(?:\.\d+)?) to ([+-]?\d+(?:\.\d+)?) deg:\s*"
+    r"(?:(no data)|closest (inf|\d+(?:\.\d+)?)(?: m at ([+-]?\d+(?:\.\d+)?) deg)?)",
+    re.MULTILINE,
+)
+_RANGE_MAX = re.compile(r"inf = nothing within (\d+(?:\.\d+)?) m")
+_IMAGE_HASH = re.compile(r"[0-9a-f]{64}")  # images are stored under their sha256 (llmnav.runlog)
+
+
+@dataclass
+class Sector:
+    """One LiDAR sector as the model was told it; angles [deg], positive = left."""
+
+    start_deg: float
+    end_deg: float
+    min_m: float | None  # [m] None = no data; inf = nothing in range
+    angle_deg: float | None
+
+
+@dataclass
+class LidarView:
+    """The sectors told to the model, parsed back from the observation's text."""
+
+    front_m: float | None
+    sectors: list[Sector]
+    range_max_m: float  # [m] radius of the polar plot
+
+
+@dataclass
+class MessageView:
+    """One chat message of a request."""
+
+    role: str
+    text: str
+    images: list[str] = field(default_factory=list)  # image hashes
+
+
+@dataclass
+class CallView:
+    """One model call: what was new in the prompt, the whole request, the raw reply and its cost."""
+
+    purpose: str
+    new_messages: list[MessageView]
+    messages: list[MessageView]
+    reply: str | None
+    error: str | None
+    model: str | None
+    latency_s: float | None
+    tokens: dict[str, Any]  # prompt_tokens, completion_tokens and whatever other *_tokens the backend logged
+    t_wall: float | None = None
+
+
+@dataclass
+class StepView:
+    """One decision and everything logged about it."""
+
+    index: int  # 0-based position on the page
+    label: str  # "Step 3", "Leg 1", "Suggestion 12", "State APPROACH"
+    step: Any  # the logged step value (None for FSM suggestions)
+    pose_before: list[float] | None = None
+    pose_after: list[float] | None = None
+    image: str | None = None  # hash of the camera image sent
+    lidar: LidarView | None = None
+    lidar_text: str | None = None
+    detections: list[dict[str, Any]] = field(default_factory=list)
+    calls: list[CallView] = field(default_factory=list)
+    guards: list[dict[str, Any]] = field(default_factory=list)  # every verdict, vetoes included
+    actions: list[dict[str, Any]] = field(default_factory=list)
+    attempts: list[dict[str, Any]] = field(default_factory=list)  # waypoint generation attempts
+    replans: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # other planner records, one line each
+    missing: list[str] = field(default_factory=list)
+    verdict: str | None = None  # FSM suggestion outcome
+    t_sim: float | None = None
+
+    @property
+    def vetoes(self) -> list[dict[str, Any]]:
+        """The safety vetoes of this decision."""
+        return [g for g in self.guards if g.get("outcome") == "veto"]
+
+    @property
+    def latency_s(self) -> float:
+        """Model time of the decision [s]."""
+        return sum(c.latency_s or 0.0 for c in self.calls)
+
+    @property
+    def tokens(self) -> dict[str, int]:
+        """Token counts of the decision, summed over its calls."""
+        return sum_tokens(self.calls)
+
+    @property
+    def action_text(self) -> str:
+        """The executed action(s) in a few words."""
+        if not self.actions:
+            return self.verdict or "no action"
+        return "; ".join(describe_action(a) for a in self.actions[:4]) + (
+            f" (+{len(self.actions) - 4} more)" if len(self.actions) > 4 else ""
+        )
+
+    @property
+    def reasoning(self) -> str:
+        """The model's reasoning on its last answer, on one line (empty when there is none)."""
+        for call in reversed(self.calls):
+            if call.reply:
+                return reasoning_of(call.reply)
+        return ""
+
+
+@dataclass
+class FsmView:
+    """FSM records: the command profile and the suggestion outcomes over time."""
+
+    t: list[float]
+    base: list[list[float]]
+    raw: list[list[float] | None]
+    fused: list[list[float]]
+    suggestions: list[dict[str, Any]]  # t_recv, verdict, detail, latency_ms
+    states: list[dict[str, Any]]  # t_sim, previous, state, sign
+
+
+@dataclass
+class RunView:
+    """A run folder arranged for its page."""
+
+    run_dir: Path
+    record: RunRecord
+    summary: dict[str, Any]
+    scenario: Scenario | None
+    task: Task | None
+    steps: list[StepView]
+    trajectory: list[list[float]]
+    oracle: list[tuple[float, float]] | None
+    fsm: FsmView | None
+    missing: list[str]  # what the whole run lacks (summary, end event, images ...)
+    image_files: dict[str, Path]  # hash -> file for the images that exist
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The run's configuration line."""
+        return self.record.config
+
+    @property
+    def header(self) -> dict[str, Any]:
+        """The page header's fields (absent ones are None)."""
+        config, summary = self.config, self.summary
+        task = as_dict(config.get("task"))
+        options = as_dict(config.get("options"))
+        models = sorted({c.model for s in self.steps for c in s.calls if c.model})
+        calls = [c for s in self.steps for c in s.calls]
+        oracle_m = polyline_length(self.oracle) if self.oracle else None
+        path_m = summary.get("path_length_m")
+        ratio = path_m / oracle_m if isinstance(path_m, (int, float)) and oracle_m else None
+        return {
+            "task": task.get("text") or summary.get("task_text"),
+            "task_id": task.get("id"),
+            "wording": task.get("wording"),
+            "scenario": config.get("scenario"),
+            "start_pose_index": config.get("start_pose_index"),
+            "planner": config.get("planner") or options.get("planner"),
+            "backend": config.get("backend"),
+            "models": models,
+            "information": config.get("information") or summary.get("information"),
+            "outcome": summary.get("outcome"),
+            "reason": summary.get("reason"),
+            "score": summary.get("score"),
+            "success": summary.get("success"),
+            "path_length_m": summary.get("path_length_m"),
+            "oracle_length_m": oracle_m,
+            "oracle_ratio": ratio,
+            "iterations": summary.get("iterations"),
+            "llm_calls": len(calls),
+            "model_time_s": sum(c.latency_s or 0.0 for c in calls),
+            "tokens": sum_tokens(calls),
+            "json_errors": summary.get("json_errors"),
+            "safety_vetoes": summary.get("safety_vetoes"),
+            "sim_time_s": summary.get("sim_time_s"),
+            "seed": config.get("seed"),
+        }
+
+
+# --- small readers -------------------------------------------------------------------------------
+
+
+def as_dict(value: Any) -> dict[str, Any]:
+    """A logged mapping; an empty one for anything else (a log may hold odd values)."""
+    return value if isinstance(value, dict) else {}
+
+
+def sum_tokens(calls: list[CallView]) -> dict[str, int]:
+    """Token counts summed over calls, per kind (only the kinds some call reported)."""
+    total: dict[str, int] = {}
+    for call in calls:
+        for name, value in call.tokens.items():
+            if isinstance(value, int) and not isinstance(value, bool):
+                total[name] = total.get(name, 0) + value
+    return total
+
+
+def polyline_length(points: list[tuple[float, float]] | list[list[float]]) -> float:
+    """Length [m] of a polyline."""
+    return sum(math.dist(a[:2], b[:2]) for a, b in zip(points, points[1:], strict=False))
+
+
+def reasoning_of(reply: str) -> str:
+    """The `reasoning` field of an answer, on one line; empty when the answer has none."""
+    from llmnav.guard.parse import parse_answer
+
+    result: Any = parse_answer(reply, dict[str, Any])
+    value = result.value if isinstance(result.value, dict) else None
+    text = value.get("reasoning") if value else None
+    if not isinstance(text, str):
+        return ""
+    line = " ".join(text.split())
+    return line if len(line) <= REASONING_CHARS else line[: REASONING_CHARS - 1] + "…"
+
+
+def describe_action(action: dict[str, Any]) -> str:
+    """`FRONT 1.5`, `GOTO 2.3 (Go to room 101)`, `WAYPOINT [1.0, 2.0]`, plus what stopped it."""
+    command = str(action.get("command", "?"))
+    params = action.get("parameters")
+    text = command if params in (None, 0, 0.0) and command == "COMPLETE" else f"{command} {params}"
+    if action.get("option"):
+        text += f" ({action['option']})"
+    if action.get("vetoed"):
+        text += " — vetoed"
+    if action.get("collided"):
+        text += f" — collided with {action.get('collision_with') or 'an obstacle'}"
+    elif action.get("stopped_reason"):
+        text += f" — stopped: {action['stopped_reason']}"
+    return text
+
+
+def as_pose(value: Any) -> list[float] | None:
+    """A logged pose [x, y(, yaw)] as floats; None for anything else (a log may hold odd values)."""
+    if not isinstance(value, list) or len(value) < 2:
+        return None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value[:3]):
+        return None
+    return [float(v) for v in value[:3]]
+
+
+def parse_lidar(text: Any, front_m: Any) -> LidarView | None:
+    """The sectors of an observation's LiDAR text (`llmnav.perception.LidarSummary.text`); None if absent."""
+    if not isinstance(text, str) or not text:
+        return None
+    sectors: list[Sector] = []
+    for match in _SECTOR_LINE.finditer(text):
+        start, end, no_data, dist, angle = match.groups()
+        value = None if no_data else (math.inf if dist == "inf" else float(dist))
+        sectors.append(Sector(float(start), float(end), value, None if angle is None else float(angle)))
+    if not sectors:
+        return None
+    found = _RANGE_MAX.search(text)
+    finite = [s.min_m for s in sectors if s.min_m is not None and math.isfinite(s.min_m)]
+    range_max = float(found.group(1)) if found else max([*finite, 1.0])
+    return LidarView(front_m if isinstance(front_m, (int, float)) else None, sectors, range_max)
+
+
+def _messages(request: Any) -> list[MessageView]:
+    out: list[MessageView] = []
+    raw = request.get("messages") if isinstance(request, dict) else None
+    for message in raw if isinstance(raw, list) else []:
+        if not isinstance(message, dict):
+            continue
+        images = [str(h) for h in message.get("images") or [] if isinstance(h, str)]
+        out.append(MessageView(str(message.get("role", "?")), str(message.get("text", "")), images))
+    return out
+
+
+def _call_view(event: dict[str, Any], previous: list[MessageView]) -> CallView:
+    """A call; its new messages are those after the part it shares with the previous request.
+
+    The model's own earlier answers (assistant messages) are not new to it and are left out.
+    """
+    messages = _messages(event.get("request"))
+    shared = 0
+    while shared < min(len(messages), len(previous)) and messages[shared] == previous[shared]:
+        shared += 1
+    new = [m for m in messages[shared:] if m.role != "assistant"]
+    reply = event.get("reply") if isinstance(event.get("reply"), dict) else None
+    tokens: dict[str, Any] = {}
+    if reply is not None:
+        for source in (reply, reply.get("meta") if isinstance(reply.get("meta"), dict) else {}):
+            for key, value in source.items():
+                if key.endswith("tokens") and value is not None:
+                    tokens.setdefault(key, value)
+    latency = reply.get("latency_s") if reply else None
+    return CallView(
+        purpose=str(event.get("purpose") or "call"),
+        new_messages=new,
+        messages=messages,
+        reply=(reply["text"] if isinstance(reply.get("text"), str) else "") if reply else None,
+        error=str(event["error"]) if event.get("error") is not None else None,
+        model=str(reply["model"]) if reply and reply.get("model") else None,
+        latency_s=float(latency) if isinstance(latency, (int, float)) else None,
+        tokens=tokens,
+        t_wall=event.get("t_wall"),
+    )
+
+
+def _planner_note(event: dict[str, Any]) -> str:
+    """One line for a planner record shown in a decision's notes."""
+    fields = {k: v for k, v in event.items() if k not in ("type", "kind", "step", "t_wall", "t_sim")}
+    detail = ", ".join(f"{k}={v}" for k, v in fields.items())
+    return f"{event.get('kind', 'planner')}: {detail}" if detail else str(event.get("kind", "planner"))
+
+
+# --- grouping ------------------------------------------------------------------------------------
+
+
+def _fsm_steps(record: RunRecord) -> list[StepView]:
+    """FSM decisions: one per suggestion (paired with its verdict in order), else one per state change."""
+    calls = record.of_type("llm_call")
+    verdicts = [e for e in record.of_type("planner") if e.get("kind") == "suggestion"]
+    steps: list[StepView] = []
+    previous: list[MessageView] = []
+    if calls:
+        for i, event in enumerate(calls):
+            call = _call_view(event, previous)
+            previous = call.messages
+            step = StepView(i, f"Suggestion {i + 1}", None, calls=[call], t_sim=event.get("t_sim"))
+            if i < len(verdicts):
+                v = verdicts[i]
+                step.verdict = str(v.get("verdict"))
+                step.guards.append({"outcome": v.get("verdict"), "error": v.get("detail"), "attempt": 1})
+                step.notes.append(
+                    f"received at t={v.get('t_recv')} s, stamped {v.get('stamp')} s, latency {v.get('latency_ms')} ms"
+                )
+            else:
+                step.missing.append("no verdict logged (the run ended before the answer was due)")
+            steps.append(step)
+        _place_by_time(steps, record)
+        return steps
+    for i, event in enumerate(e for e in record.of_type("planner") if e.get("kind") == "fsm_state"):
+        pose = as_pose(event.get("pose"))
+        step = StepView(i, f"State {event.get('state')}", None, pose_before=pose, pose_after=pose)
+        step.t_sim = event.get("t_sim")
+        step.notes.append(f"{event.get('previous')} → {event.get('state')} (sign {event.get('sign')})")
+        step.verdict = f"{event.get('previous')} → {event.get('state')}"
+        steps.append(step)
+    return steps
+
+
+def _place_by_time(steps: list[StepView], record: RunRecord) -> None:
+    """Give decisions without poses the trajectory sample logged last before them (by sim time)."""
+    import bisect
+
+    samples = [
+        (float(e["t_sim"]), pose)
+        for e in record.of_type("pose")
+        if isinstance(e.get("t_sim"), (int, float)) and (pose := as_pose(e.get("pose"))) is not None
+    ]
+    times = [t for t, _ in samples]
+    for step in steps:
+        if step.pose_before is None and isinstance(step.t_sim, (int, float)) and samples:
+            index = max(0, bisect.bisect_right(times, float(step.t_sim)) - 1)
+            step.pose_before = step.pose_after = samples[index][1]
+
+
+def _stepped(record: RunRecord) -> list[StepView]:
+    """Decisions by logged step value, in the order they first appear."""
+    by_step: dict[Any, StepView] = {}
+    previous: list[MessageView] = []
+    for event in record.events:
+        kind = event.get("type")
+        if kind not in ("observation", "llm_call", "guard", "action", "planner") or "step" not in event:
+            continue
+        key = event.get("step")
+        if key is None or isinstance(key, (dict, list)):
+            continue
+        step = by_step.get(key)
+        if step is None:
+            planner = record.config.get("planner")
+            name = "Leg" if planner == "waypoints" else "Step"
+            step = by_step[key] = StepView(len(by_step), f"{name} {key}", key, t_sim=event.get("t_sim"))
+        if kind == "observation":
+            step.pose_before = step.pose_before or as_pose(event.get("pose"))
+            image = event.get("image")
+            step.image = step.image or (image if isinstance(image, str) else None)
+            text = event.get("lidar_text")
+            step.lidar_text = text if isinstance(text, str) else None
+            step.lidar = parse_lidar(event.get("lidar_text"), event.get("lidar_front_m"))
+            step.detections = [d for d in event.get("detections") or [] if isinstance(d, dict)]
+        elif kind == "llm_call":
+            call = _call_view(event, previous)
+            previous = call.messages
+            step.calls.append(call)
+            if step.image is None:  # a planner that logs no observation still sends images
+                step.image = next((h for m in call.new_messages for h in m.images), None)
+        elif kind == "guard":
+            step.guards.append(event)
+        elif kind == "action":
+            step.actions.append(event)
+            if step.pose_before is None:
+                step.pose_before = as_pose(event.get("pose_before"))
+            step.pose_after = as_pose(event.get("pose_after")) or step.pose_after
+        elif event.get("kind") == "waypoint_attempt":
+            step.attempts.append(event)
+        elif event.get("kind") == "replan":
+            step.replans.append(event)
+        else:
+            step.notes.append(_planner_note(event))
+    return list(by_step.values())
+
+
+def _fsm_view(record: RunRecord) -> FsmView | None:
+    from llmnav.reporting.velocity import well_formed_cmd
+
+    planner = record.of_type("planner")
+    cmds = [e for e in planner if e.get("kind") == "cmd" and well_formed_cmd(e)]
+    if not cmds and record.config.get("planner") != "fsm":
+        return None
+    return FsmView(
+        t=[float(e.get("t_sim", 0.0)) for e in cmds],
+        base=[e["base"] for e in cmds],
+        raw=[e.get("raw") if isinstance(e.get("raw"), list) else None for e in cmds],
+        fused=[e["fused"] if isinstance(e.get("fused"), list) else e["base"] for e in cmds],
+        suggestions=[e for e in planner if e.get("kind") == "suggestion"],
+        states=[e for e in planner if e.get("kind") == "fsm_state"],
+    )
+
+
+def _mark_missing(steps: list[StepView], planner: str | None) -> None:
+    """Say what each decision lacks (a killed run stops mid-decision)."""
+    model_planner = planner in ("stepwise", "hybrid", "waypoints")
+    for step in steps:
+        if step.verdict is not None:
+            continue
+        if model_planner and not step.calls:
+            step.missing.append("no model call logged for this decision")
+        if model_planner and step.calls and not step.guards:
+            step.missing.append("no guard verdict logged")
+        if not step.actions:
+            step.missing.append("no action logged (the run ended before one was executed)")
+
+
+def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
+    """The run's task: the scenario's own when the id is one of its tasks, else rebuilt from the record."""
+    from pydantic import ValidationError
+
+    from llmnav.scenario import Task
+
+    record = as_dict(config.get("task"))
+    if scenario is not None and record.get("id"):
+        try:
+            return scenario.task(str(record["id"]))
+        except KeyError:
+            pass
+    known = {k: record[k] for k in ("id", "text", "kind", "difficulty", "targets") if k in record}
+    try:
+        return Task.model_validate(known)
+    except ValidationError:
+        return None
+
+
+def build_run_view(run_dir: Path) -> RunView:
+    """Read a run folder for its page; raises BadInputError when it is no readable run."""
+    from llmnav.reporting.trajectory import oracle_points
+    from llmnav.score import load_run, scenario_of
+
+    run_dir = Path(run_dir)
+    record = read_run(run_dir)
+    missing: list[str] = []
+    try:
+        summary = load_run(run_dir).summary
+    except (AttributeError, IndexError, KeyError, TypeError, ValueError) as err:
+        # Malformed fields (a pose with one number, a string for a number) defeat the metrics; the page
+        # still shows every event, and says why the figures are absent.
+        summary = dict(record.summary or {})
+        missing.append(f"the run's figures cannot be computed from this log ({type(err).__name__}: {err})")
+    scenario = scenario_of(record.config)
+    planner = record.config.get("planner")
+    steps = _fsm_steps(record) if planner == "fsm" else _stepped(record)
+    _mark_missing(steps, planner)
+    if not record.complete:
+        missing.append("the run has no end event: it was cut short (killed or still running)")
+    if record.summary is None:
+        missing.append("summary.json is missing: the figures above are recomputed from the log")
+    if record.torn_lines:
+        missing.append(f"{record.torn_lines} incomplete last line(s) of the log were ignored")
+    if scenario is None:
+        missing.append(f"scenario {record.config.get('scenario')!r} cannot be loaded: no map is drawn")
+    images: dict[str, Path] = {}
+    wanted = {s.image for s in steps if s.image}
+    for digest in sorted(wanted):
+        if not _IMAGE_HASH.fullmatch(digest):  # a hand-made log could name ../../anything: only hashes
+            continue
+        path = run_dir / IMAGES_DIR / f"{digest}.jpg"
+        if path.is_file():
+            images[digest] = path
+    if len(images) < len(wanted):
+        missing.append(f"{len(wanted) - len(images)} camera image(s) referenced by the log are missing")
+    task = _task(record.config, scenario)
+    start = as_pose(record.config.get("start_pose"))
+    oracle = None
+    if scenario is not None and task is not None and start is not None and len(start) >= 3:
+        oracle = oracle_points(scenario, task, start)
+    if not steps:
+        missing.append("no decision was logged")
+    return RunView(
+        run_dir=run_dir,
+        record=record,
+        summary=summary,
+        scenario=scenario,
+        task=task,
+        steps=steps,
+        trajectory=[p for p in (as_pose(e.get("pose")) for e in record.of_type("pose")) if p is not None],
+        oracle=oracle,
+        fsm=_fsm_view(record) if planner == "fsm" else None,
+        missing=missing,
+        image_files=images,
+    )

@@ -1,0 +1,386 @@
+"""Self-contained HTML pages of a run or a sweep, rendered from Jinja2 templates.
+
+A page is one file: the CSS, the plain JavaScript and the camera images (as recorded, base64 data URIs)
+are inside it, so it opens from disk with no server and no network. Every value from a run goes
+through Jinja's autoescaping (model text is hostile), and the only JSON in the page goes through its
+`tojson` filter, which escapes `<`, `>` and `&`.
+
+`run_page` / `sweep_page` return the HTML; `write_page` writes it atomically and refuses to overwrite a
+file it did not write itself unless forced (every page carries a generator tag to tell).
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from llmnav.errors import BadInputError
+
+if TYPE_CHECKING:
+    from jinja2 import Environment
+
+    from llmnav.score import Run, Table
+    from llmnav.view.model import RunView, StepView
+
+PAGE_FILE = "view.html"  # default page name inside a run or sweep folder
+GENERATOR = "llmnav view"  # the page's <meta name="generator">: how `write_page` knows its own files
+_OWN_MARK = f'<meta name="generator" content="{GENERATOR}">'.encode()
+ARROW_M = 0.5  # [m] heading arrows on the map
+
+
+@lru_cache(maxsize=1)
+def environment() -> Environment:
+    """The Jinja2 environment: templates of this package, autoescaping on.
+
+    Undefined values render empty: a field an older or partial log lacks must not break the page.
+    """
+    from jinja2 import Environment, PackageLoader, select_autoescape
+
+    env = Environment(
+        loader=PackageLoader("llmnav.view", "templates"),
+        autoescape=select_autoescape(("html", "j2", "svg"), default=True),
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters["num"] = _num
+    env.filters["pose"] = _pose
+    env.filters["joined"] = _joined
+    return env
+
+
+def _num(value: Any, digits: int = 2, unit: str = "") -> str:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return "—" if value is None else str(value)
+    text = f"{value:.{digits}f}" if isinstance(value, float) else str(value)
+    return f"{text} {unit}".rstrip()
+
+
+def _pose(pose: Any) -> str:
+    import math
+
+    if not isinstance(pose, (list, tuple)) or len(pose) < 2:
+        return "—"
+    try:
+        x, y = float(pose[0]), float(pose[1])
+        yaw = f", heading {math.degrees(float(pose[2])):.0f}°" if len(pose) > 2 else ""
+    except (TypeError, ValueError):
+        return str(pose)
+    return f"x {x:.2f} m, y {y:.2f} m{yaw}"
+
+
+def _joined(value: Any, separator: str = ", ") -> str:
+    """A logged list as text; anything else (a hand-edited log) as it is."""
+    if isinstance(value, (list, tuple)):
+        return separator.join(str(item) for item in value)
+    return "" if value is None else str(value)
+
+
+def data_uri(path: Path) -> str | None:
+    """A JPEG as a data URI (its bytes as recorded); None when it cannot be read."""
+    try:
+        return "data:image/jpeg;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+    except OSError:
+        return None
+
+
+# --- the run page --------------------------------------------------------------------------------
+
+
+def _marker(step: StepView) -> dict[str, Any] | None:
+    from llmnav.view.drawing import svg_point
+
+    pose = step.pose_before or step.pose_after
+    if not isinstance(pose, list) or len(pose) < 2:
+        return None
+    x, y = svg_point(float(pose[0]), float(pose[1]))
+    return {"index": step.index, "cx": x, "cy": y, "label": step.label}
+
+
+def _overlay(step: StepView) -> dict[str, Any]:
+    """What the map shows for the selected decision: poses, waypoint attempts, replans."""
+    from llmnav.view.drawing import arrow, points_attr, svg_point
+    from llmnav.view.model import as_pose
+
+    def heading(pose: list[float] | None) -> dict[str, float] | None:
+        return arrow(pose, ARROW_M) if pose is not None and len(pose) >= 3 else None
+
+    attempts = []
+    for a in step.attempts:
+        raw = a.get("points")
+        points = [p for p in (as_pose(q) for q in (raw if isinstance(raw, list) else [])) if p is not None]
+        if points:
+            start = step.pose_before or points[0]
+            attempts.append(
+                {"points": points_attr([start, *points]), "valid": bool(a.get("valid")), "number": a.get("attempt")}
+            )
+    replans = []
+    for r in step.replans:
+        obstacle = as_pose(r.get("obstacle"))
+        replans.append(
+            {
+                "pose": heading(as_pose(r.get("pose"))),
+                "obstacle": None if obstacle is None else svg_point(obstacle[0], obstacle[1]),
+                "reason": r.get("reason"),
+            }
+        )
+    return {
+        "index": step.index,
+        "before": heading(step.pose_before),
+        "after": heading(step.pose_after),
+        "attempts": attempts,
+        "replans": replans,
+    }
+
+
+STRIP_W, STRIP_PAD = 760, 36  # [px] suggestion-outcome strip: width and left margin
+
+
+def _velocity_profile(view: RunView) -> str | None:
+    """The FSM's velocity-profile figure (`llmnav.reporting.velocity`) as a PNG data URI.
+
+    The planner draws it at the end of a run; a run cut short gets it drawn now.
+    """
+    from llmnav.reporting.velocity import PROFILE_FILE, plot_velocity_profile
+
+    path: Path | None = view.run_dir / PROFILE_FILE
+    with tempfile.TemporaryDirectory(prefix="llmnav-view-") as tmp:
+        if path is None or not path.is_file():
+            path = plot_velocity_profile(view.run_dir, Path(tmp) / PROFILE_FILE)
+        if path is None:
+            return None
+        return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _fsm_charts(view: RunView) -> dict[str, Any] | None:
+    """The velocity profile and a strip of suggestion outcomes over simulation time."""
+    fsm = view.fsm
+    if fsm is None:
+        return None
+    verdicts: dict[str, int] = {}
+    for s in fsm.suggestions:
+        verdicts[str(s.get("verdict"))] = verdicts.get(str(s.get("verdict")), 0) + 1
+
+    def received(s: dict[str, Any]) -> float:
+        value = s.get("t_recv")
+        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
+
+    t1 = max([*fsm.t, *(received(s) for s in fsm.suggestions), 1.0])
+    span = STRIP_W - STRIP_PAD - 8
+    marks = [
+        {
+            "x": round(STRIP_PAD + received(s) / t1 * span, 2),
+            "verdict": str(s.get("verdict")),
+            "detail": s.get("detail"),
+            "t": s.get("t_recv"),
+        }
+        for s in fsm.suggestions
+    ]
+    ticks = [{"x": round(STRIP_PAD + k / 4 * span, 2), "label": f"{t1 * k / 4:.0f}"} for k in range(5)]
+    from llmnav.view.model import as_dict
+
+    return {
+        "assist": as_dict(view.config.get("options")).get("assist"),
+        "profile": _velocity_profile(view),
+        "verdicts": verdicts,
+        "marks": marks,
+        "ticks": ticks,
+        "states": fsm.states,
+        "samples": len(fsm.t),
+    }
+
+
+def run_context(view: RunView) -> dict[str, Any]:
+    """Everything the run template needs."""
+    from llmnav.view.basemap import draw_base_map, page_size
+    from llmnav.view.drawing import lidar_wedges, points_attr, svg_point
+    from llmnav.view.model import as_dict, as_pose
+
+    raw = as_dict(view.config.get("options")).get("obstacles")
+    added = [(p[0], p[1]) for p in (as_pose(o) for o in (raw if isinstance(raw, list) else [])) if p is not None]
+    scenario = view.scenario
+    if scenario is not None and added:
+        from llmnav.baselines.oracle import with_added_obstacles
+
+        scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
+    base = draw_base_map(scenario, *page_size(scenario), trajectory=view.trajectory)
+    trajectory = view.trajectory
+    images = {h: data_uri(p) for h, p in view.image_files.items()}
+    metre = base.metre_px
+    return {
+        "generator": GENERATOR,
+        "view": view,
+        "header": view.header,
+        "map": {
+            "src": "data:image/png;base64," + base64.b64encode(base.png()).decode("ascii"),
+            "width": base.width,
+            "height": base.height,
+            "transform": f"matrix({base.sx:.4f} 0 0 {base.sy:.4f} {base.ox:.2f} {base.oy:.2f})",
+            "marker_m": round(7.0 / metre, 3),  # [m] a 7-pixel marker at the picture's scale
+        },
+        "trajectory": points_attr(trajectory) if len(trajectory) > 1 else None,
+        "start": svg_point(*trajectory[0][:2]) if trajectory else None,
+        "end": svg_point(*trajectory[-1][:2]) if trajectory else None,
+        "oracle": points_attr(view.oracle) if view.oracle else None,
+        "markers": [m for m in (_marker(s) for s in view.steps) if m is not None],
+        "overlays": [_overlay(s) for s in view.steps],
+        "images": images,
+        "lidar": {s.index: lidar_wedges(s.lidar) for s in view.steps if s.lidar is not None},
+        "fsm": _fsm_charts(view),
+    }
+
+
+def run_page(run_dir: Path) -> str:
+    """The HTML page of one run folder."""
+    from llmnav.view.model import build_run_view
+
+    return environment().get_template("run.html.j2").render(**run_context(build_run_view(run_dir)))
+
+
+# --- the sweep page ------------------------------------------------------------------------------
+
+
+def _href(target: Path, page: Path) -> str:
+    """A relative link that stays a path whatever the folder names hold (`:`, `#`, `?`, spaces).
+
+    The `./` prefix keeps a folder named like `javascript:...` from being read as a URL scheme.
+    """
+    from urllib.parse import quote
+
+    relative = Path(os.path.relpath(target.resolve(), page.parent.resolve())).as_posix()
+    return quote(relative if relative.startswith("../") else "./" + relative)
+
+
+def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, str]]:
+    """The score/success bar charts of `llmnav score --plot`, inlined as PNG data URIs."""
+    from llmnav.reporting.charts import plot_conditions
+
+    charts = []
+    with tempfile.TemporaryDirectory(prefix="llmnav-view-") as tmp:
+        for path in plot_conditions(runs, keys, Path(tmp)):
+            encoded = base64.b64encode(path.read_bytes()).decode("ascii")
+            charts.append({"title": path.stem, "src": "data:image/png;base64," + encoded})
+    return charts
+
+
+def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> list[dict[str, Any]]:
+    """Per condition: a task × start-pose grid of successes, each cell linking to its runs' pages."""
+    from llmnav.score import group_runs
+
+    conditions: dict[str, dict[str, list[Run]]] = {}
+    for task, label, group in group_runs(runs, keys):  # tasks in the tables' order
+        conditions.setdefault(label, {})[task] = group
+    maps = []
+    for label, by_task in conditions.items():
+        every = [r for group in by_task.values() for r in group]
+        poses = sorted({r.summary.get("start_pose_index") for r in every}, key=lambda p: (p is None, p or 0))
+        rows = []
+        for task, group in by_task.items():
+            cells = []
+            for pose in poses:
+                here = [r for r in group if r.summary.get("start_pose_index") == pose]
+                ok = sum(1 for r in here if r.summary.get("success"))
+                cells.append(
+                    {
+                        "n": len(here),
+                        "ok": ok,
+                        "rate": ok / len(here) if here else None,
+                        "runs": [
+                            {"href": links[r.run_dir], "outcome": r.summary.get("outcome"), "name": r.run_dir.name}
+                            for r in here
+                        ],
+                    }
+                )
+            rows.append({"task": task, "cells": cells})
+        maps.append({"condition": label, "poses": poses, "rows": rows})
+    return maps
+
+
+def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict[str, Any]:
+    """Everything the sweep template needs; writes the run pages that are missing."""
+    import json
+
+    from llmnav.ablate import MANIFEST_FILE
+    from llmnav.score import build_tables, find_run_dirs, load_run, varying_keys
+
+    runs = [load_run(d) for d in find_run_dirs([root])]
+    keys = varying_keys(runs)
+    links: dict[Path, str] = {}
+    for run in runs:
+        page = run.run_dir / PAGE_FILE
+        if make_run_pages and not page.exists():
+            write_page(run_page(run.run_dir), page)
+        links[run.run_dir] = _href(page, out)
+    manifest: dict[str, Any] = {}
+    try:
+        loaded = json.loads((root / MANIFEST_FILE).read_text(encoding="utf-8"))
+        manifest = loaded if isinstance(loaded, dict) else {}
+    except (OSError, ValueError):
+        manifest = {}
+    tables: list[Table] = build_tables(runs, keys)
+    return {
+        "generator": GENERATOR,
+        "name": manifest.get("name") or root.resolve().name,
+        "manifest": manifest,
+        "root": str(root),
+        "keys": keys,
+        "tables": tables,
+        "charts": _charts(runs, keys),
+        "maps": _success_maps(runs, keys, links),
+        "runs": [
+            {
+                "href": links[r.run_dir],
+                "name": r.run_dir.name,
+                "task": r.task,
+                "pose": r.summary.get("start_pose_index"),
+                "condition": ", ".join(f"{k}={r.condition.get(k)}" for k in keys) or "all",
+                "outcome": r.summary.get("outcome"),
+                "score": r.summary.get("score"),
+                "success": r.summary.get("success"),
+                "cut_short": r.summary.get("cut_short"),
+            }
+            for r in runs
+        ],
+        "errors": [e for e in manifest.get("episodes") or [] if isinstance(e, dict) and e.get("status") == "error"],
+    }
+
+
+def sweep_page(root: Path, out: Path) -> str:
+    """The HTML page of a sweep (an ablation folder, or any folder of run folders)."""
+    return environment().get_template("sweep.html.j2").render(**sweep_context(root, out))
+
+
+# --- writing -------------------------------------------------------------------------------------
+
+
+def is_our_page(path: Path) -> bool:
+    """Whether an existing file is a page this module wrote (its head carries the generator tag)."""
+    try:
+        with open(path, "rb") as handle:
+            return _OWN_MARK in handle.read(4096)
+    except OSError:
+        return False
+
+
+def check_out(out: Path, *, force: bool = False) -> None:
+    """Refuse `out` when it exists and is not one of our pages (unless forced), before any work."""
+    if out.is_dir():
+        raise BadInputError(f"--out {out}: is a folder; give a file name ending in .html")
+    if out.exists() and not force and not is_our_page(out):
+        raise BadInputError(f"--out {out}: exists and was not written by llmnav view; use --force to replace it")
+
+
+def write_page(html: str, out: Path) -> Path:
+    """Write a page atomically (a temporary file renamed into place)."""
+    out = Path(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(out.name + ".tmp")
+        tmp.write_text(html, encoding="utf-8")
+        os.replace(tmp, out)
+    except OSError as err:
+        raise BadInputError(f"--out {out}: cannot write: {err.strerror or err}") from None
+    return out
