@@ -73,8 +73,10 @@ def test_the_context_a_planner_receives_reaches_no_raw_handle(tmp_path: Path, na
 
     monkeypatch.setattr(cls, "run", capture)
     monkeypatch.setattr(cls, "requires_backend", lambda self, options: False)
+    # The waypoint planner needs a scenario that publishes corridors (bad input otherwise).
+    scenario, task = ("corridor_a", "A1") if name == "waypoints" else (SMALL, "T1")
     run_episode(
-        EpisodeSpec(scenario=SMALL, task_id="T1", options={"planner": name}, out_dir=tmp_path / name, plots=False)
+        EpisodeSpec(scenario=scenario, task_id=task, options={"planner": name}, out_dir=tmp_path / name, plots=False)
     )
     ctx = seen["ctx"]
     assert isinstance(ctx.world.motion, GuardedMotion)
