@@ -23,6 +23,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("ablate", "ablate", "ablate"),
     ("backends", "backends", "backends"),
     ("transcribe", "transcribe", "transcribe"),
+    ("serve", "serve", "serve"),
 ]
 _GROUPS: list[tuple[str, str]] = [("scenarios", "scenarios")]
 

@@ -104,6 +104,9 @@ def drive(
     replay_loose: Annotated[
         bool, typer.Option("--replay-loose", help="Replay: answer in order even when prompts differ.")
     ] = False,
+    drop_images: Annotated[
+        bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
+    ] = False,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
     from llmnav.planners.base import DriveOptions
@@ -137,6 +140,7 @@ def drive(
                 "realtime": realtime,
                 "assist": assist,
                 "obstacles": tuple(_parse_obstacle(o) for o in obstacle or []),
+                "drop_images": drop_images,
             }
         )
     except ValidationError as err:
