@@ -66,7 +66,7 @@ def _usage_errors() -> tuple[type[Exception], ...]:
 
 def main() -> None:
     """Console-script entry point: usage errors (bad flags or values) become one line and exit 2."""
-    from llmnav.commands.common import err_console
+    from llmnav.commands.common import err_console, esc
 
     try:
         result = app(standalone_mode=False)
@@ -78,6 +78,8 @@ def main() -> None:
         message = " ".join((format_message() if format_message else str(err)).split())
         ctx = getattr(err, "ctx", None)
         where = ctx.command_path if ctx is not None else "llmnav"
-        err_console.print(f"[bold red]error:[/] {message} (see '{where} --help')", highlight=False, soft_wrap=True)
+        err_console.print(
+            f"[bold red]error:[/] {esc(message)} (see '{esc(where)} --help')", highlight=False, soft_wrap=True
+        )
         raise SystemExit(getattr(err, "exit_code", 2)) from None
     raise SystemExit(result if isinstance(result, int) else 0)

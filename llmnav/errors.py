@@ -5,6 +5,8 @@ The CLI turns any `LlmnavError` into a one-line message and an exit code; anythi
 
 from __future__ import annotations
 
+import re
+
 
 class LlmnavError(Exception):
     """Base of every error llmnav raises on purpose; `str(err)` is a one-line message for the user."""
@@ -42,6 +44,10 @@ class ModelError(LlmnavError):
     """A backend call failed after its last retry (HTTP status, timeout, garbage body)."""
 
 
+class RunFolderError(LlmnavError):
+    """A run folder could not be written (disk full, I/O error); what was written before stays readable."""
+
+
 class ReplayDivergenceError(LlmnavError):
     """A strict replay saw a prompt that differs from the recorded one (message has step and diff)."""
 
@@ -54,11 +60,33 @@ class VetoedMotionError(LlmnavError):
     """The safety veto blocked every action the model proposed within the allowed negotiation turns."""
 
 
+class FolderLockedError(BadInputError):
+    """Another process holds the lock of the ablation or run folder asked for (the message names its pid)."""
+
+
 class PromptTemplateError(BadInputError):
     """A prompt template is unknown or malformed, or a value it needs was not given (the message names it)."""
 
 
-def one_line(err: BaseException) -> str:
-    """An error's message as one line for logs and the terminal (its class name when it has no message)."""
+# C0 and C1 control characters, DEL, and the Unicode line/paragraph separators: anything a terminal may
+# act on (ESC starts title changes and screen clears) or that breaks a line in two.
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def printable(text: str) -> str:
+    """Text safe for a terminal: control characters (ESC, BEL, CR, newline, ...) become visible escapes.
+
+    Everything printed that came from a user file, a model or a server goes through this (or `one_line`).
+    """
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
+
+
+def one_line(err: BaseException | str) -> str:
+    """An error (or any text) as one printable line: its first non-empty line, control characters escaped.
+
+    An error with no message gives its class name.
+    """
     text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
+    if not text:
+        return type(err).__name__ if isinstance(err, BaseException) else ""
+    return printable(text.splitlines()[0].strip())

@@ -18,10 +18,15 @@ Event vocabulary (field `type`; every event also has `t_wall` [s since start] an
 - `pose`         a trajectory sample: `pose` [x, y, yaw]. Path length and final pose come from these.
 - `planner`      planner-specific records (waypoint plans and verdicts, FSM tick statistics, suggestions).
 - `end`          `outcome` (completed | failed | aborted), `reason`.
+
+Any event may carry `truncated`: a list of {field, chars, sha256} for strings longer than MAX_TEXT_CHARS,
+which are logged as their head and tail only (a model may answer megabytes; corrections re-send it).
+A run folder is written by one process at a time (a lock file, `llmnav.locking`) and must be new or empty.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -32,11 +37,13 @@ from pathlib import Path
 from typing import Any
 
 from llmnav.backends.base import Image
-from llmnav.errors import BadInputError
+from llmnav.errors import BadInputError, FolderLockedError, RunFolderError
+from llmnav.locking import LOCK_FILE, FolderLock, locked_by
 
 RUN_FILE = "run.jsonl"
 SUMMARY_FILE = "summary.json"
 IMAGES_DIR = "images"
+SUPERSEDED_FILE = "superseded.json"  # an ablation's mark on a kept folder that holds no result (see ablate)
 
 
 def _json_default(value: object) -> object:
@@ -65,6 +72,55 @@ def dumps(record: dict[str, Any]) -> str:
     return json.dumps(_clean(record), default=_json_default, ensure_ascii=False, allow_nan=False)
 
 
+def check_new_run_folder(run_dir: Path) -> None:
+    """Refuse a run folder that holds a run or anything else (a user's own files are never overwritten)."""
+    run_dir = Path(run_dir)
+    if (run_dir / RUN_FILE).exists():
+        raise BadInputError(f"{run_dir} already holds a run ({RUN_FILE}); choose another --out")
+    if run_dir.exists() and not run_dir.is_dir():
+        raise BadInputError(f"{run_dir}: not a folder; choose another --out")
+    try:
+        entries = list(run_dir.iterdir()) if run_dir.exists() else []
+    except OSError as err:
+        raise BadInputError(f"cannot read run folder {run_dir}: {err.strerror or err}") from None
+    # what a run killed in its first instant leaves behind is not the user's: it may be reused
+    ours = {LOCK_FILE, RUN_FILE + ".tmp"}
+    foreign = sorted(
+        p.name for p in entries if p.name not in ours and not (p.name == IMAGES_DIR and not any(p.iterdir()))
+    )
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+        raise BadInputError(f"{run_dir} is not empty (holds {shown}); choose a new or empty --out")
+
+
+# Logged text per string: a model may answer megabytes, and every correction request re-sends the answer.
+# Longer strings keep their head and tail; the event lists what was cut with the full length and hash.
+MAX_TEXT_CHARS = 64_000
+_HEAD_CHARS, _TAIL_CHARS = 48_000, 8_000
+
+
+def cap_text(record: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The record with every string longer than MAX_TEXT_CHARS cut to head + marker + tail, and the cuts."""
+    cut: list[dict[str, Any]] = []
+
+    def walk(value: Any, where: str) -> Any:
+        if isinstance(value, str):
+            if len(value) <= MAX_TEXT_CHARS:
+                return value
+            digest = hashlib.sha256(value.encode("utf-8", "surrogatepass")).hexdigest()
+            cut.append({"field": where, "chars": len(value), "sha256": digest})
+            marker = f"\n[... {len(value) - _HEAD_CHARS - _TAIL_CHARS} characters not logged ...]\n"
+            return value[:_HEAD_CHARS] + marker + value[-_TAIL_CHARS:]
+        if isinstance(value, dict):
+            return {k: walk(v, f"{where}.{k}" if where else str(k)) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [walk(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return value
+
+    capped = walk(record, "")
+    return (capped if cut else record), cut
+
+
 def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
     """Write JSON via a temporary file and rename, so readers never see half a file."""
     tmp = path.with_suffix(path.suffix + ".tmp")
@@ -77,32 +133,61 @@ class RunLog:
 
     def __init__(self, run_dir: Path, config: dict[str, Any]) -> None:
         self.run_dir = Path(run_dir)
-        if (self.run_dir / RUN_FILE).exists():  # never overwrite a run: nothing already written is lost
-            raise BadInputError(f"{self.run_dir} already holds a run ({RUN_FILE}); choose another --out or remove it")
-        # The log is born under a temporary name and renamed once its first line is written: a process
-        # killed in between leaves no run.jsonl without its configuration (readers would reject it).
+        holder = locked_by(self.run_dir)
+        if holder is not None:  # another process is writing it: say who, before anything else
+            raise FolderLockedError(f"{self.run_dir} is in use: {holder} is writing this run folder")
+        check_new_run_folder(self.run_dir)
+        # One writer per run folder: a second process (two drives with the same --out) stops at once.
+        self._folder_lock = FolderLock(self.run_dir, "run folder")
+        # The log is born under a temporary name and linked to run.jsonl once its first line is written:
+        # a process killed in between leaves no run.jsonl without its configuration, and the link fails
+        # if run.jsonl appeared meanwhile (exists-then-create is one atomic step).
         partial = self.run_dir / (RUN_FILE + ".tmp")
         try:
+            check_new_run_folder(self.run_dir)  # again, now that the folder is ours
             (self.run_dir / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
             # A lone surrogate (a model answer may carry "\ud800" escapes) cannot be UTF-8: written as the
             # same JSON escape it came from, the line stays valid JSON instead of the write raising.
             self._file = open(partial, "w", encoding="utf-8", errors="backslashreplace")  # noqa: SIM115
         except OSError as err:
+            self._folder_lock.release()
             raise BadInputError(f"cannot write run folder {self.run_dir}: {err.strerror or err}") from None
+        except BaseException:
+            self._folder_lock.release()
+            raise
         self._t0 = time.perf_counter()
         self._images: set[str] = set()
         self._lock = threading.Lock()  # a model worker thread may log while the control loop does
         self.sim_time: float | None = None
+        self.write_error: str | None = None  # the first failed write (disk full): nothing is written after it
         self._write({"type": "config", **config})
-        os.replace(partial, self.run_dir / RUN_FILE)
+        if self.write_error is not None:
+            self.close()
+            raise RunFolderError(f"{self.run_dir}: {self.write_error}")
+        try:
+            os.link(partial, self.run_dir / RUN_FILE)
+        except FileExistsError:
+            self.close()
+            partial.unlink(missing_ok=True)
+            raise BadInputError(f"{self.run_dir} already holds a run ({RUN_FILE}); choose another --out") from None
+        except OSError:  # a file system without hard links: the folder lock already excludes other writers
+            os.replace(partial, self.run_dir / RUN_FILE)
+        else:
+            os.unlink(partial)
 
     def _write(self, record: dict[str, Any]) -> None:
+        record, cut = cap_text(record)
+        if cut:
+            record["truncated"] = cut
         line = dumps(record) + "\n"
         with self._lock:
-            if self._file.closed:  # a model call abandoned at the end of an episode returned late
+            if self._file.closed or self.write_error:  # a late model call, or the disk is full
                 return
-            self._file.write(line)
-            self._file.flush()  # survives SIGKILL: the line is in the kernel's page cache
+            try:
+                self._file.write(line)
+                self._file.flush()  # survives SIGKILL: the line is in the kernel's page cache
+            except OSError as err:  # the log keeps its complete lines (a torn last one is ignored)
+                self.write_error = f"cannot write {RUN_FILE}: {err.strerror or err}"
 
     def event(self, type_: str, **fields: Any) -> None:
         """Append one event (flushed at once)."""
@@ -119,21 +204,40 @@ class RunLog:
             path = self.run_dir / IMAGES_DIR / f"{digest}.jpg"
             if not path.exists():
                 tmp = path.with_suffix(".tmp")
-                tmp.write_bytes(image.jpeg_bytes)
-                os.replace(tmp, path)
+                try:
+                    tmp.write_bytes(image.jpeg_bytes)
+                    os.replace(tmp, path)
+                except OSError as err:  # no event will name it: the log stops here
+                    self.write_error = self.write_error or f"cannot write {path.name}: {err.strerror or err}"
+                    return digest
             self._images.add(digest)
         return digest
 
     def write_summary(self, summary: dict[str, Any]) -> Path:
-        """Write `summary.json` atomically."""
+        """Write `summary.json` atomically (RunFolderError when it cannot be written)."""
         path = self.run_dir / SUMMARY_FILE
-        write_json_atomic(path, summary)
+        try:
+            write_json_atomic(path, summary)
+        except OSError as err:
+            raise RunFolderError(
+                f"{self.run_dir}: cannot write {SUMMARY_FILE}: {err.strerror or err}; {RUN_FILE} is complete"
+            ) from None
         return path
 
+    def check_written(self) -> None:
+        """Raise RunFolderError if a write failed (the log is readable up to the failure)."""
+        if self.write_error is not None:
+            raise RunFolderError(f"{self.run_dir}: {self.write_error}; the log is readable up to that point")
+
     def close(self) -> None:
-        """Close the log file."""
-        if not self._file.closed:
-            self._file.close()
+        """Close the log file and give up the folder lock."""
+        with self._lock:
+            if not self._file.closed:
+                try:
+                    self._file.close()
+                except OSError:  # the flush of a failed write fails again: already recorded
+                    pass
+        self._folder_lock.release()
 
     def __enter__(self) -> RunLog:
         return self

@@ -11,6 +11,7 @@ message, and is re-raised too when it is bad input (a server that takes no image
 from __future__ import annotations
 
 import hashlib
+import math
 import platform
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -18,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
-from llmnav.errors import BadInputError, LlmnavError, one_line
+from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, NullView, View
 from llmnav.scenario import resolve_scenario_path
 
@@ -31,6 +32,9 @@ if TYPE_CHECKING:
     from llmnav.sim.world import World
 
 TRAJECTORY_FILE = "trajectory.png"
+# Errors that end an episode "aborted" without saying anything about navigation: no answer came.
+BACKEND_FAILURES = (ModelError, ReplayDivergenceError, BadInputError)
+_ADDED_OBSTACLE_SIZE_M = 0.5  # [m] the box World.add_obstacle drops by default
 
 
 class EpisodeSpec(BaseModel):
@@ -47,6 +51,7 @@ class EpisodeSpec(BaseModel):
     out_dir: Path
     quiet: bool = True
     plots: bool = True  # write trajectory.png (ablations turn it off: it costs more than a short episode)
+    condition: str | None = None  # an ablation's hash of the episode's full condition, logged in the config
 
 
 def _package_version(name: str) -> str | None:
@@ -111,6 +116,7 @@ def build_config(
         "options": spec.options.model_dump(mode="json"),
         "seed": spec.options.seed,
         "prompt_hashes": prompts,
+        **({"condition_hash": spec.condition} if spec.condition else {}),
     }
 
 
@@ -120,6 +126,16 @@ def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
         update={"width": options.image_width, "height": options.image_height}
     )
     return {"lidar": scenario.sensors.lidar, "camera": camera}
+
+
+def _check_obstacles(scenario: Scenario, start: Pose2D, options: DriveOptions) -> None:
+    """Added obstacles inside the world and clear of the robot's start (bad input, before any folder)."""
+    from llmnav.scenario import check_added_obstacles
+    from llmnav.sim.robot_specs import ROBOT_SPECS
+
+    robot = ROBOT_SPECS.get(scenario.robot)
+    clearance = (robot.radius_m if robot else 0.3) + _ADDED_OBSTACLE_SIZE_M * math.sqrt(0.5)
+    check_added_obstacles(scenario, (start.x, start.y), options.obstacles, clearance)
 
 
 def run_episode(
@@ -135,8 +151,12 @@ def run_episode(
     resolved = resolve_task(spec.scenario or None, texts, spec.task_id, spec.start_pose)
     scenario, task = resolved.scenario, resolved.task
     start = resolved.start.pose()
+    _check_obstacles(scenario, start, spec.options)
     planner = get_planner(spec.options.planner)
     prompts = prompt_hashes(planner, spec.options)  # an unknown --prompt fails here, before anything loads
+    check_scenario = getattr(planner, "check_scenario", None)  # a planner that cannot run here: bad input
+    if check_scenario is not None:
+        check_scenario(scenario)
 
     # Backend before the run folder: a missing key or engine is bad input and leaves nothing behind.
     backend = backend_obj
@@ -195,7 +215,9 @@ def _run_logged(
     try:
         outcome = planner.run(ctx)
     except LlmnavError as err:
-        outcome = EpisodeOutcome("aborted", one_line(err))
+        # `failure` tells a resume what to run again: the model or server failing (not a navigation result)
+        failure = "backend" if isinstance(err, BACKEND_FAILURES) else "model"
+        outcome = EpisodeOutcome("aborted", one_line(err), metrics={"failure": failure})
         if isinstance(err, BadInputError):  # e.g. a server that takes no images: exit 2 with its hint
             crash = err
     except BaseException as err:  # a bug or Ctrl-C: keep the log valid, then let it propagate
@@ -220,6 +242,7 @@ def _run_logged(
     from llmnav.metrics import summarize_run
     from llmnav.runlog import read_run
 
+    log.check_written()  # a full disk: one error, no summary of a log that stops early
     record = read_run(log.run_dir)
     summary = summarize_run(record, scenario, outcome)
     summary["run_dir"] = str(log.run_dir)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Literal
@@ -16,7 +17,7 @@ from typing import Annotated, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from llmnav.errors import ScenarioError
+from llmnav.errors import BadInputError, ScenarioError
 from llmnav.geometry import Pose2D
 from llmnav.resources import resource_dir
 
@@ -25,7 +26,8 @@ Vec2 = tuple[float, float]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # NaN and infinity are refused at load: a size of .nan passed `scenarios show` and crashed the grid
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Shape(_Strict):
@@ -358,6 +360,23 @@ def scenario_dir() -> Path:
 def list_scenarios() -> list[str]:
     """Names of the bundled scenarios."""
     return sorted(p.stem for p in scenario_dir().glob("*.yaml"))
+
+
+def check_added_obstacles(
+    scenario: Scenario, start: tuple[float, float], obstacles: Sequence[tuple[float, float]], clearance: float
+) -> None:
+    """Refuse obstacles dropped outside the world or within `clearance` [m] of the start position."""
+    b = scenario.bounds
+    for x, y in obstacles:
+        where = f"--obstacle {x:g},{y:g}"
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise BadInputError(f"{where}: coordinates must be finite numbers")
+        if not b.contains(x, y):
+            raise BadInputError(
+                f"{where}: outside the world of {scenario.name} (x {b.x[0]:g}..{b.x[1]:g}, y {b.y[0]:g}..{b.y[1]:g})"
+            )
+        if math.hypot(x - start[0], y - start[1]) < clearance:
+            raise BadInputError(f"{where}: on the robot's start pose ({start[0]:g}, {start[1]:g})")
 
 
 def resolve_scenario_path(name_or_path: str | Path) -> Path:

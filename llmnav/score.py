@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import BadInputError
 from llmnav.metrics import CONDITION_KEYS, summarize_run
-from llmnav.runlog import RUN_FILE, read_run
+from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, read_run
 from llmnav.stats import Comparison, compare, describe
 
 if TYPE_CHECKING:
@@ -84,7 +84,12 @@ def find_run_dirs(paths: Sequence[Path]) -> list[Path]:
                 raise BadInputError(f"{path}: not a run folder or ablation folder")
             found.add(path.parent.resolve())
             continue
-        found.update(p.parent.resolve() for p in path.rglob(RUN_FILE))
+        found.update(
+            p.parent.resolve()
+            for p in path.rglob(RUN_FILE)
+            # an ablation's superseded attempts (kept, not results) count only when named directly
+            if p.parent == path or not (p.parent / SUPERSEDED_FILE).exists()
+        )
     if not found:
         raise BadInputError(f"no run folders (with {RUN_FILE}) under {', '.join(str(p) for p in paths)}")
     return sorted(found)

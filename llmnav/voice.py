@@ -57,11 +57,20 @@ class Transcript:
 # --- audio ---------------------------------------------------------------------------------------
 
 
+# A spoken command lasts seconds; an hour of audio took minutes and 1.5 GB before any answer.
+MAX_AUDIO_S = 120.0
+
+
 def read_wav(path: Path) -> np.ndarray:
     """Any PCM WAV the standard library reads, as 16 kHz mono int16 (resampled in process)."""
     try:
         with wave.open(str(path), "rb") as wav:
             rate, channels, width = wav.getframerate(), wav.getnchannels(), wav.getsampwidth()
+            seconds = wav.getnframes() / max(rate, 1)
+            if seconds > MAX_AUDIO_S:  # checked from the header: a long file is never decoded
+                raise BadInputError(
+                    f"{path}: {seconds:.0f} s of audio; a spoken command is at most {MAX_AUDIO_S:.0f} s"
+                )
             data = wav.readframes(wav.getnframes())
     except FileNotFoundError:
         raise BadInputError(f"{path}: no such audio file") from None

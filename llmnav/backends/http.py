@@ -414,11 +414,39 @@ def bearer(key: str | None) -> tuple[dict[str, str], tuple[str, ...]]:
 
 
 def normalise_url(url: str) -> str:
-    """Add a missing scheme and drop a trailing slash (`OLLAMA_HOST=0.0.0.0:11434` style values)."""
+    """Add a missing scheme and drop a trailing slash (`OLLAMA_HOST=0.0.0.0:11434` style values).
+
+    A URL no request could use (another scheme, no host, an IPv4 address out of range, a bad port) is a
+    BackendSpecError here, before any run folder exists, instead of an aborted run.
+    """
     url = url.strip().rstrip("/")
     if "://" not in url:
         url = f"http://{url}"
+    check_url(url)
     return url.replace("://0.0.0.0", "://127.0.0.1")
+
+
+def check_url(url: str) -> None:
+    """Refuse a server URL that cannot be requested (the message shows it with secrets redacted)."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    shown = redact(url)
+    try:
+        parts = urlsplit(url)
+        port = parts.port  # raises ValueError when not a number in 0..65535
+    except ValueError as err:
+        raise BackendSpecError(f"server URL {shown}: {err}") from None
+    if parts.scheme not in ("http", "https"):
+        raise BackendSpecError(f"server URL {shown}: scheme '{parts.scheme}' (use http:// or https://)")
+    host = parts.hostname or ""
+    if not host or not re.fullmatch(r"[A-Za-z0-9._:%-]+", host) or port == 0:
+        raise BackendSpecError(f"server URL {shown}: no valid host and port")
+    if re.fullmatch(r"[0-9.]+", host):
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError:
+            raise BackendSpecError(f"server URL {shown}: '{host}' is not an IPv4 address") from None
 
 
 @dataclass

@@ -67,6 +67,7 @@ class OllamaBackend(HttpBackend):
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
         super().__init__(arg, **options)
+        ollama_host(self.settings.base_url)  # a malformed OLLAMA_HOST is bad input now, not an aborted run
         self.__key = _api_key()  # name-mangled and never in repr/spec/messages
 
     def _make_client(self) -> JsonHttpClient:

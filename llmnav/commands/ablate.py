@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import cli_errors, console, err_console, esc, path_option
 
 if TYPE_CHECKING:
     from llmnav.ablate import Ablation, ManifestEntry
@@ -44,7 +44,7 @@ def ablate(
         str | None, typer.Option("--name", help="Ablation name (default from scenario and factors).")
     ] = None,
     out: Annotated[
-        Path | None, typer.Option("--out", help="Ablation folder (default ablations/<name>).")
+        str | None, typer.Option("--out", help="Ablation folder (default ablations/<name>).")
     ] = None,
     workers: Annotated[int, typer.Option("--workers", min=1, help="Parallel worker processes.")] = 1,
     ray: Annotated[
@@ -72,7 +72,7 @@ def ablate(
             flags[key] = lib.split_list(value)
     data.update({k: v for k, v in flags.items() if v is not None})
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
-    root = out if out is not None else Path("ablations") / spec.default_name()
+    root = path_option(out, "--out") or Path("ablations") / spec.default_name()
     ablation = lib.plan(spec, root)
     if dry_run:
         _print_plan(ablation)
@@ -83,7 +83,7 @@ def ablate(
             workers=workers,
             ray_address=ray,
             plots=plots,
-            on_start=progress.start,
+            on_start=lambda *_: progress.start(ablation),
             on_result=progress.advance,
         )
     _print_results(ablation)
@@ -94,15 +94,15 @@ def _print_plan(ablation: Ablation) -> None:
 
     from llmnav.ablate import describe_episodes
 
-    table = Table(title=f"{ablation.grid.default_name()}: {ablation.size} episodes → {ablation.root}")
+    table = Table(title=esc(f"{ablation.grid.default_name()}: {ablation.size} episodes → {ablation.root}"))
     for column in ("Key", "Task", "Pose", "Trial", "Seed", "Backend"):
         table.add_column(column)
     for row in describe_episodes(ablation.episodes):
-        table.add_row(*row)
+        table.add_row(*(esc(cell) for cell in row))
     console.print(table)
     factors = ablation.grid.factors()
     detail = ", ".join(f"{k}: {len(v)}" for k, v in factors.items()) or "no factors"
-    console.print(f"{ablation.size} episodes ({detail}; trials: {ablation.grid.trials})", highlight=False)
+    console.print(esc(f"{ablation.size} episodes ({detail}; trials: {ablation.grid.trials})"), highlight=False)
 
 
 class _progress:
@@ -129,23 +129,23 @@ class _progress:
     def __exit__(self, *exc: object) -> None:
         self.bar.__exit__(None, None, None)
 
-    def start(self, total: int, done: int, successes: int) -> None:
-        """Bar at the episodes already finished by an earlier run."""
+    def start(self, ablation: Ablation) -> None:
+        """Bar at the episodes already finished by an earlier run; name the folders set aside."""
+        for name, why in ablation.kept:
+            err_console.print(
+                f"kept {esc(ablation.root / name)} ({esc(why)}); its episode runs again in a new folder",
+                highlight=False,
+                soft_wrap=True,
+            )
+        done, successes, _ = ablation.counts()
         self.task_id = self.bar.add_task(
-            "ablate", total=total, completed=done, successes=successes, finished=done, errors=0
+            "ablate", total=ablation.size, completed=done, successes=successes, finished=done, errors=0
         )
 
     def advance(self, entry: ManifestEntry, ablation: Ablation) -> None:
         """One more episode settled."""
-        entries = ablation.entries.values()
-        finished = [e for e in entries if e.status == "done"]
-        self.bar.update(
-            self.task_id,
-            advance=1,
-            finished=len(finished),
-            successes=sum(1 for e in finished if e.success),
-            errors=sum(1 for e in entries if e.status == "error"),
-        )
+        done, successes, errors = ablation.counts()
+        self.bar.update(self.task_id, advance=1, finished=done, successes=successes, errors=errors)
 
 
 def _print_results(ablation: Ablation) -> None:
@@ -159,8 +159,9 @@ def _print_results(ablation: Ablation) -> None:
         print_tables(console, build_tables(runs, table_keys(ablation)))
     console.print(
         f"{len(runs)}/{ablation.size} episodes done, {len(errors)} error(s); "
-        f"manifest: {ablation.root / 'manifest.json'}",
+        f"manifest: {esc(ablation.root / 'manifest.json')}",
         highlight=False,
+        soft_wrap=True,
     )
     for entry in errors[:5]:
-        console.print(f"[red]error[/] {entry.key}: {entry.error}", highlight=False)
+        console.print(f"[red]error[/] {esc(entry.key)}: {esc(entry.error)}", highlight=False, soft_wrap=True)

@@ -1,26 +1,192 @@
-"""What every command shares: the consoles and the translation of errors into one line + exit code."""
+"""What every command shares: the consoles, safe printing, and the translation of errors into one line.
+
+Safe printing: everything shown that came from a user file, a model or a server goes through `esc`
+(control characters made visible, Rich markup escaped), so a task text cannot retitle or clear the
+terminal and a `[/]` in a path cannot crash or eat the message. Machine-readable output (`print_data`)
+is written as is, never wrapped: it does not depend on the terminal width, and `COLUMNS=0` (or any
+nonsense width) is ignored. A reader that goes away (`llmnav ... | head -1`) ends the output, not the
+command: the run's exit code stands.
+"""
 
 from __future__ import annotations
 
+import errno
 import functools
-from collections.abc import Callable
+import io
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import ParamSpec, TypeVar
 
 import typer
 from rich.console import Console
 
-from llmnav.errors import LlmnavError, one_line
+from llmnav.errors import BadInputError, LlmnavError, one_line
+from llmnav.reporting.safe import esc
 
-console = Console()
-err_console = Console(stderr=True)
+__all__ = [
+    "OutputError",
+    "chart_folder_option",
+    "check_output_path",
+    "cli_errors",
+    "console",
+    "err_console",
+    "esc",
+    "fail",
+    "path_option",
+    "plot_option",
+    "print_data",
+    "stdout",
+]
 
 P = ParamSpec("P")
 R = TypeVar("R")
 
 
+def _console_environ() -> dict[str, str]:
+    """The environment Rich sizes its consoles from, minus a width or height that is not a positive number.
+
+    COLUMNS=0 made every line, JSON included, zero characters wide.
+    """
+    env = dict(os.environ)
+    for name in ("COLUMNS", "LINES"):
+        value = env.get(name)
+        if value is not None and not (value.strip().isdigit() and int(value) > 0):
+            del env[name]
+    return env
+
+
+class OutputError(LlmnavError):
+    """Standard output cannot be written (disk full, I/O error)."""
+
+
+class _Stdout(io.TextIOBase):
+    """`sys.stdout` (looked up at each write, so test runners may swap it) that survives its reader.
+
+    A closed pipe silences the rest of the output; any other write error (a full disk) becomes one
+    `OutputError`. Either way the real stdout is pointed at /dev/null so Python's exit flush is quiet.
+    """
+
+    def __init__(self) -> None:
+        self.reader_gone = False
+
+    def _silence(self) -> None:
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            os.close(devnull)
+        except (OSError, ValueError, io.UnsupportedOperation):
+            pass
+
+    def _guard(self, action: Callable[[], object]) -> None:
+        if self.reader_gone:
+            return
+        try:
+            action()
+        except BrokenPipeError:
+            self.reader_gone = True
+            self._silence()
+        except OSError as err:
+            self.reader_gone = True
+            self._silence()
+            if err.errno == errno.EPIPE:
+                return
+            raise OutputError(f"cannot write to standard output: {err.strerror or err}") from None
+
+    def write(self, text: str) -> int:
+        self._guard(lambda: sys.stdout.write(text))
+        return len(text)
+
+    def flush(self) -> None:
+        self._guard(sys.stdout.flush)
+
+    def isatty(self) -> bool:
+        try:
+            return sys.stdout.isatty()
+        except (ValueError, AttributeError):
+            return False
+
+    def fileno(self) -> int:
+        return sys.stdout.fileno()
+
+    @property
+    def encoding(self) -> str:  # type: ignore[override]
+        return getattr(sys.stdout, "encoding", None) or "utf-8"
+
+    def writable(self) -> bool:
+        return True
+
+
+stdout = _Stdout()
+console = Console(file=stdout, _environ=_console_environ())  # type: ignore[arg-type]
+err_console = Console(stderr=True, _environ=_console_environ())
+
+
+def print_data(text: str) -> None:
+    """Machine-readable output (JSON, CSV): written as is, a newline added, never wrapped or styled."""
+    stdout.write(text if text.endswith("\n") else text + "\n")
+    stdout.flush()
+
+
+def path_option(text: str | None, flag: str) -> Path | None:
+    """A path flag given as text: an empty one is refused (Path("") would be the working directory)."""
+    if text is None:
+        return None
+    if not text.strip():
+        raise BadInputError(f"{flag}: empty path; give a file or folder name")
+    return Path(text)
+
+
+PLOT_FORMATS = (".png", ".pdf", ".svg")
+
+
+def plot_option(text: str | None, flag: str = "--plot") -> Path | None:
+    """A figure path checked before any work: a file name (not a folder) with a format matplotlib writes.
+
+    No suffix means PNG, and the suffix is added here, so the path reported is the path written.
+    """
+    path = path_option(text, flag)
+    if path is None or text is None:
+        return None
+    if text.endswith(("/", os.sep)) or path.is_dir():
+        raise BadInputError(f"{flag} {text}: a folder; give a file name such as {path / 'plot.png'}")
+    if not path.suffix:
+        path = path.with_name(path.name + ".png")
+    elif path.suffix.lower() not in PLOT_FORMATS:
+        raise BadInputError(f"{flag} {text}: cannot draw a '{path.suffix}' file; use {', '.join(PLOT_FORMATS)}")
+    if path.parent.exists() and not path.parent.is_dir():
+        raise BadInputError(f"{flag} {text}: {path.parent} is not a folder")
+    check_output_path(path, flag)
+    return path
+
+
+def chart_folder_option(path: Path | None, flag: str = "--plot") -> None:
+    """Refuse a file-like name for an option that is a folder of charts (it would become a folder)."""
+    if path is not None and (path.suffix.lower() in PLOT_FORMATS or (path.exists() and not path.is_dir())):
+        raise BadInputError(f"{flag} {path}: the charts go into a folder; give a folder name such as 'charts'")
+
+
+def check_output_path(out: Path, flag: str, inputs: Sequence[Path] = ()) -> None:
+    """Refuse to write `out` onto an input, or anywhere inside a run folder (its log, summary, images)."""
+    from llmnav.runlog import RUN_FILE
+
+    target = out.absolute()
+    for given in inputs:
+        given = Path(given).absolute()
+        if target == given or (given.is_dir() and target == given / RUN_FILE):
+            raise BadInputError(f"{flag} {out}: that is an input; choose another file")
+    for folder in (target, *target.parents):
+        if (folder / RUN_FILE).is_file() and folder != target:
+            raise BadInputError(f"{flag} {out}: inside the run folder {folder}; choose a file outside it")
+
+
 def fail(message: str, code: int = 2) -> typer.Exit:
-    """Print a one-line error and return the Exit to raise."""
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    """Print a one-line error and return the Exit to raise.
+
+    The message is escaped: it may quote a path, a model or a server.
+    """
+    err_console.print(f"[bold red]error:[/] {esc(message)}", highlight=False, soft_wrap=True)
     return typer.Exit(code)
 
 

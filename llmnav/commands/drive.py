@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 import time
 from pathlib import Path
@@ -11,18 +12,22 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from pydantic import ValidationError
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import cli_errors, console, fail, path_option, print_data
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
     from llmnav.runner import EpisodeSpec
 
 
+# DriveOptions fields whose flag is not the field's name with dashes
+_FLAGS = {"lidar_fov_deg": "--lidar-fov", "obstacles": "--obstacle"}
+
+
 def _option_error(err: ValidationError) -> BadInputError:
     """A pydantic error on DriveOptions as one line naming the flag."""
     first = err.errors()[0]
     field = str(first["loc"][0]) if first["loc"] else "options"
-    flag = "--" + field.replace("_", "-")
+    flag = _FLAGS.get(field, "--" + field.replace("_", "-"))
     return BadInputError(f"{flag}: {first['msg'].removeprefix('Value error, ')} (got {first.get('input')!r})")
 
 
@@ -31,7 +36,17 @@ def _parse_obstacle(text: str) -> tuple[float, float]:
         x, y = (float(v) for v in text.split(","))
     except ValueError:
         raise BadInputError(f"--obstacle {text!r}: expected X,Y in metres, e.g. 3.5,-1") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise BadInputError(f"--obstacle {text!r}: coordinates must be finite numbers")
     return (x, y)
+
+
+def _parse_sensing(text: str) -> tuple[str, ...]:
+    parts = tuple(s.strip() for s in text.split(",") if s.strip())
+    repeated = sorted({s for s in parts if parts.count(s) > 1})
+    if repeated:
+        raise BadInputError(f"--sensing {text!r}: lists {', '.join(repeated)} more than once")
+    return parts
 
 
 def _slug(text: str, limit: int = 32) -> str:
@@ -86,7 +101,7 @@ def drive(
     ] = 30,
     seed: Annotated[int, typer.Option(help="Simulation and model seed.")] = 0,
     out: Annotated[
-        Path | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")
+        str | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")
     ] = None,
     realtime: Annotated[
         bool, typer.Option("--realtime", help="Pace the simulation to the wall clock.")
@@ -113,6 +128,9 @@ def drive(
     from llmnav.runner import EpisodeSpec, exit_code
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario
 
+    out_dir = path_option(out, "--out")
+    if task and not all(t.strip() for t in task):
+        raise BadInputError("--task: empty task text; say where to go, e.g. --task 'go to the red box'")
     texts = [t for t in (task or []) if t.strip()]
     if task_audio is not None:
         if texts or task_id is not None:
@@ -129,7 +147,7 @@ def drive(
         options = DriveOptions.model_validate(
             {
                 "planner": planner,
-                "sensing": tuple(s.strip() for s in sensing.split(",") if s.strip()),
+                "sensing": _parse_sensing(sensing),
                 "lidar_sectors": lidar_sectors,
                 "lidar_fov_deg": lidar_fov,
                 "prompt": prompt,
@@ -154,16 +172,18 @@ def drive(
         start_pose=start_pose,
         options=options,
         backend=backend_spec,
-        out_dir=out or default_out_dir(options.planner, task_id or (texts[0] if texts else "task")),
+        out_dir=out_dir or default_out_dir(options.planner, task_id or (texts[0] if texts else "task")),
         quiet=quiet or json_output,
     )
     summary = _run_with_view(spec, quiet=quiet, json_output=json_output)
     if json_output:
-        console.print(json.dumps(summary, default=str), markup=False, highlight=False, soft_wrap=True)
+        print_data(json.dumps(summary, default=str))
     else:
         from llmnav.reporting.live import print_result
 
         print_result(console, summary)
+    if summary.get("trajectory_error"):  # the run is kept, but a missing figure is not a silent success
+        raise fail(f"trajectory.png not written: {summary['trajectory_error']}", 1)
     raise typer.Exit(exit_code(summary))
 
 

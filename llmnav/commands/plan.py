@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from llmnav.commands.common import cli_errors, console
-from llmnav.errors import BadInputError
+from llmnav.commands.common import cli_errors, console, esc, path_option, plot_option, print_data
+from llmnav.errors import BadInputError, printable
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
@@ -35,10 +35,10 @@ def plan(
     backend: Annotated[str, typer.Option(help="Model backend spec NAME[:ARG].")] = "local",
     max_generations: Annotated[int, typer.Option("--max-generations", help="Attempts before giving up.")] = 5,
     seed: Annotated[int, typer.Option(help="Model seed.")] = 0,
-    plot: Annotated[Path | None, typer.Option(help="Write the plan figure here (PNG).")] = Path("plan.png"),
+    plot: Annotated[str | None, typer.Option(help="Write the plan figure here (PNG).")] = "plan.png",
     json_output: Annotated[bool, typer.Option("--json", help="Print the plan as JSON only.")] = False,
     execute: Annotated[bool, typer.Option(help="Drive the valid plan (drive --planner waypoints).")] = False,
-    out: Annotated[Path | None, typer.Option(help="Run folder for --execute.")] = None,
+    out: Annotated[str | None, typer.Option(help="Run folder for --execute.")] = None,
 ) -> None:
     """Ask the model for waypoints to a target, validate every attempt, and show the verdicts."""
     from llmnav.backends.base import ChatRequest, ChatResult, get_backend
@@ -46,6 +46,8 @@ def plan(
     from llmnav.planners.waypoints import PlanningClock, generate_plan, ground_target, plan_summary
     from llmnav.tasks import resolve_task
 
+    out_dir = path_option(out, "--out")
+    plot_path = plot_option(plot)  # checked before any model work
     if (task is None) == (task_audio is None):
         raise BadInputError("give exactly one of --task TEXT or --task-audio FILE.wav")
     if task_audio is not None:
@@ -73,20 +75,21 @@ def plan(
             sc, target, start, call, max_generations=max_generations, grid=build_grid(sc), seed=seed
         )
         result.planning_time_s += grounding_s
-        if plot is not None:
+        if plot_path is not None:
             from llmnav.reporting.planplot import plot_plan
 
-            plot_plan(sc, result, start, plot)
+            plot_path.parent.mkdir(parents=True, exist_ok=True)
+            plot_plan(sc, result, start, plot_path)
         if json_output:
-            console.print(json.dumps(plan_summary(result)), markup=False, highlight=False, soft_wrap=True)
+            print_data(json.dumps(plan_summary(result)))
         else:
-            _print_plan(result, sc.name, plot)
+            _print_plan(result, sc.name, plot_path)
         if result.waypoints is None:
             raise typer.Exit(1)
         if execute:
             # the scenario as the user gave it (a file path stays a path); the same backend object, so a
             # replay continues where planning stopped and a local model is not loaded twice
-            _execute(resolved, scenario or sc.name, model, result.waypoints, max_generations, seed, out)
+            _execute(resolved, scenario or sc.name, model, result.waypoints, max_generations, seed, out_dir)
     finally:
         model.close()
 
@@ -95,14 +98,15 @@ def _print_plan(result: PlanResult, scenario: str, plot: Path | None) -> None:
     from rich.table import Table
     from rich.text import Text
 
-    table = Table(title=f"Waypoint attempts — target {result.target_id} in {scenario}")
+    table = Table(title=f"Waypoint attempts — target {esc(result.target_id)} in {esc(scenario)}")
     table.add_column("#", justify="right")
     table.add_column("waypoints")
     table.add_column("verdict")
     for attempt in result.attempts:
         points = " → ".join(f"({x:.2f}, {y:.2f})" for x, y in attempt.points) or "—"
         # model text and validator messages may hold brackets: plain Text, never markup
-        verdict = Text("valid", style="green") if attempt.valid else Text("\n".join(attempt.problems), "red")
+        problems = "\n".join(printable(p) for p in attempt.problems)
+        verdict = Text("valid", style="green") if attempt.valid else Text(problems, "red")
         table.add_row(str(attempt.number), points, verdict)
     console.print(table)
     console.print(

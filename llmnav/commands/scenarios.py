@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import cli_errors, console, esc, plot_option
 from llmnav.errors import BadInputError
 from llmnav.scenario import Scenario, Task, list_scenarios, load_scenario
 
@@ -52,12 +51,12 @@ def list_command() -> None:
     for name in list_scenarios():
         scenario = load_scenario(name)
         table.add_row(
-            name,
-            scenario.robot,
+            esc(name),
+            esc(scenario.robot),
             _size(scenario),
             str(len(scenario.objects)),
             str(len(scenario.tasks)),
-            scenario.description,
+            esc(scenario.description),
         )
     console.print(table)
 
@@ -66,10 +65,11 @@ def list_command() -> None:
 @cli_errors
 def show(
     name: Annotated[str, typer.Argument(help="Bundled scenario name or path to a scenario YAML file.")],
-    plot: Annotated[Path | None, typer.Option("--plot", help="Write a top view PNG to this file.")] = None,
+    plot: Annotated[str | None, typer.Option("--plot", help="Write a top view PNG to this file.")] = None,
     task: Annotated[str | None, typer.Option("--task", help="Only this task (id), also in the plot.")] = None,
 ) -> None:
     """A scenario's tasks (id, kind, difficulty, text, targets, start poses); optionally its top view."""
+    plot_path = plot_option(plot)
     scenario = load_scenario(name)
     chosen: Task | None = None
     if task is not None:
@@ -79,8 +79,8 @@ def show(
             known = ", ".join(t.id for t in scenario.tasks) or "none"
             raise BadInputError(f"scenario '{scenario.name}' has no task '{task}' (tasks: {known})") from None
     console.print(
-        f"[bold]{scenario.name}[/] ({scenario.robot}, {_size(scenario)}, {len(scenario.objects)} objects)"
-        + (f": {scenario.description}" if scenario.description else ""),
+        f"[bold]{esc(scenario.name)}[/] ({esc(scenario.robot)}, {_size(scenario)}, "
+        f"{len(scenario.objects)} objects)" + (f": {esc(scenario.description)}" if scenario.description else ""),
         highlight=False,
     )
     table = Table()
@@ -89,10 +89,10 @@ def show(
     table.add_column("start poses x, y @ yaw", no_wrap=True)
     for t in [chosen] if chosen is not None else scenario.tasks:
         starts = "\n".join(f"{s.x:g}, {s.y:g} @ {s.yaw_deg:g}°" for s in scenario.start_poses(t))
-        table.add_row(t.id, t.kind, t.difficulty, t.text, _targets(scenario, t), starts)
+        table.add_row(esc(t.id), t.kind, t.difficulty, esc(t.text), esc(_targets(scenario, t)), starts)
     console.print(table)
-    if plot is not None:
+    if plot_path is not None:
         from llmnav.reporting.topview import plot_scenario  # matplotlib only when a plot is asked for
 
-        written = plot_scenario(scenario, plot, task=chosen)
-        console.print(f"top view written to {written}", highlight=False, soft_wrap=True)
+        written = plot_scenario(scenario, plot_path, task=chosen)
+        console.print(f"top view written to {esc(written)}", highlight=False, soft_wrap=True)

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import chart_folder_option, check_output_path, cli_errors, console, esc
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -46,6 +46,9 @@ def score(
     """Turn run logs into the sources' tables: episodes, path length, waypoints, FSM; plus statistics."""
     from llmnav.score import build_tables, compare_groups, load_runs, varying_keys
 
+    if out is not None:
+        check_output_path(out, "--out", paths)
+    chart_folder_option(plot)
     runs = load_runs(paths)
     keys = varying_keys(runs) if by is None else parse_keys(by)
     tables = build_tables(runs, keys)
@@ -58,7 +61,7 @@ def score(
         from llmnav.reporting.charts import plot_conditions
 
         written = plot_conditions(runs, keys, plot)
-        console.print(f"[dim]{len(written)} chart(s) written to {plot}[/]")
+        console.print(f"[dim]{len(written)} chart(s) written to {esc(plot)}[/]")
     cut = sum(1 for r in runs if r.summary.get("cut_short"))
     console.print(f"[dim]{len(runs)} run(s) read{f', {cut} cut short' if cut else ''}[/]", highlight=False)
 
@@ -89,4 +92,4 @@ def emit(tables: list[Table], fmt: OutputFormat, out: Path | None) -> None:
         out.write_text(text, encoding="utf-8")
     except OSError as err:
         raise BadInputError(f"--out {out}: cannot write: {err.strerror or err}") from None
-    console.print(f"[dim]tables written to {out}[/]")
+    console.print(f"[dim]tables written to {esc(out)}[/]")

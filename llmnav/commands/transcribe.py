@@ -7,7 +7,8 @@ from typing import Annotated
 
 import typer
 
-from llmnav.commands.common import cli_errors, console, err_console
+from llmnav.commands.common import cli_errors, err_console, esc, print_data
+from llmnav.errors import printable
 
 
 def audio_task(path: Path, scenario: str | None, free: bool, *, quiet: bool = False) -> str:
@@ -20,7 +21,7 @@ def audio_task(path: Path, scenario: str | None, free: bool, *, quiet: bool = Fa
             "n/a" if transcript.confidence != transcript.confidence else f"{transcript.confidence:.2f}"
         )
         err_console.print(
-            f"heard: “{transcript.words}” → [bold]{transcript.task_text}[/] "
+            f"heard: “{esc(transcript.words)}” → [bold]{esc(transcript.task_text)}[/] "
             f"(confidence {confidence}, {transcript.seconds:.2f} s)",
             highlight=False,
         )
@@ -38,4 +39,4 @@ def transcribe(
     ] = False,
 ) -> None:
     """Print the task a spoken command names (nothing else, for scripts)."""
-    console.print(audio_task(audio, scenario, asr_free, quiet=True), markup=False, highlight=False)
+    print_data(printable(audio_task(audio, scenario, asr_free, quiet=True)))

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from llmnav.backends.base import ChatRequest, ChatResult, Message
-from llmnav.errors import InvalidActionError
+from llmnav.errors import BadInputError, InvalidActionError
 from llmnav.geometry import Pose2D
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 
@@ -349,6 +349,15 @@ class WaypointPlanner(Planner):
     def templates(options: DriveOptions) -> list[str]:
         """Prompt templates this planner renders (their hashes go into the run config)."""
         return ["ground_system", "ground_user", "waypoints_system", "waypoints_user", "waypoints_feedback"]
+
+    @staticmethod
+    def check_scenario(scenario: Scenario) -> None:
+        """Bad input before any run folder or model: waypoints are validated against corridors."""
+        if not scenario.corridors:
+            raise BadInputError(
+                f"--planner waypoints: scenario '{scenario.name}' publishes no corridors; the waypoint "
+                "planner needs them"
+            )
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Ground, plan, validate, execute, replan — per leg of the command sequence."""

@@ -13,7 +13,9 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from llmnav.errors import printable
 from llmnav.planners.base import StepInfo
+from llmnav.reporting.safe import esc
 
 if TYPE_CHECKING:
     from llmnav.runner import EpisodeSpec
@@ -36,7 +38,7 @@ def _fmt(value: float | None, unit: str, digits: int = 2) -> str:
 
 
 def _first_line(text: str, limit: int = REASONING_CHARS) -> str:
-    line = " ".join(text.split())
+    line = printable(" ".join(text.split()))
     return line if len(line) <= limit else line[: limit - 1] + "…"
 
 
@@ -46,7 +48,7 @@ class LiveView:
     def __init__(self, console: Console, spec: EpisodeSpec) -> None:
         self.console = console
         task = spec.task_id or spec.task_text or ""
-        self.title = f"{spec.options.planner} · {spec.scenario} · {task}"
+        self.title = printable(f"{spec.options.planner} · {spec.scenario} · {task}")
         self.rows: list[StepInfo] = []
         self._live = Live(self._render(), console=console, refresh_per_second=8, transient=False)
 
@@ -55,7 +57,7 @@ class LiveView:
         cells = [
             (
                 str(info.step),
-                info.action,
+                _first_line(info.action),
                 _first_line(info.reasoning),
                 _fmt(info.front_m, "m"),
                 _fmt(info.latency_s, "s"),
@@ -70,8 +72,8 @@ class LiveView:
         for i in shown:
             name, justify = COLUMNS[i]
             table.add_column(name, justify=justify, overflow="fold")
-        for row in cells:
-            table.add_row(*(row[i] for i in shown))
+        for row in cells:  # model text: plain Text (never markup), control characters already escaped
+            table.add_row(*(Text(row[i]) for i in shown))
         return Group(Text(self.title, style="bold"), table)
 
     def on_step(self, info: StepInfo) -> None:
@@ -99,7 +101,8 @@ class ProgressView:
 
     def on_step(self, info: StepInfo) -> None:
         """Replace the line."""
-        line = f"step {info.step}/{self.max_iterations}  {info.action}  front {_fmt(info.front_m, 'm')}"
+        action = _first_line(info.action)
+        line = f"step {info.step}/{self.max_iterations}  {action}  front {_fmt(info.front_m, 'm')}"
         if info.latency_s is not None:
             line += f"  model {info.latency_s:.1f} s"
         self._live.update(Text(line))
@@ -117,7 +120,7 @@ def print_result(console: Console, summary: dict[str, Any]) -> None:
     outcome = str(summary.get("outcome"))
     colour = {"completed": "green", "failed": "yellow"}.get(outcome, "red")
     reason = summary.get("reason") or ""
-    console.print(f"[bold {colour}]{outcome}[/]" + (f" — {reason}" if reason else ""), highlight=False)
+    console.print(f"[bold {colour}]{esc(outcome)}[/]" + (f" — {esc(reason)}" if reason else ""), highlight=False)
     score = summary.get("score")
     if outcome == "aborted":  # the final pose of a run cut off by an error is no result
         parts = ["no score (aborted)"]
@@ -133,6 +136,6 @@ def print_result(console: Console, summary: dict[str, Any]) -> None:
     if summary.get("distance_m") is not None and outcome != "aborted":
         parts.append(f"distance to target {summary['distance_m']:.2f} m")
     console.print("  ".join(parts), highlight=False)
-    console.print(f"run folder: {summary.get('run_dir')}", highlight=False, soft_wrap=True)
+    console.print(f"run folder: {esc(summary.get('run_dir'))}", highlight=False, soft_wrap=True)
     if summary.get("trajectory"):
-        console.print(f"trajectory: {summary['trajectory']}", highlight=False, soft_wrap=True)
+        console.print(f"trajectory: {esc(summary['trajectory'])}", highlight=False, soft_wrap=True)

@@ -8,6 +8,8 @@ import json
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Literal
 
+from llmnav.reporting.safe import esc
+
 if TYPE_CHECKING:
     from rich.console import Console
     from rich.table import Table as RichTable
@@ -21,15 +23,20 @@ def to_rich(table: Table) -> RichTable:
     """A rich table (first two columns left-aligned labels, numbers right-aligned)."""
     from rich.table import Table as RichTable
 
-    out = RichTable(title=table.title, caption=table.note or None, title_justify="left", header_style="bold")
+    out = RichTable(
+        title=esc(table.title) if table.title else None,
+        caption=esc(table.note) if table.note else None,
+        title_justify="left",
+        header_style="bold",
+    )
     for i, column in enumerate(table.columns):
         if i < 2:  # labels keep their width (capped) in a narrow terminal; numbers wrap instead
             width = max([len(column), *(len(row[i]) for row in table.rows)])
-            out.add_column(column, justify="left", no_wrap=True, min_width=min(width, 36))
+            out.add_column(esc(column), justify="left", no_wrap=True, min_width=min(width, 36))
         else:
-            out.add_column(column, justify="right", overflow="fold")
-    for row in table.rows:
-        out.add_row(*row)
+            out.add_column(esc(column), justify="right", overflow="fold")
+    for row in table.rows:  # labels quote backends, paths and task ids: never markup
+        out.add_row(*(esc(cell) for cell in row))
     return out
 
 

@@ -11,6 +11,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.errors import printable
 from llmnav.scenario import LabelledObject, Scenario, Shape, Task
 
 if TYPE_CHECKING:
@@ -191,7 +192,7 @@ def plot_scenario(scenario: Scenario, path: str | Path, *, task: Task | None = N
         draw_scenario(ax, scenario)
         _draw_start_poses(ax, scenario, task)
         title = scenario.name if task is None else f"{scenario.name} - {task.id}: {task.text}"
-        ax.set_title(title, fontsize=10)
+        ax.set_title(printable(title), fontsize=10)
         fig.tight_layout()
         fig.savefig(out, dpi=130)
     finally:

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from llmnav.errors import LlmnavError
+from llmnav.errors import LlmnavError, printable
 
 if TYPE_CHECKING:
     from llmnav.runlog import RunRecord
@@ -70,7 +70,7 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
         _number_steps(ax, record.of_type("action"))
         outcome = (record.of_type("end") or [{}])[-1].get("outcome", "cut short")
         ax.set_title(
-            f"{scenario.name} · {task.id}: {task.text} · {record.config.get('planner')} · {outcome}",
+            printable(f"{scenario.name} · {task.id}: {task.text} · {record.config.get('planner')} · {outcome}"),
             fontsize=9,
         )
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)

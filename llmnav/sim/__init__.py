@@ -1,1 +1,31 @@
 """The PyBullet simulation: world, robot, sensors and motion. It knows nothing of LLMs."""
+
+
+def _import_pybullet_quietly() -> None:
+    """Import pybullet with stderr closed for a moment.
+
+    It prints its build time on import: before every error message, and once per worker process.
+    """
+    import os
+    import sys
+
+    if "pybullet" in sys.modules:
+        return
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real stderr (embedded, test capture): import as is
+        import pybullet  # noqa: F401
+
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        import pybullet  # noqa: F401
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
+_import_pybullet_quietly()

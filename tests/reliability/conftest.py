@@ -38,6 +38,7 @@ CATEGORIES = {
     "test_bad_input": "bad input",
     "test_secrets": "secrets",
     "test_fsm_deadline": "fsm deadline",
+    "test_data_safety": "data safety",
 }
 
 

@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import Any
 
 DEFAULT = Path(__file__).parents[2] / ".pytest_cache" / "reliability.json"
-ORDER = ["guard fuzzing", "backend faults", "crash safety", "bad input", "secrets", "fsm deadline"]
+ORDER = ["guard fuzzing", "backend faults", "crash safety", "data safety", "bad input", "secrets", "fsm deadline"]
+# Categories whose "logs lost" count results lost or mislabelled: concurrent sweeps, resumes, kills.
+RESULT_CATEGORIES = ("data safety",)
 BAD_FIELDS = ("failures", "unsafe", "lost", "leaked", "crashes")
 
 
@@ -68,7 +70,13 @@ def render(data: dict[str, Any], width: int = 160) -> str:
     buffer = io.StringIO()
     Console(file=buffer, width=width, force_terminal=False, color_system=None).print(table)
     verdict = "PASS" if not any(totals[k] for k in BAD_FIELDS) else "FAIL"
-    return buffer.getvalue() + f"reliability: {verdict}\n"
+    rows = [counts[c] for c in RESULT_CATEGORIES if c in counts]
+    results = ""
+    if rows:
+        lost = sum(int(r.get("lost", 0)) + int(r.get("failures", 0)) for r in rows)
+        tried = sum(int(r.get("tried", 0)) for r in rows)
+        results = f"results lost or mislabelled: {lost} (over {tried} concurrency, resume and kill cases)\n"
+    return buffer.getvalue() + results + f"reliability: {verdict}\n"
 
 
 def bad(data: dict[str, Any]) -> bool:

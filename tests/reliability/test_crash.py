@@ -24,7 +24,7 @@ from typer.testing import CliRunner
 
 from llmnav.cli import app
 from llmnav.metrics import summarize_run
-from llmnav.runlog import RUN_FILE, SUMMARY_FILE, RunLog, read_run
+from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, RunLog, read_run
 from llmnav.scenario import load_scenario
 
 CATEGORY = "crash safety"
@@ -144,9 +144,11 @@ def ablate_command(out: Path, workers: int) -> list[str]:
 
 
 def finished_runs(root: Path) -> dict[str, str]:
-    """Episode folder → hash of run.jsonl + summary.json, for every folder with a summary."""
+    """Episode folder → hash of run.jsonl + summary.json, for every folder with a summary (not superseded)."""
     done = {}
     for summary in root.glob(f"*/{SUMMARY_FILE}"):
+        if (summary.parent / SUPERSEDED_FILE).exists():
+            continue
         data = (summary.parent / RUN_FILE).read_bytes() + summary.read_bytes()
         done[summary.parent.name] = hashlib.sha256(data).hexdigest()
     return done
@@ -181,8 +183,10 @@ def kill_and_resume_ablation(tmp_path: Path, rounds: int, seed: int, workers: in
         lost = [name for name, digest in kept.items() if after.get(name) != digest]
         keys = [e["key"] for e in manifest["episodes"]]
         dirs = {e["dir"] for e in manifest["episodes"]}
-        on_disk = {p.name for p in out.iterdir() if p.is_dir()}
-        tally.add(CATEGORY, tried=1, lost=len(lost))
+        # folders of cut-short episodes are kept (never deleted), marked superseded
+        on_disk = {p.name for p in out.iterdir() if p.is_dir() and not (p / SUPERSEDED_FILE).exists()}
+        # counted with the data-safety cases: the table's "results lost or mislabelled" row covers kills
+        tally.add("data safety", tried=1, lost=len(lost))
         assert not lost, f"episodes finished before the kill were lost or rerun: {lost}"
         assert len(keys) == len(set(keys)) == manifest["size"] == manifest["done"] == 12, manifest
         assert all(e["status"] == "done" for e in manifest["episodes"])

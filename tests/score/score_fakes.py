@@ -76,6 +76,7 @@ def config_for(
     seed: int = 0,
     scenario: str = "tiny",
     scenario_file: Path | None = None,
+    condition: str | None = None,
 ) -> dict[str, Any]:
     sc = tiny_scenario()
     task = sc.task(task_id)
@@ -107,6 +108,7 @@ def config_for(
         "backend": backend,
         "options": opts,
         "seed": seed,
+        **({"condition_hash": condition} if condition else {}),
     }
 
 
@@ -179,6 +181,7 @@ def fake_episode(spec: Any) -> dict[str, Any]:
         options=options,
         start_pose_index=spec.start_pose,
         seed=seed,
+        condition=getattr(spec, "condition", None),
     )
     poses = [[0.0, 0.0, 0.0], [x_end / 2, 0.0, 0.0], [x_end, 0.0, 0.0]]
     time.sleep(0.01)
@@ -206,6 +209,7 @@ class InterruptingRunner:
                 start_pose_index=spec.start_pose,
                 seed=options["seed"],
                 backend=spec.backend,
+                condition=getattr(spec, "condition", None),
             )
             write_run(Path(spec.out_dir), config, [[0.0, 0.0, 0.0]], outcome=None)
             with open(Path(spec.out_dir) / "run.jsonl", "a") as f:

@@ -96,8 +96,14 @@ def test_interrupt_and_resume_gives_the_same_manifest(scenario_file: Path, tmp_p
     counter = CountingRunner()
     lib.run(lib.plan(grid, tmp_path / "resumed"), runner=counter)
     assert len(counter.ran) == grid_size(grid) - 4  # finished episodes are skipped, the cut one redone
-    assert partial["episodes"][4]["dir"] in counter.ran
-    assert _manifest(tmp_path / "resumed") == _manifest(tmp_path / "whole")
+    cut = partial["episodes"][4]["dir"]
+    assert cut + ".2" in counter.ran  # ... into a new folder: the cut one is kept, marked superseded
+    assert (cut_dir / "run.jsonl").exists() and (cut_dir / "superseded.json").exists()
+    resumed, whole = _manifest(tmp_path / "resumed"), _manifest(tmp_path / "whole")
+    redone = resumed["episodes"][4]
+    assert redone["dir"] == cut + ".2" and redone["kept"] == [f"{cut}: cut short (no summary)"]
+    redone.update(dir=cut, summary=f"{cut}/summary.json", kept=[])
+    assert resumed == whole
     # a third run has nothing left to do
     again = CountingRunner()
     lib.run(lib.plan(grid, tmp_path / "resumed"), runner=again)
@@ -108,15 +114,20 @@ def grid_size(grid: lib.GridSpec) -> int:
     return len(lib.expand(grid))
 
 
-def test_inconsistent_folder_is_rerun(scenario_file: Path, tmp_path: Path) -> None:
+def test_another_grid_is_refused_and_other_conditions_get_new_folders(
+    scenario_file: Path, tmp_path: Path
+) -> None:
     grid = _grid(scenario_file, trials=1, lidar_sectors=[3])
     lib.run(lib.plan(grid, tmp_path / "ab"), runner=fake_episode)
-    # the same folder name under a different base seed holds a run with other options: rerun it
+    other = _grid(scenario_file, trials=1, lidar_sectors=[3], seed=99)
     counter = CountingRunner()
-    lib.run(
-        lib.plan(_grid(scenario_file, trials=1, lidar_sectors=[3], seed=99), tmp_path / "ab"), runner=counter
-    )
-    assert len(counter.ran) == 2
+    with pytest.raises(BadInputError, match="seed: 7 there, 99 now"):
+        lib.run(lib.plan(other, tmp_path / "ab"), runner=counter)
+    assert counter.ran == []
+    # without the manifest, the folder names are taken by runs of another condition: new folders
+    (tmp_path / "ab" / "manifest.json").unlink()
+    lib.run(lib.plan(other, tmp_path / "ab"), runner=counter)
+    assert sorted(counter.ran) == ["T1-p1-t1.2", "T2-p1-t1.2"]
 
 
 def test_parallel_equals_serial(scenario_file: Path, tmp_path: Path) -> None:

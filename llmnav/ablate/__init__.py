@@ -1,0 +1,66 @@
+"""Ablation sweeps: a grid of conditions → episodes, run resumably and in parallel, with a manifest.
+
+A grid is the cartesian product of the ablated factors (`lidar_sectors`, `prompt`, `history`, `sensing`,
+`backend`, `assist`, `planner`) over tasks × start poses × trials. Each episode has a key naming it
+(`T8-p1-t2-lidar_sectors=3`: task, start pose, trial and the factors with several values), one run
+folder under the ablation folder named from that key, and a seed derived from (base seed, task, pose,
+trial): every condition sees the same seeds, so differences between conditions come from the factor, not
+from the noise, and results never depend on the order or the process that ran an episode.
+
+`manifest.json` (rewritten atomically after every episode) lists every episode with its key, folder,
+seed, factors, status and summary. Running the same grid again skips episodes whose `summary.json` is
+present and consistent with the episode, and deletes and reruns the others (cut short by a kill, crashed).
+Episodes run through `llmnav.runner.run_episode` — in this process, in a spawn process pool, or as Ray
+tasks; the parent alone writes the manifest.
+"""
+
+from llmnav.ablate.executors import Runner, execute_episode, worker_model_threads
+from llmnav.ablate.grid import (
+    DEFAULT_BACKEND,
+    FACTORS,
+    Episode,
+    GridSpec,
+    episode_key,
+    episode_seed,
+    expand,
+    grid_from_mapping,
+    load_grid_file,
+    parse_poses,
+    split_list,
+)
+from llmnav.ablate.manifest import (
+    MANIFEST_FILE,
+    Ablation,
+    ManifestEntry,
+    describe_episodes,
+    plan,
+    results_runs,
+    table_keys,
+)
+from llmnav.ablate.sweep import ProgressCallback, run
+
+__all__ = [
+    "DEFAULT_BACKEND",
+    "FACTORS",
+    "MANIFEST_FILE",
+    "Ablation",
+    "Episode",
+    "GridSpec",
+    "ManifestEntry",
+    "ProgressCallback",
+    "Runner",
+    "describe_episodes",
+    "episode_key",
+    "episode_seed",
+    "execute_episode",
+    "expand",
+    "grid_from_mapping",
+    "load_grid_file",
+    "parse_poses",
+    "plan",
+    "results_runs",
+    "run",
+    "split_list",
+    "table_keys",
+    "worker_model_threads",
+]

@@ -1,0 +1,157 @@
+"""Where episodes run: in this process, in a spawn process pool, or as Ray tasks; each yields its result."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any
+
+from llmnav.errors import BadInputError, one_line
+
+if TYPE_CHECKING:
+    from llmnav.ablate.grid import Episode
+    from llmnav.runner import EpisodeSpec
+
+Runner = Callable[["EpisodeSpec"], dict[str, Any]]
+Result = tuple[dict[str, Any] | None, str | None, bool]
+
+
+def execute_episode(runner: Runner, spec: EpisodeSpec) -> tuple[dict[str, Any] | None, str | None, bool]:
+    """Run one episode in whatever process this is: (summary, error, fatal).
+
+    Bad input (a missing key, an absent model) is fatal: every other episode would fail the same way.
+    Any other failure is recorded for this episode and the sweep goes on.
+    """
+    try:
+        return runner(spec), None, False
+    except BadInputError as err:
+        return None, one_line(err), True
+    except Exception as err:  # noqa: BLE001 — one broken episode must not end a long sweep
+        text = str(err).splitlines()[0] if str(err) else ""
+        return None, f"{type(err).__name__}: {text}" if text else type(err).__name__, False
+
+
+def default_runner() -> Runner:
+    """`llmnav.runner.run_episode` (imported when first needed)."""
+    from llmnav.runner import run_episode
+
+    return run_episode
+
+
+# Native thread pools a worker might start (BLAS, OpenMP, OpenCV, Mesa's llvmpipe): one thread each, so
+# N workers on N cores do not oversubscribe them. Variables the user set win.
+_WORKER_THREAD_VARS = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "OPENCV_FOR_THREADS_NUM",
+    "LP_NUM_THREADS",
+)
+
+
+def worker_model_threads(workers: int) -> int:
+    """Threads for an embedded model in each of `workers` processes: the cores but one, shared out."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, (cores - 1) // workers)
+
+
+def _init_worker(model_threads: int, parent_pid: int) -> None:
+    """Pool worker start-up, before numpy, cv2 or a model is imported: cap threads, die with the parent.
+
+    A `kill -9` of the sweep must not leave workers running episodes nobody records.
+    """
+    from llmnav.backends.local import THREADS_ENV
+
+    for name in _WORKER_THREAD_VARS:
+        os.environ.setdefault(name, "1")
+    os.environ.setdefault(THREADS_ENV, str(model_threads))
+    exit_with_parent(parent_pid)
+
+
+_PR_SET_PDEATHSIG = 1
+
+
+def exit_with_parent(parent_pid: int, poll_s: float = 0.2) -> None:
+    """End this process when `parent_pid` is gone.
+
+    The kernel's parent-death signal on Linux, and a watchdog thread everywhere (it also covers a parent
+    that died before the signal was armed).
+    """
+    import signal
+    import sys
+    import threading
+    import time
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="llmnav-parent-watchdog", daemon=True).start()
+
+
+def run_pool(
+    runner: Runner, specs: Sequence[tuple[Episode, EpisodeSpec]], workers: int
+) -> Iterator[tuple[Episode, Result]]:
+    """Episodes in a spawn process pool (fresh interpreters: no inherited PyBullet or model state)."""
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+
+    context = multiprocessing.get_context("spawn")
+    count = min(workers, len(specs))
+    executor = ProcessPoolExecutor(
+        max_workers=count,
+        mp_context=context,
+        initializer=_init_worker,
+        initargs=(worker_model_threads(count), os.getpid()),
+    )
+    futures: dict[Future[Result], Episode] = {}
+    try:
+        for ep, spec in specs:
+            futures[executor.submit(execute_episode, runner, spec)] = ep
+        remaining = set(futures)
+        while remaining:
+            finished, remaining = wait(remaining, return_when=FIRST_COMPLETED)
+            for future in finished:
+                yield futures[future], future.result()
+    finally:  # Ctrl-C or a fatal episode: drop what has not started, let running episodes end
+        executor.shutdown(wait=True, cancel_futures=True)
+
+
+def run_ray(
+    runner: Runner, specs: Sequence[tuple[Episode, EpisodeSpec]], address: str
+) -> Iterator[tuple[Episode, Result]]:
+    """Episodes as Ray tasks on an existing cluster (`auto`, `ray://host:10001`, `host:6379`)."""
+    try:
+        import ray
+    except ImportError:
+        raise BadInputError("--ray needs Ray: pip install 'llmnav[ray]'") from None
+    try:
+        if not ray.is_initialized():  # a caller (or a test) may have connected already
+            ray.init(address=address or "auto", log_to_driver=False)
+    except (ConnectionError, RuntimeError, ValueError) as err:
+        raise BadInputError(
+            f"--ray {address or 'auto'}: cannot connect: {str(err).splitlines()[0]}"
+        ) from None
+    remote = ray.remote(execute_episode)
+    pending = {remote.remote(runner, spec): ep for ep, spec in specs}
+    try:
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                yield pending.pop(ref), ray.get(ref)
+    finally:
+        for ref in pending:
+            ray.cancel(ref)

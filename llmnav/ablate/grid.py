@@ -1,0 +1,338 @@
+"""Ablation grids: the spec (flags or YAML), parsing, and its expansion into episodes with keys and seeds."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import re
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from llmnav.errors import BadInputError
+from llmnav.planners.base import DriveOptions
+
+if TYPE_CHECKING:
+    from llmnav.runner import EpisodeSpec
+
+# The factors an ablation may vary, in the order they appear in keys and tables.
+FACTORS: tuple[str, ...] = ("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist")
+DEFAULT_BACKEND = "local"
+_SEED_SPACE = 2**31 - 1  # seeds stay positive 32-bit ints (PyBullet, numpy, model servers)
+
+
+class GridSpec(BaseModel):
+    """An ablation grid, from CLI flags or a YAML file with the same keys."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str | None = None
+    scenario: str = "factory"
+    tasks: list[str] | Literal["all"] = "all"
+    poses: list[int] | None = None  # 1-based start-pose indices; None = every start pose of each task
+    trials: int = Field(default=1, ge=1)
+    seed: int = 0
+    # ablated factors (None = not ablated: the default of DriveOptions, or `backend` below)
+    planner: list[str] | None = None
+    backend: list[str] | None = None
+    sensing: list[str] | None = None  # each "lidar+image", "image", ...
+    lidar_sectors: list[int] | None = None
+    prompt: list[str] | None = None
+    history: list[str] | None = None
+    assist: list[str] | None = None
+    options: dict[str, Any] = {}  # fixed DriveOptions for every episode (max_iterations, image size, ...)
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, name: str | None) -> str | None:
+        # the name becomes a folder under ablations/: a path (/etc, ../x) would put the sweep elsewhere
+        if name is not None and (not name.strip() or name != Path(name).name or name in (".", "..")):
+            raise ValueError(f"{name!r} is not a plain folder name (use --out for a path)")
+        return name
+
+    @field_validator("poses")
+    @classmethod
+    def _positive(cls, poses: list[int] | None) -> list[int] | None:
+        if poses is not None and (not poses or min(poses) < 1):
+            raise ValueError("start poses are 1-based and at least one is needed")
+        return poses
+
+    @field_validator("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist")
+    @classmethod
+    def _non_empty(cls, values: list[Any] | None) -> list[Any] | None:
+        if values is not None and not values:
+            raise ValueError("a factor needs at least one value")
+        if values is not None and len(set(map(str, values))) != len(values):
+            raise ValueError("a factor lists the same value twice")
+        return values
+
+    def factors(self) -> dict[str, list[Any]]:
+        """The ablated factors and their values, in FACTORS order."""
+        return {name: list(getattr(self, name)) for name in FACTORS if getattr(self, name) is not None}
+
+    def default_name(self) -> str:
+        """`<scenario>-<factor>-<factor>` (or `<scenario>-base`)."""
+        return self.name or "-".join([Path(self.scenario).stem, *self.factors()] or ["base"])
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One episode of a grid: what to run and where."""
+
+    key: str
+    dir_name: str
+    task_id: str
+    start_pose: int
+    trial: int
+    seed: int
+    factors: dict[str, Any]
+    backend: str
+    options: DriveOptions
+    # The episode's full condition (see `condition`) and its hash: a run folder is this episode's result
+    # only when its config line carries the same hash.
+    condition: dict[str, Any] = field(default_factory=dict, compare=False)
+    identity: str = ""
+
+    def spec(
+        self, root: Path, scenario: str, *, plots: bool = False, dir_name: str | None = None
+    ) -> EpisodeSpec:
+        """The runner's input for this episode.
+
+        `plots`: write each run's trajectory.png; `dir_name`: the folder under `root` when not the
+        episode's first choice.
+        """
+        from llmnav.runner import EpisodeSpec
+
+        return EpisodeSpec(
+            scenario=scenario,
+            task_id=self.task_id,
+            start_pose=self.start_pose,
+            options=self.options,
+            backend=self.backend,
+            out_dir=root / (dir_name or self.dir_name),
+            quiet=True,
+            plots=plots,
+            condition=self.identity or None,
+        )
+
+
+# --- parsing flags and files --------------------------------------------------------------------
+
+
+def split_list(text: str) -> list[str]:
+    """`3,5,8` → ["3", "5", "8"] (spaces ignored)."""
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def parse_poses(text: str) -> list[int] | None:
+    """`1-5`, `1,3,4`, `2` or `all` (None)."""
+    if text.strip().lower() == "all":
+        return None
+    poses: list[int] = []
+    for part in split_list(text):
+        low, sep, high = part.partition("-")
+        try:
+            values = range(int(low), int(high) + 1) if sep else [int(low)]
+        except ValueError:
+            raise BadInputError(f"--poses {text!r}: expected e.g. 1-5 or 1,3,4") from None
+        poses.extend(v for v in values if v not in poses)
+    if not poses:
+        raise BadInputError(f"--poses {text!r}: no start pose selected")
+    return poses
+
+
+def _validation_message(err: ValidationError) -> str:
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    return f"{where}: {first['msg'].removeprefix('Value error, ')}"
+
+
+def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
+    """Validate grid data (from a file and/or flags); one-line BadInputError naming the source."""
+    try:
+        grid = GridSpec.model_validate(data)
+        DriveOptions.model_validate(grid.options)
+    except ValidationError as err:
+        raise BadInputError(f"{source}: {_validation_message(err)}") from None
+    return grid
+
+
+def load_grid_file(path: Path) -> dict[str, Any]:
+    """The raw mapping of a grid YAML file (validated later, merged with flags)."""
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except OSError as err:
+        raise BadInputError(f"--grid {path}: cannot read: {err.strerror or err}") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else "(file)"
+        raise BadInputError(
+            f"--grid {path}: {where}: {getattr(err, 'problem', None) or 'invalid YAML'}"
+        ) from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise BadInputError(f"--grid {path}: expected a mapping of grid keys")
+    if isinstance(data.get("poses"), (str, int)):
+        data["poses"] = parse_poses(str(data["poses"]))
+    if isinstance(data.get("tasks"), str) and data["tasks"].lower() != "all":
+        data["tasks"] = split_list(data["tasks"])
+    for name in FACTORS:  # a scalar factor is a one-value list
+        if name in data and data[name] is not None and not isinstance(data[name], list):
+            data[name] = [data[name]]
+    return data
+
+
+# --- expanding a grid ---------------------------------------------------------------------------
+
+
+def _safe(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.+=-]+", "-", text).strip("-") or "x"
+
+
+def episode_seed(base_seed: int, task_id: str, start_pose: int, trial: int) -> int:
+    """A seed from (base seed, task, pose, trial): the same for every condition, independent of order."""
+    digest = hashlib.sha256(f"{base_seed}|{task_id}|{start_pose}|{trial}".encode()).digest()
+    return int.from_bytes(digest[:8], "big") % _SEED_SPACE
+
+
+def episode_key(task_id: str, start_pose: int, trial: int, factors: dict[str, Any]) -> str:
+    """`T8-p1-t2` plus `-lidar_sectors=3` per factor given (callers pass the ones that vary)."""
+    parts = [f"{task_id}-p{start_pose}-t{trial}"]
+    parts += [f"{name}={value}" for name, value in factors.items()]
+    return "-".join(parts)
+
+
+def _dir_name(key: str) -> str:
+    name = _safe(key)
+    if len(name) > 100 or name != key:  # long or rewritten: keep it unique with a short hash
+        name = f"{name[:90]}-{hashlib.sha256(key.encode()).hexdigest()[:8]}"
+    return name
+
+
+def _factor_options(factors: dict[str, Any]) -> dict[str, Any]:
+    """DriveOptions fields set by the factors (backend is not an option)."""
+    options: dict[str, Any] = {}
+    for name, value in factors.items():
+        if name == "backend":
+            continue
+        if name == "sensing":
+            parts = tuple(part for part in str(value).split("+") if part)
+            if len(set(parts)) != len(parts):
+                raise BadInputError(f"sensing {value!r}: lists a sensor more than once")
+            options["sensing"] = parts
+        elif name == "history":
+            options["history"] = str(value)
+        else:
+            options[name] = value
+    return options
+
+
+def condition(
+    scenario_hash: str, task_id: str, start_pose: int, trial: int, backend: str, options: DriveOptions
+) -> dict[str, Any]:
+    """Everything that decides an episode's result.
+
+    Scenario file content, task, start pose, trial, backend spec (model and URL; secrets redacted), every
+    option (seed included) and the prompt templates used.
+    """
+    from llmnav.backends.http import redact
+
+    return {
+        "scenario_sha256": scenario_hash,
+        "task": task_id,
+        "start_pose": start_pose,
+        "trial": trial,
+        "backend": redact(backend.strip()),
+        "options": options.model_dump(mode="json"),
+        "prompt_hashes": _prompt_hashes(options),
+    }
+
+
+def condition_hash(data: dict[str, Any]) -> str:
+    """A stable hash of a condition (canonical JSON)."""
+    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _prompt_hashes(options: DriveOptions) -> dict[str, str]:
+    return dict(_prompt_hashes_cached(options.model_dump_json()))
+
+
+@lru_cache(maxsize=256)
+def _prompt_hashes_cached(options_json: str) -> tuple[tuple[str, str], ...]:
+    from llmnav.planners.base import get_planner
+    from llmnav.runner import prompt_hashes
+
+    options = DriveOptions.model_validate_json(options_json)
+    return tuple(sorted(prompt_hashes(get_planner(options.planner), options).items()))
+
+
+def check_backend(spec: str) -> None:
+    """Refuse a backend spec naming no installed backend (what the real run would refuse, before any work)."""
+    from llmnav.backends.base import _entry_points, parse_spec
+    from llmnav.errors import BackendSpecError
+
+    name, _ = parse_spec(spec)
+    points = _entry_points()
+    if name not in points:
+        raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {', '.join(sorted(points))})")
+
+
+def expand(grid: GridSpec) -> list[Episode]:
+    """Every episode of the grid, in a stable order (task, pose, trial, then factors)."""
+    from llmnav.scenario import load_scenario, resolve_scenario_path
+
+    scenario = load_scenario(grid.scenario)
+    scenario_hash = hashlib.sha256(resolve_scenario_path(grid.scenario).read_bytes()).hexdigest()
+    if grid.tasks == "all":
+        tasks = [t.id for t in scenario.tasks]
+    else:
+        tasks = []
+        for name in grid.tasks:
+            try:
+                tasks.append(scenario.task(name).id)
+            except KeyError:
+                known = ", ".join(t.id for t in scenario.tasks)
+                raise BadInputError(
+                    f"--tasks: scenario {scenario.name} has no task '{name}' (tasks: {known})"
+                ) from None
+    if not tasks:
+        raise BadInputError(f"scenario {scenario.name} has no tasks to ablate")
+    for backend_spec in dict.fromkeys(grid.backend or [DEFAULT_BACKEND]):
+        check_backend(backend_spec)
+    factors = grid.factors()
+    names = list(factors)
+    combos = [dict(zip(names, values, strict=True)) for values in itertools.product(*factors.values())]
+    # Keys name only the factors that vary; one-value factors are checked against the logged options.
+    varying = {name for name, values in factors.items() if len(values) > 1}
+    episodes: list[Episode] = []
+    for task_id in tasks:
+        available = len(scenario.start_poses(scenario.task(task_id)))
+        poses = grid.poses or list(range(1, available + 1))
+        if max(poses) > available:
+            raise BadInputError(
+                f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}"
+            )
+        for pose, trial, combo in itertools.product(poses, range(1, grid.trials + 1), combos):
+            seed = episode_seed(grid.seed, task_id, pose, trial)
+            try:
+                options = DriveOptions.model_validate(
+                    {**grid.options, **_factor_options(combo), "seed": seed}
+                )
+            except ValidationError as err:
+                raise BadInputError(f"grid value: {_validation_message(err)}") from None
+            key = episode_key(task_id, pose, trial, {k: v for k, v in combo.items() if k in varying})
+            backend = str(combo.get("backend", (grid.backend or [DEFAULT_BACKEND])[0]))
+            cond = condition(scenario_hash, task_id, pose, trial, backend, options)
+            episodes.append(
+                Episode(
+                    key, _dir_name(key), task_id, pose, trial, seed, combo, backend, options,
+                    cond, condition_hash(cond),
+                )
+            )
+    return episodes
