@@ -48,7 +48,11 @@ def ablate(
     ] = None,
     workers: Annotated[int, typer.Option("--workers", min=1, help="Parallel worker processes.")] = 1,
     ray: Annotated[
-        str | None, typer.Option("--ray", help="Run as Ray tasks on this cluster address ('auto' for local).")
+        str | None,
+        typer.Option(
+            "--ray",
+            help="Ray tasks: 'local' (a private Ray on loopback), or a cluster: HOST:PORT, ray://HOST:PORT, auto.",
+        ),
     ] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List the episodes and stop.")] = False,
     plots: Annotated[
