@@ -254,3 +254,27 @@ def test_sigint_then_resume(tmp_path):
                 assert entry["dir"] == done_before[entry["key"]]
     finally:
         slow.close()
+
+
+def test_returned_files_land_inside_the_run_folder_summary_last(tmp_path):
+    summary = {"outcome": "completed", "run_dir": "/tmp/llmnav-task-x/ep", "trajectory": "/tmp/llmnav-task-x/ep/t.png"}
+    task = ray_tasks.TaskResult(
+        (summary, None, False),
+        {
+            "summary.json": json.dumps(summary).encode(),
+            "run.jsonl": b'{"type": "config"}\n',
+            "images/a.jpg": b"\xff\xd8",
+            "../escape.txt": b"no",
+        },
+        node="n1",
+        workdir="/tmp/llmnav-task-x/ep",
+    )
+    run_dir = tmp_path / "out" / "ep"
+    ray_tasks.write_files(task, run_dir)
+    assert sorted(str(p.relative_to(run_dir)) for p in run_dir.rglob("*") if p.is_file()) == [
+        "images/a.jpg", "run.jsonl", "summary.json",
+    ]  # fmt: skip
+    assert not (tmp_path / "out" / "escape.txt").exists()
+    written = json.loads((run_dir / "summary.json").read_text())
+    assert written["run_dir"] == str(run_dir) and written["trajectory"] == str(run_dir / "t.png")
+    assert (run_dir / "summary.json").stat().st_mtime_ns >= (run_dir / "run.jsonl").stat().st_mtime_ns
