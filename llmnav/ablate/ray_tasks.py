@@ -10,8 +10,11 @@ too; `start_local` does that and then checks the node address Ray chose.
 `--ray ADDRESS` (`host:6379`, `ray://host:10001`) or `auto` connects to a running cluster. No shared
 filesystem is assumed:
 - a task gets everything as values: the episode spec, and a custom scenario file's content;
-- backend keys and settings (`*_API_KEY`, `OLLAMA_HOST`, `OPENAI_BASE_URL`, `LLMNAV_*`) travel in the
-  task's `runtime_env={"env_vars": ...}`, never in the spec, so no log or manifest can hold them;
+- backend settings (`OLLAMA_HOST`, `OPENAI_BASE_URL`, `LLMNAV_*`) and the thread caps travel in the
+  task's `runtime_env={"env_vars": ...}`; keys (`*_API_KEY`) travel as a task argument the task puts in
+  its environment for the episode, because Ray's runtime-env agent writes every env_vars value into its
+  session log (`runtime_env_agent.log`, seen with Ray 2.60); neither is part of the spec, so no run log
+  or manifest can hold them, and `--ray local` deletes its private Ray folder (sessions, logs) at the end;
 - a task runs its episode in a temporary folder on its node and returns the folder's files; the driver
   writes them under `--out` (summary.json last), so resume and tables read the driver's disk only;
 - a task reserves the CPUs its model uses (`num_cpus`) and caps the model's threads to them.
@@ -44,6 +47,7 @@ LOCAL = "local"
 LOOPBACK_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
 # Environment variables a task needs from the driver: keys and server settings of the backends.
 _FORWARDED = re.compile(r"^(?:[A-Z0-9_]+_API_KEY|OLLAMA_HOST|OPENAI_BASE_URL|LLMNAV_[A-Z0-9_]+)$")
+_SECRET = re.compile(r"^[A-Z0-9_]+_API_KEY$")
 _CONNECT_TIMEOUT_S = 5.0  # [s] a cluster address that does not answer this fast is reported, not waited on
 
 
@@ -73,15 +77,21 @@ def model_threads(backend: str, environ: dict[str, str] | None = None) -> int:
     return int(value) if value.isdigit() and int(value) > 0 else 1
 
 
-def task_env(backend: str, environ: dict[str, str] | None = None) -> tuple[int, dict[str, str]]:
-    """(CPUs to reserve, env_vars) for one episode's task: forwarded settings plus the thread caps."""
+def task_env(backend: str, environ: dict[str, str] | None = None) -> tuple[int, dict[str, str], dict[str, str]]:
+    """(CPUs to reserve, env_vars for the runtime env, keys) for one episode's task.
+
+    env_vars: the forwarded settings and the thread caps; keys: the `*_API_KEY` variables, kept out of the
+    runtime env (Ray logs it).
+    """
     from llmnav.backends.local import THREADS_ENV
 
     cpus = model_threads(backend, environ)
-    env = forwarded_env(environ)
+    forwarded = forwarded_env(environ)
+    keys = {name: value for name, value in forwarded.items() if _SECRET.match(name)}
+    env = {name: value for name, value in forwarded.items() if name not in keys}
     env.update({name: "1" for name in _WORKER_THREAD_VARS})
     env[THREADS_ENV] = str(cpus)
-    return cpus, env
+    return cpus, env, keys
 
 
 def _scenario_payload(scenario: str) -> tuple[str, bytes] | None:
@@ -92,10 +102,12 @@ def _scenario_payload(scenario: str) -> tuple[str, bytes] | None:
     return None
 
 
-def run_task(runner: Runner, spec: EpisodeSpec, scenario: tuple[str, bytes] | None) -> TaskResult:
+def run_task(runner: Runner, spec: EpisodeSpec, scenario: tuple[str, bytes] | None, keys: dict[str, str]) -> TaskResult:
     """The body of one Ray task: run the episode in a temporary folder here, return its files."""
     node = socket.gethostname()
     workdir = Path(tempfile.mkdtemp(prefix="llmnav-task-"))
+    saved = {name: os.environ.get(name) for name in keys}
+    os.environ.update(keys)  # for this episode only: a Ray worker process serves many tasks
     try:
         updates: dict[str, Any] = {"out_dir": workdir / spec.out_dir.name}
         if scenario is not None:
@@ -117,6 +129,11 @@ def run_task(runner: Runner, spec: EpisodeSpec, scenario: tuple[str, bytes] | No
             result = (summary, f"on Ray node {node}: {error}", fatal)
         return TaskResult(result, files, node, str(run_dir))
     finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
         shutil.rmtree(workdir, ignore_errors=True)
 
 
@@ -183,6 +200,24 @@ def _import_ray(address: str) -> Any:
     return ray
 
 
+_private_dirs: list[str] = []
+
+
+def _private_dir() -> str:
+    """A fresh folder for a private Ray's sessions and logs (short: Ray puts socket paths in it)."""
+    path = tempfile.mkdtemp(prefix="llmnav-ray-")
+    _private_dirs.append(path)
+    return path
+
+
+def disconnect(ray: Any, address: str) -> None:
+    """Shut down a Ray this sweep started; for `local`, delete its folder (sessions, logs) too."""
+    ray.shutdown()
+    if address == LOCAL:
+        while _private_dirs:
+            shutil.rmtree(_private_dirs.pop(), ignore_errors=True)
+
+
 def connect(address: str) -> tuple[Any, bool]:
     """Start (`local`) or join a Ray cluster; (the ray module, whether this call started it)."""
     ray = _import_ray(address)
@@ -197,12 +232,12 @@ def connect(address: str) -> tuple[Any, bool]:
                 f"set {LOOPBACK_SWITCH}=0 in the environment"
             )
         try:
-            ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False)
+            ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, _temp_dir=_private_dir())
         except (ConnectionError, RuntimeError, ValueError) as err:
             raise BadInputError(f"--ray local: Ray did not start: {one_line(err)}") from None
         node_ip = ray.util.get_node_ip_address()
         if node_ip != "127.0.0.1":
-            ray.shutdown()
+            disconnect(ray, LOCAL)
             raise BadInputError(f"--ray local: Ray chose {node_ip}, not loopback; not running the sweep")
         return ray, True
     if address != "auto":
@@ -224,9 +259,10 @@ def run_ray(
         remote = ray.remote(max_retries=0)(run_task)
         pending: dict[Any, tuple[Episode, EpisodeSpec]] = {}
         for ep, spec in specs:
-            cpus, env = task_env(spec.backend)
+            cpus, env, keys = task_env(spec.backend)
             scenario = _scenario_payload(spec.scenario)
-            ref = remote.options(num_cpus=cpus, runtime_env={"env_vars": env}).remote(runner, spec, scenario)
+            options = remote.options(num_cpus=cpus, runtime_env={"env_vars": env})
+            ref = options.remote(runner, spec, scenario, keys)
             pending[ref] = (ep, spec)
         try:
             while pending:
@@ -239,13 +275,13 @@ def run_ray(
                 ray.cancel(ref, force=True)
     finally:
         if started and address == LOCAL:
-            ray.shutdown()
+            disconnect(ray, LOCAL)
 
 
 def _check_cpus(ray: Any, specs: Sequence[tuple[Episode, EpisodeSpec]]) -> None:
     """Refuse tasks no node could ever schedule (Ray would wait for such a node forever)."""
     largest = max((node.get("Resources", {}).get("CPU", 0) for node in ray.nodes() if node.get("Alive")), default=0)
-    wanted = max((task_env(spec.backend)[0] for _, spec in specs), default=0)
+    wanted = max((model_threads(spec.backend) for _, spec in specs), default=0)
     if wanted > largest:
         raise BadInputError(
             f"--ray: a task needs {wanted} CPUs ($LLMNAV_LOCAL_THREADS) but the largest Ray node has {largest:g}"

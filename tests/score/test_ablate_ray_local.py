@@ -14,6 +14,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -139,6 +140,7 @@ def _ablate(grid: Path, out: Path, *args: str, env: dict[str, str], listening=No
 def test_ray_local_equals_workers_1_keeps_to_loopback_and_carries_the_key(key_server, tmp_path, listening):
     grid = _grid(tmp_path, key_server.url)
     env = _env(OPENAI_API_KEY=KEY)
+    started = time.time()
     code, stdout, stderr, seen = _ablate(grid, tmp_path / "ray", "--ray", "local", env=env, listening=listening)
     assert code == 0, stderr[-3000:]
     assert seen, "no Ray process was seen listening: the loopback check saw nothing"
@@ -157,9 +159,14 @@ def test_ray_local_equals_workers_1_keeps_to_loopback_and_carries_the_key(key_se
         serial_summary = json.loads((tmp_path / "serial" / b["dir"] / "summary.json").read_text())
         assert ray_summary["final_pose"] == serial_summary["final_pose"]
         assert ray_summary["run_dir"] == str(tmp_path / "ray" / a["dir"])  # written on the driver's disk
-    # The key travelled in the runtime environment only: no file of the sweep holds it.
+    # No file of the sweep holds the key, and Ray's own folder for this sweep (sessions, logs) is gone.
     for path in (tmp_path / "ray").rglob("*"):
         if path.is_file():
+            assert KEY.encode() not in path.read_bytes(), path
+    tmp = Path(tempfile.gettempdir())
+    assert not [p for p in tmp.glob("llmnav-ray-*") if p.stat().st_mtime >= started - 1]
+    for path in (tmp / "ray").rglob("*.log") if (tmp / "ray").is_dir() else ():
+        if path.stat().st_mtime >= started:
             assert KEY.encode() not in path.read_bytes(), path
 
 
@@ -191,12 +198,12 @@ def test_task_environment_forwards_settings_and_caps_threads():
         "PATH": "/bin",
         "AWS_SECRET": "not ours",
     }
-    cpus, env = ray_tasks.task_env("local", environ)
+    cpus, env, keys = ray_tasks.task_env("local", environ)
     assert cpus == 3 and env["LLMNAV_LOCAL_THREADS"] == "3" and env["OMP_NUM_THREADS"] == "1"
-    assert {k for k in env if k in environ} == {
-        "OPENAI_API_KEY", "GEMINI_API_KEY", "OLLAMA_HOST", "OPENAI_BASE_URL", "LLMNAV_LOCAL_THREADS",
-    }  # fmt: skip
-    cpus_http, env_http = ray_tasks.task_env("openai:m@http://x/v1", environ)
+    assert {k for k in env if k in environ} == {"OLLAMA_HOST", "OPENAI_BASE_URL", "LLMNAV_LOCAL_THREADS"}
+    # keys never go into the runtime env (Ray's runtime-env agent logs it): they travel as an argument
+    assert keys == {"OPENAI_API_KEY": "k1", "GEMINI_API_KEY": "k2"}
+    cpus_http, env_http, _ = ray_tasks.task_env("openai:m@http://x/v1", environ)
     assert cpus_http == 1 and env_http["LLMNAV_LOCAL_THREADS"] == "1"
 
 
