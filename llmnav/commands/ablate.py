@@ -55,6 +55,9 @@ def ablate(
         ),
     ] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List the episodes and stop.")] = False,
+    drop_images: Annotated[
+        bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
+    ] = False,
     plots: Annotated[
         bool, typer.Option("--plots", help="Write each run's trajectory.png (slower; off by default).")
     ] = False,
@@ -75,6 +78,8 @@ def ablate(
         if value is not None:
             flags[key] = lib.split_list(value)
     data.update({k: v for k, v in flags.items() if v is not None})
+    if drop_images:
+        data["options"] = {**(data.get("options") or {}), "drop_images": True}
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
     root = path_option(out, "--out") or Path("ablations") / spec.default_name()
     ablation = lib.plan(spec, root)
