@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import sys
 
 import typer
 
@@ -64,9 +65,32 @@ def _usage_errors() -> tuple[type[Exception], ...]:
     return tuple(kinds)
 
 
+def _show_retries() -> None:
+    """Llmnav's INFO log lines (each retry of a model server) as one printable line each on stderr.
+
+    A hanging server can take minutes over its retries; even under --quiet the user sees why.
+    """
+    import logging
+
+    from llmnav.errors import printable
+
+    class OneLine(logging.Formatter):
+        def format(self, record: logging.LogRecord) -> str:
+            return "llmnav: " + printable(" ".join(super().format(record).split()))
+
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(OneLine("%(message)s"))
+    logger = logging.getLogger("llmnav")
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    logger.propagate = False
+
+
 def main() -> None:
     """Console-script entry point: usage errors (bad flags or values) become one line and exit 2."""
     from llmnav.commands.common import err_console, esc
+
+    _show_retries()
 
     try:
         result = app(standalone_mode=False)

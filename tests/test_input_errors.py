@@ -176,3 +176,14 @@ def test_pybullet_banner_is_not_printed_before_an_error(tmp_path: Path) -> None:
                             env={**os.environ})
     assert result.returncode == 2 and "pybullet build time" not in result.stderr + result.stdout
     assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+@pytest.mark.slow  # the backend's real backoff: about 10-25 s
+def test_each_retry_is_printed_even_when_quiet(tmp_path: Path) -> None:
+    """A server that does not answer used to block silently under --quiet; now each retry is one line."""
+    result = subprocess.run([sys.executable, "-c", ENTRY, *DRIVE, "--planner", "stepwise", "--sensing", "lidar",
+                             "--backend", "openai:m@http://127.0.0.1:9/v1", "--max-iterations", "1", "--quiet",
+                             "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=300)
+    retries = [line for line in result.stderr.splitlines() if "retry" in line]
+    assert [line.split("retry ")[1].split(" ")[0] for line in retries] == ["1/4", "2/4", "3/4", "4/4"], result.stderr
+    assert all(line.startswith("llmnav: openai: connection failed") for line in retries)

@@ -17,9 +17,9 @@ from typing import Any
 
 from llmnav.ablate.grid import Episode
 from llmnav.ablate.manifest import is_result
-from llmnav.errors import FolderLockedError
+from llmnav.errors import BadInputError, FolderLockedError, one_line
 from llmnav.locking import locked_by
-from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, write_json_atomic
+from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, read_run, write_json_atomic
 
 _CONFIG_LINE_LIMIT = 4 << 20  # bytes: a config line is a few kB; more is damage, not a config
 
@@ -87,6 +87,12 @@ def inspect(run_dir: Path, ep: Episode) -> tuple[str, dict[str, Any] | None, str
         return "retry", None, f"cut short ({reason or 'no end'})"
     if not is_result(summary):
         return "retry", None, f"{summary.get('outcome')}: {reason or 'no reason logged'}"
+    try:  # the whole log, not just its first line: a result whose log was damaged is not kept as one
+        complete = read_run(run_dir).complete
+    except BadInputError as err:
+        return "retry", None, f"{RUN_FILE} is damaged ({one_line(err).removeprefix(f'{run_dir / RUN_FILE}: ')})"
+    if not complete:
+        return "retry", None, f"{RUN_FILE} is damaged (no end event)"
     return "done", summary, ""
 
 

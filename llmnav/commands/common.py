@@ -15,7 +15,7 @@ import functools
 import io
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import ParamSpec, TypeVar
 
@@ -44,17 +44,27 @@ P = ParamSpec("P")
 R = TypeVar("R")
 
 
-def _console_environ() -> dict[str, str]:
-    """The environment Rich sizes its consoles from, minus a width or height that is not a positive number.
+class _ConsoleEnviron(Mapping[str, str]):
+    """os.environ as Rich reads it, minus a COLUMNS or LINES that is not a positive number.
 
-    COLUMNS=0 made every line, JSON included, zero characters wide.
+    Live, not a copy: a caller (or a test) may change the environment. COLUMNS=0 made every line, JSON
+    included, zero characters wide.
     """
-    env = dict(os.environ)
-    for name in ("COLUMNS", "LINES"):
-        value = env.get(name)
-        if value is not None and not (value.strip().isdigit() and int(value) > 0):
-            del env[name]
-    return env
+
+    def _bad(self, key: str) -> bool:
+        value = os.environ.get(key) if key in ("COLUMNS", "LINES") else None
+        return value is not None and not (value.strip().isdigit() and int(value) > 0)
+
+    def __getitem__(self, key: str) -> str:
+        if self._bad(key):
+            raise KeyError(key)
+        return os.environ[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return (key for key in os.environ if not self._bad(key))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
 
 
 class OutputError(LlmnavError):
@@ -119,8 +129,8 @@ class _Stdout(io.TextIOBase):
 
 
 stdout = _Stdout()
-console = Console(file=stdout, _environ=_console_environ())  # type: ignore[arg-type]
-err_console = Console(stderr=True, _environ=_console_environ())
+console = Console(file=stdout, _environ=_ConsoleEnviron())  # type: ignore[arg-type]
+err_console = Console(stderr=True, _environ=_ConsoleEnviron())
 
 
 def print_data(text: str) -> None:

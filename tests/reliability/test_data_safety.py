@@ -386,9 +386,10 @@ def test_huge_reply_is_capped_in_the_log(tmp_path: Path, tally: Any) -> None:
 
 def aborting_runner(failure: str | None, ran: list[str]) -> Any:
     """A runner whose episodes all end "aborted", marked as the runner marks them (or not at all)."""
+    from score_fakes import tiny_scenario
+
     from llmnav.metrics import summarize_run
     from llmnav.runlog import write_json_atomic
-    from score_fakes import tiny_scenario
 
     def run(spec: Any) -> dict[str, Any]:
         ran.append(Path(spec.out_dir).name)
@@ -424,3 +425,45 @@ def test_backend_failures_are_errors_and_retried(scenario: Path, tmp_path: Path,
     done = lib.run(lib.plan(grid(scenario), model_out), runner=rerun)
     assert rerun.ran == [] and done.counts()[0] == done.size
     tally.add(CATEGORY, tried=2)
+
+
+DAMAGES = {
+    "random bytes": lambda data, rng: rng.randbytes(500),
+    "empty": lambda data, rng: b"",
+    "truncated": lambda data, rng: data[: rng.randrange(1, max(2, len(data)))],
+    "not utf-8": lambda data, rng: b"\xff" + data[1:],
+    "nul bytes": lambda data, rng: b"\x00" * len(data),
+}
+
+
+def damage_and_resume(scenario: Path, tmp_path: Path, rounds: int, seed: int, tally: Any) -> None:
+    """Damage random files of finished episodes, resume, and check nothing is lost or mislabelled."""
+    rng = random.Random(seed)
+    problems = []
+    for i in range(rounds):
+        out = tmp_path / f"ab-{i}"
+        ab = lib.run(lib.plan(grid(scenario), out), runner=fake_episode)
+        victims = rng.sample(ab.episodes, rng.randint(1, len(ab.episodes)))
+        for ep in victims:
+            name = rng.choice([RUN_FILE, SUMMARY_FILE])
+            path = out / ab.entries[ep.key].dir / name
+            kind = rng.choice(sorted(DAMAGES))
+            path.write_bytes(DAMAGES[kind](path.read_bytes(), rng))
+        before = tree(out)
+        resumed = lib.run(lib.plan(grid(scenario), out), runner=fake_episode)
+        lost, wrong = kept(before, tree(out)), mislabelled(resumed)
+        not_done = [k for k, e in resumed.entries.items() if e.status != "done"]
+        if lost or wrong or not_done:
+            problems.append(f"round {i}: lost {lost}, mislabelled {wrong}, not done {not_done}")
+        tally.add(CATEGORY, tried=1, lost=len(lost) + len(wrong))
+    assert not problems, problems[:3]
+
+
+def test_damaged_runs_resume_quick(scenario: Path, tmp_path: Path, tally: Any) -> None:
+    damage_and_resume(scenario, tmp_path, 2, seed=1, tally=tally)
+
+
+@pytest.mark.slow
+@pytest.mark.reliability
+def test_damaged_runs_resume_full(scenario: Path, tmp_path: Path, tally: Any) -> None:
+    damage_and_resume(scenario, tmp_path, 25, seed=2, tally=tally)
