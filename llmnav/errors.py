@@ -36,6 +36,10 @@ class ModelUnavailableError(BadInputError):
     """A local model file or engine is absent; nothing is ever downloaded at run time."""
 
 
+class ImagesRejectedError(BadInputError):
+    """The model server takes no images and the run was not allowed to go on without them (the hint says how)."""
+
+
 class ModelError(LlmnavError):
     """A backend call failed after its last retry (HTTP status, timeout, garbage body)."""
 

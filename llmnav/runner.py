@@ -5,7 +5,7 @@ full configuration), creates the backend when the planner needs one, runs the pl
 event, and writes `summary.json` and (unless `plots` is off) `trajectory.png`. Whatever happens inside the
 planner, the log ends with an `end` event: a bug ends the episode "aborted" and is re-raised after the log
 is closed; an `LlmnavError` (model failure, replay divergence) just ends it "aborted" with its one-line
-message.
+message, and is re-raised too when it is bad input (a server that takes no images), so the command exits 2.
 """
 
 from __future__ import annotations
@@ -163,6 +163,8 @@ def run_episode(
 
         backend = get_backend(spec.backend)
         owns_backend = True
+    if backend is not None and spec.options.drop_images:
+        backend.drop_images = True
     try:
         with World(scenario, seed=spec.options.seed, **_world_configs(scenario, spec.options)) as world:
             world.reset(start, seed=spec.options.seed)
@@ -215,6 +217,8 @@ def _run_logged(
         # `failure` tells a resume what to run again: the model or server failing (not a navigation result)
         failure = "backend" if isinstance(err, BACKEND_FAILURES) else "model"
         outcome = EpisodeOutcome("aborted", one_line(err), metrics={"failure": failure})
+        if isinstance(err, BadInputError):  # e.g. a server that takes no images: exit 2 with its hint
+            crash = err
     except BaseException as err:  # a bug or Ctrl-C: keep the log valid, then let it propagate
         crash = err
         reason = (

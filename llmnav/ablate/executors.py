@@ -1,4 +1,4 @@
-"""Where episodes run: in this process, in a spawn process pool, or as Ray tasks; each yields its result."""
+"""Where episodes run: in this process or in a spawn process pool (Ray tasks: `ray_tasks`); each yields its result."""
 
 from __future__ import annotations
 
@@ -128,30 +128,3 @@ def run_pool(
                 yield futures[future], future.result()
     finally:  # Ctrl-C or a fatal episode: drop what has not started, let running episodes end
         executor.shutdown(wait=True, cancel_futures=True)
-
-
-def run_ray(
-    runner: Runner, specs: Sequence[tuple[Episode, EpisodeSpec]], address: str
-) -> Iterator[tuple[Episode, Result]]:
-    """Episodes as Ray tasks on an existing cluster (`auto`, `ray://host:10001`, `host:6379`)."""
-    try:
-        import ray
-    except ImportError:
-        raise BadInputError("--ray needs Ray: pip install 'llmnav[ray]'") from None
-    try:
-        if not ray.is_initialized():  # a caller (or a test) may have connected already
-            ray.init(address=address or "auto", log_to_driver=False)
-    except (ConnectionError, RuntimeError, ValueError) as err:
-        raise BadInputError(
-            f"--ray {address or 'auto'}: cannot connect: {str(err).splitlines()[0]}"
-        ) from None
-    remote = ray.remote(execute_episode)
-    pending = {remote.remote(runner, spec): ep for ep, spec in specs}
-    try:
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
-            for ref in ready:
-                yield pending.pop(ref), ray.get(ref)
-    finally:
-        for ref in pending:
-            ray.cancel(ref)

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from llmnav.ablate.executors import Runner, default_runner, execute_episode, run_pool, run_ray
+from llmnav.ablate.executors import Runner, default_runner, execute_episode, run_pool
 from llmnav.ablate.grid import Episode, GridSpec
 from llmnav.ablate.manifest import MANIFEST_FILE, Ablation, ManifestEntry
 from llmnav.ablate.resume import locate, set_aside
@@ -139,6 +139,8 @@ def _run_locked(
 
     specs = [(ep, ep.spec(root, ablation.grid.scenario, plots=plots, dir_name=name)) for ep, name in pending]
     if ray_address is not None:
+        from llmnav.ablate.ray_tasks import run_ray
+
         for ep, result in run_ray(runner, specs, ray_address):
             settle(ep, result)
     elif workers > 1 and len(specs) > 1:

@@ -37,6 +37,15 @@ class BackendStatus:
     detail: str  # e.g. "server reachable at http://127.0.0.1:11434", "GEMINI_API_KEY not set"
 
 
+@dataclass(frozen=True)
+class Check:
+    """One line of `llmnav backends --check SPEC`."""
+
+    name: str  # what was checked: "reachable", "model present", "accepts images", ...
+    ok: bool | None  # None: not checked (it does not apply, or an earlier check made it moot)
+    detail: str
+
+
 class Backend(ABC):
     """A chat model. Subclasses set `name`, parse their spec argument in `__init__` and implement `chat`."""
 
@@ -45,6 +54,9 @@ class Backend(ABC):
     description: ClassVar[str] = ""
     multimodal: ClassVar[bool] = False  # whether images in messages reach the model
     deterministic: ClassVar[bool] = False  # same request -> same reply (replay, local at temperature 0)
+    # Per instance: when the server turns out to take no images, go on without them instead of stopping
+    # (the HTTP backends honour it; the runner sets it from `--drop-images`).
+    drop_images: bool = False
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
         self.arg = arg if arg else self.default_arg
@@ -58,6 +70,12 @@ class Backend(ABC):
     def status(cls, arg: str | None = None) -> BackendStatus:
         """Whether this backend could run now (cheap: no generation)."""
         return BackendStatus(True, "")
+
+    @classmethod
+    def check(cls, arg: str | None = None) -> list[Check]:
+        """What `llmnav backends --check` reports for this spec (HTTP backends probe their server)."""
+        status = cls.status(arg)
+        return [Check("ready", status.ready, status.detail)]
 
     @property
     def spec(self) -> str:
@@ -95,8 +113,8 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
     return name.lower(), (arg or None)
 
 
-def get_backend(spec: str, **options: Any) -> Backend:
-    """Instantiate the backend a spec string names (only that backend's module is imported)."""
+def backend_class(spec: str) -> tuple[type[Backend], str | None]:
+    """The class a spec string names and the spec's argument (only that backend's module is imported)."""
     name, arg = parse_spec(spec)
     points = _entry_points()
     if name not in points:
@@ -106,4 +124,10 @@ def get_backend(spec: str, **options: Any) -> Backend:
         cls: type[Backend] = points[name].load()
     except Exception as err:  # noqa: BLE001
         raise BackendSpecError(f"backend '{name}' failed to load: {type(err).__name__}: {err}") from None
+    return cls, arg
+
+
+def get_backend(spec: str, **options: Any) -> Backend:
+    """Instantiate the backend a spec string names."""
+    cls, arg = backend_class(spec)
     return cls(arg, **options)

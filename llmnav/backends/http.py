@@ -6,8 +6,15 @@ One `JsonHttpClient` per backend instance: JSON in, JSON out, with
   (refused, reset, timed out, torn replies), honouring a server's `Retry-After` (seconds or HTTP date),
   `retry-after-ms`, and Gemini's `error.details[].retryDelay` ("7s"), up to a cap,
 - an optional requests-per-minute limit,
-- one `ModelError` with a one-line message after the last attempt,
+- no retry of a server error whose message names a cause another attempt cannot change (a text-only
+  model sent an image, an unsupported feature, a prompt longer than the context),
+- one `ModelError` with a one-line message after the last attempt (`HttpStatusError`, with the status
+  and the server's reason, when the server answered),
 - redaction of API keys from every message it produces (keys travel in headers, never in text).
+
+`HttpBackend.post_chat` is where a backend learns that its server is text-only: the first reply that
+rejects an image either stops the run (`ImagesRejectedError`, exit 2, with the hint) or, when the backend
+may drop images, resends the request without them and sends none from then on.
 
 `HttpOptions` are the knobs every HTTP backend accepts through `get_backend(spec, **options)`;
 `sleep` is injectable so tests run in milliseconds.
@@ -15,6 +22,7 @@ One `JsonHttpClient` per backend instance: JSON in, JSON out, with
 
 from __future__ import annotations
 
+import base64
 import email.utils
 import json
 import logging
@@ -29,8 +37,8 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from llmnav.backends.base import Backend
-from llmnav.errors import BackendSpecError, ModelError, one_line
+from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
+from llmnav.errors import BackendSpecError, ImagesRejectedError, LlmnavError, ModelError, one_line
 
 if TYPE_CHECKING:
     import httpx
@@ -43,6 +51,20 @@ _SECRET_QUERY = re.compile(r"([?&](?:key|api[_-]?key|access_token|token)=)[^&#\s
 _HTML_HIDDEN = re.compile(r"<(script|style)\b.*?</\1\s*>", re.IGNORECASE | re.DOTALL)
 _HTML_TAG = re.compile(r"<[^>]*>")
 _DELAY = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*s\s*$")  # protobuf Duration as JSON: "7s", "0.5s"
+# A 500 whose message names one of these causes fails the same way every time: retrying only costs time
+# (llama.cpp: "image input is not supported", "the request exceeds the available context size").
+_PERMANENT_CAUSE = re.compile(
+    r"not supported|unsupported|does not support|not implemented|missing data required|"
+    r"exceeds the available context|context (?:length|size|window)|too long",
+    re.IGNORECASE,
+)
+# How servers say a model reads no images: llama.cpp without a projector ("image input is not supported
+# - hint: ... mmproj"), Ollama ("this model is missing data required for image input", newer releases
+# "this model does not support image input"), and the usual wordings of other OpenAI-compatible servers.
+_IMAGES_REJECTED = re.compile(
+    r"image input|does not support (?:images?|vision|multimodal)|not a multimodal|mmproj|vision is not",
+    re.IGNORECASE,
+)
 
 
 class HttpOptions(BaseModel):
@@ -58,6 +80,7 @@ class HttpOptions(BaseModel):
     retry_after_max_s: float = Field(default=120.0, ge=0)  # [s] longest server-requested wait accepted
     rpm: float | None = Field(default=None, gt=0)  # requests per minute; None = unlimited
     base_url: str | None = None  # server base URL override
+    drop_images: bool = False  # a server that rejects images: go on without them instead of stopping
     sleep: Callable[[float], None] | None = None  # injectable for tests; default time.sleep
 
 
@@ -150,6 +173,28 @@ def error_reason(response: httpx.Response) -> str:
     return one_line(f"{reason}: {text}" if text.strip() else reason, REASON_CHARS)
 
 
+def permanent_cause(status: int, reason: str) -> bool:
+    """Whether a server error names a cause another attempt cannot change.
+
+    Only 500s: 429 and 502-504 are about load or the way to the server, never about the request.
+    """
+    return status == 500 and bool(_PERMANENT_CAUSE.search(reason))
+
+
+def images_rejected(reason: str) -> bool:
+    """Whether a server's error message says the model takes no image input."""
+    return bool(_IMAGES_REJECTED.search(reason))
+
+
+class HttpStatusError(ModelError):
+    """The server answered with an error status after the last attempt (`status`, the server's `reason`)."""
+
+    def __init__(self, message: str, status: int, reason: str) -> None:
+        super().__init__(message)
+        self.status = status
+        self.reason = reason
+
+
 def backoff_delay(retry: int, base_s: float, max_s: float, rng: random.Random) -> float:
     """Exponential backoff with jitter: a uniform draw in [½, 1] of min(max, base·2^(retry-1)) [s]."""
     ceiling = min(max_s, base_s * 2.0 ** (retry - 1))
@@ -231,6 +276,8 @@ class JsonHttpClient:
         )
         t0 = time.perf_counter()
         failure = "no attempt made"
+        status: int | None = None  # the last error status the server answered with, if it answered
+        reason = ""
         attempt = 0
         while attempt < attempts:
             attempt += 1
@@ -242,14 +289,15 @@ class JsonHttpClient:
                 failure = f"bad URL: {one_line(str(err), 100)}"
                 break
             except httpx.TimeoutException as err:
-                failure = _timeout_reason(err, timeout_s or self.options.timeout_s)
+                failure, status = _timeout_reason(err, timeout_s or self.options.timeout_s), None
             except httpx.TransportError as err:
-                failure = _transport_reason(err)
+                failure, status = _transport_reason(err), None
             else:
                 if response.status_code < 400:
                     return HttpReply(self._decode(response), response.status_code, attempt, time.perf_counter() - t0)
-                failure = f"HTTP {response.status_code} {error_reason(response)}"
-                if response.status_code not in RETRY_STATUSES:
+                status, reason = response.status_code, error_reason(response)
+                failure = f"HTTP {status} {reason}"
+                if status not in RETRY_STATUSES or permanent_cause(status, reason):
                     break
                 server_delay = server_retry_delay(response)
             if attempt >= attempts:
@@ -275,7 +323,10 @@ class JsonHttpClient:
             self._sleep(delay)
         elapsed = time.perf_counter() - t0
         noun = "attempt" if attempt == 1 else "attempts"
-        raise ModelError(self.redact(f"{self.label}: {failure} ({attempt} {noun} in {elapsed:.1f} s, {method} {url})"))
+        message = self.redact(f"{self.label}: {failure} ({attempt} {noun} in {elapsed:.1f} s, {method} {url})")
+        if status is not None:
+            raise HttpStatusError(message, status, self.redact(reason))
+        raise ModelError(message)
 
     def _send(
         self, method: str, url: str, body: dict[str, Any] | None, timeout: httpx.Timeout | None, budget_s: float
@@ -346,6 +397,11 @@ def _transport_reason(err: httpx.TransportError) -> str:
     return f"connection failed: {one_line(text, 100)}"
 
 
+def bearer(key: str | None) -> tuple[dict[str, str], tuple[str, ...]]:
+    """Headers sending `key` as a Bearer token (none without a key), and the secrets to redact."""
+    return ({"Authorization": f"Bearer {key}"}, (key,)) if key else ({}, ())
+
+
 def normalise_url(url: str) -> str:
     """Add a missing scheme and drop a trailing slash (`OLLAMA_HOST=0.0.0.0:11434` style values).
 
@@ -382,21 +438,95 @@ def check_url(url: str) -> None:
             raise BackendSpecError(f"server URL {shown}: '{host}' is not an IPv4 address") from None
 
 
+@dataclass
+class ChatPost:
+    """A chat reply from `HttpBackend.post_chat`, and how many of the request's images were not sent."""
+
+    reply: HttpReply
+    images_dropped: int = 0
+
+    def meta(self) -> dict[str, Any]:
+        """What the run log records about the call (`images_dropped` only when images were dropped)."""
+        meta: dict[str, Any] = {"attempts": self.reply.attempts}
+        if self.images_dropped:
+            meta["images_dropped"] = self.images_dropped
+        return meta
+
+
+# Servers known to be text-only in this process, by (backend, base URL, model): every episode of a sweep
+# learns it from the first rejection, not once each.
+_TEXT_ONLY: set[tuple[str, str, str]] = set()
+_TEXT_ONLY_LOCK = threading.Lock()
+
+
+def without_images(request: ChatRequest) -> ChatRequest:
+    """The same request with every image removed."""
+    messages = tuple(Message(m.role, m.text) for m in request.messages)
+    return ChatRequest(messages, request.json_schema, request.temperature, request.max_tokens, request.seed)
+
+
+def forget_text_only() -> None:
+    """Forget which servers turned out text-only (tests)."""
+    with _TEXT_ONLY_LOCK:
+        _TEXT_ONLY.clear()
+
+
 class HttpBackend(Backend):
     """What the three HTTP backends share: validated options and one lazily built client."""
 
     options_model: ClassVar[type[HttpOptions]] = HttpOptions
     example: ClassVar[str] = ""  # a spec string shown by `llmnav backends`
+    chat_path: ClassVar[str] = ""  # where `post_chat` sends a request
+    models_path: ClassVar[str] = ""  # where the server lists its models (`check`)
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
         super().__init__(arg, **options)
         self.settings = parse_options(self.options_model, self.name, options)
+        self.drop_images = self.settings.drop_images
         self._client: JsonHttpClient | None = None
         self._client_lock = threading.Lock()  # the FSM assist may call chat from a worker thread
 
     def _make_client(self) -> JsonHttpClient:
         """Build this backend's client (base URL, auth headers, secrets to redact)."""
         raise NotImplementedError
+
+    def build_body(self, request: ChatRequest) -> dict[str, Any]:
+        """The JSON body of one chat request."""
+        raise NotImplementedError
+
+    @property
+    def model_name(self) -> str:
+        """The model the spec names."""
+        return str(self.arg)
+
+    def server_key(self) -> tuple[str, str, str]:
+        """(backend, base URL, model): what identifies one server's model for the text-only memory."""
+        return (self.name, self.client.base_url, self.model_name)
+
+    def post_chat(self, request: ChatRequest) -> ChatPost:
+        """POST a chat request; handle a server that rejects images (see the module docstring)."""
+        images = sum(len(m.images) for m in request.messages)
+        key = self.server_key()
+        if images and key in _TEXT_ONLY and self.drop_images:
+            return ChatPost(self.client.post(self.chat_path, self.build_body(without_images(request))), images)
+        try:
+            return ChatPost(self.client.post(self.chat_path, self.build_body(request)))
+        except HttpStatusError as err:
+            if not images or not images_rejected(err.reason):
+                raise
+            with _TEXT_ONLY_LOCK:
+                first = key not in _TEXT_ONLY
+                _TEXT_ONLY.add(key)
+            where = f"{self.spec.split('@')[0]} at {self.client.redact(self.client.base_url)}"
+            if not self.drop_images:
+                cause = one_line(err.reason.split(" - hint")[0], 90)  # llama.cpp appends a hint about projectors
+                raise ImagesRejectedError(
+                    f"{where} takes no images (HTTP {err.status}: {cause}): "
+                    "use --sensing lidar, or --drop-images to go on without images"
+                ) from None
+            if first:
+                log.warning("%s takes no images: going on without them (--drop-images)", where)
+        return ChatPost(self.client.post(self.chat_path, self.build_body(without_images(request))), images)
 
     @property
     def client(self) -> JsonHttpClient:
@@ -406,12 +536,103 @@ class HttpBackend(Backend):
                 self._client = self._make_client()
             return self._client
 
+    def listed_models(self, data: dict[str, Any]) -> list[str]:
+        """The model names in the server's reply to `models_path`."""
+        raise NotImplementedError
+
+    def model_present(self, names: list[str]) -> bool:
+        """Whether this backend's model is among `names`."""
+        return self.model_name in names
+
+    @classmethod
+    def check(cls, arg: str | None = None) -> list[Check]:
+        """Probe the spec's server: reachable, models listed, the model present, images, a JSON Schema.
+
+        The last two send one short chat request each (a few tokens), with no retries.
+        """
+        try:
+            backend = cls(arg, max_retries=0)
+        except LlmnavError as err:
+            return [Check("configured", False, str(err))]
+        try:
+            return backend.check_server()
+        finally:
+            backend.close()
+
+    def check_server(self) -> list[Check]:
+        """The probes of `check`, on this instance's server."""
+        where = self.client.redact(self.client.base_url)
+        try:
+            reply = self.client.get(self.models_path, retries=False)
+        except ModelError as err:
+            return [Check("reachable", False, f"{where}: {short_reason(err)}")]
+        names = self.listed_models(reply.data)
+        shown = ", ".join(names[:6]) + (", …" if len(names) > 6 else "")
+        present = self.model_present(names)
+        checks = [
+            Check("reachable", True, where),
+            Check("models listed", bool(names), f"{len(names)}: {shown}" if names else "none"),
+            Check("model present", present, f"{self.model_name} {'is' if present else 'is not'} listed"),
+            self._check_images(),
+            self._check_schema(),
+        ]
+        return checks
+
+    def _check_images(self) -> Check:
+        request = ChatRequest(
+            (Message("user", "What colour is this image? One word.", (_probe_image(),)),), max_tokens=8
+        )
+        try:
+            self.chat(request)
+        except ImagesRejectedError:
+            return Check("accepts images", False, "text-only server (use --sensing lidar, or --drop-images)")
+        except ModelError as err:
+            return Check("accepts images", False, f"request failed: {short_reason(err)}")
+        return Check("accepts images", True, "answered a request with an image")
+
+    def _check_schema(self) -> Check:
+        schema = {
+            "type": "object",
+            "properties": {"colour": {"type": "string", "enum": ["red", "green", "blue"]}},
+            "required": ["colour"],
+            "additionalProperties": False,
+        }
+        request = ChatRequest(
+            (Message("user", "Which colour is a clear daytime sky: red, green or blue? Answer in JSON."),),
+            json_schema=schema,
+            max_tokens=32,
+        )
+        try:
+            text = self.chat(request).text
+        except ModelError as err:
+            return Check("accepts a JSON Schema", False, f"request failed: {short_reason(err)}")
+        try:
+            answer = json.loads(text)
+        except ValueError:
+            answer = None
+        if isinstance(answer, dict) and set(answer) == {"colour"} and answer["colour"] in ("red", "green", "blue"):
+            return Check("accepts a JSON Schema", True, f"answer matches the schema: {one_line(text, 60)}")
+        return Check("accepts a JSON Schema", False, f"answer does not match the schema: {one_line(text, 60)!r}")
+
     def close(self) -> None:
         """Close the HTTP connection pool."""
         with self._client_lock:
             if self._client is not None:
                 self._client.close()
                 self._client = None
+
+
+def _probe_image() -> Image:
+    """A small plain red JPEG (the image `check` sends)."""
+    import cv2
+    import numpy as np
+
+    pixels = np.zeros((32, 32, 3), dtype=np.uint8)
+    pixels[:, :, 2] = 255  # OpenCV's channel order is BGR
+    ok, buffer = cv2.imencode(".jpg", pixels)
+    if not ok:
+        raise ModelError("could not encode the probe image")
+    return Image(base64.b64encode(buffer.tobytes()).decode("ascii"))
 
 
 def probe(

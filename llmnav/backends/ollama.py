@@ -2,6 +2,7 @@
 
 The answer's JSON Schema goes in `format` (Ollama turns it into a grammar), images as a base64 list on
 the message, sampling knobs in `options`. Server: `OLLAMA_HOST` or http://127.0.0.1:11434.
+`OLLAMA_API_KEY`, when set, is sent as a Bearer token (an Ollama behind an authenticating proxy).
 """
 
 from __future__ import annotations
@@ -12,10 +13,19 @@ from typing import Any, ClassVar
 from pydantic import Field
 
 from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult
-from llmnav.backends.http import HttpBackend, HttpOptions, JsonHttpClient, normalise_url, probe, short_reason
+from llmnav.backends.http import (
+    HttpBackend,
+    HttpOptions,
+    JsonHttpClient,
+    bearer,
+    normalise_url,
+    probe,
+    short_reason,
+)
 from llmnav.errors import ModelError
 
 DEFAULT_HOST = "http://127.0.0.1:11434"
+KEY_VARIABLE = "OLLAMA_API_KEY"
 NS = 1e-9  # [s] per nanosecond: Ollama reports durations in ns
 
 
@@ -33,6 +43,10 @@ def ollama_host(override: str | None = None) -> str:
     return normalise_url(override or os.environ.get("OLLAMA_HOST") or DEFAULT_HOST)
 
 
+def _api_key() -> str | None:
+    return os.environ.get(KEY_VARIABLE, "").strip() or None
+
+
 def model_listed(model: str, names: list[str]) -> bool:
     """Whether `/api/tags` lists the model; an untagged name means `:latest`."""
     wanted = model if ":" in model else f"{model}:latest"
@@ -48,13 +62,27 @@ class OllamaBackend(HttpBackend):
     example = "ollama:llama3.2-vision"
     multimodal = True
     options_model: ClassVar[type[HttpOptions]] = OllamaOptions
+    chat_path: ClassVar[str] = "/api/chat"
+    models_path: ClassVar[str] = "/api/tags"
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
         super().__init__(arg, **options)
         ollama_host(self.settings.base_url)  # a malformed OLLAMA_HOST is bad input now, not an aborted run
+        self.__key = _api_key()  # name-mangled and never in repr/spec/messages
 
     def _make_client(self) -> JsonHttpClient:
-        return JsonHttpClient(self.name, ollama_host(self.settings.base_url), self.settings)
+        headers, secrets = bearer(self.__key)
+        return JsonHttpClient(
+            self.name, ollama_host(self.settings.base_url), self.settings, headers=headers, secrets=secrets
+        )
+
+    def listed_models(self, data: dict[str, Any]) -> list[str]:
+        """Model names in an /api/tags reply."""
+        return [m["name"] for m in data.get("models") or [] if isinstance(m, dict) and isinstance(m.get("name"), str)]
+
+    def model_present(self, names: list[str]) -> bool:
+        """Whether the model is pulled (an untagged name means `:latest`)."""
+        return model_listed(self.model_name, names)
 
     def build_body(self, request: ChatRequest) -> dict[str, Any]:
         """The /api/chat body for a request."""
@@ -82,13 +110,13 @@ class OllamaBackend(HttpBackend):
 
     def chat(self, request: ChatRequest) -> ChatResult:
         """One non-streaming chat call."""
-        reply = self.client.post("/api/chat", self.build_body(request))
-        data = reply.data
+        post = self.post_chat(request)
+        reply, data = post.reply, post.reply.data
         message = data.get("message")
         content = message.get("content") if isinstance(message, dict) else None
         if not isinstance(content, str):
             raise ModelError(f"ollama: reply has no message.content (keys: {', '.join(sorted(data))[:80]})")
-        meta: dict[str, Any] = {"attempts": reply.attempts, "done_reason": data.get("done_reason")}
+        meta: dict[str, Any] = {**post.meta(), "done_reason": data.get("done_reason")}
         for key in ("total_duration", "load_duration", "prompt_eval_duration", "eval_duration"):
             if isinstance(data.get(key), (int, float)):
                 meta[f"{key}_s"] = round(data[key] * NS, 4)
@@ -106,8 +134,9 @@ class OllamaBackend(HttpBackend):
         """Server reachable (GET /api/tags, short timeout) and the model pulled."""
         host = ollama_host()
         model = arg or cls.default_arg or ""
+        headers, secrets = bearer(_api_key())
         try:
-            reply = probe(cls.name, host, "/api/tags", timeout_s=1.5)
+            reply = probe(cls.name, host, "/api/tags", headers=headers, secrets=secrets, timeout_s=1.5)
         except ModelError as err:
             return BackendStatus(False, f"no server at {host} ({short_reason(err)})")
         names = [m.get("name", "") for m in reply.data.get("models", []) if isinstance(m, dict)]

@@ -14,7 +14,15 @@ from typing import Any, ClassVar, Literal
 from pydantic import Field
 
 from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult
-from llmnav.backends.http import HttpBackend, HttpOptions, JsonHttpClient, normalise_url, probe, short_reason
+from llmnav.backends.http import (
+    HttpBackend,
+    HttpOptions,
+    JsonHttpClient,
+    bearer,
+    normalise_url,
+    probe,
+    short_reason,
+)
 from llmnav.errors import MissingKeyError, ModelError
 
 DEFAULT_BASE_URL = "https://api.openai.com/v1"
@@ -60,6 +68,8 @@ class OpenAIBackend(HttpBackend):
     example = "openai:gpt-4o-mini@http://127.0.0.1:8080/v1"
     multimodal = True
     options_model: ClassVar[type[HttpOptions]] = OpenAIOptions
+    chat_path: ClassVar[str] = "/chat/completions"
+    models_path: ClassVar[str] = "/models"
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
         super().__init__(arg, **options)
@@ -70,9 +80,23 @@ class OpenAIBackend(HttpBackend):
             raise MissingKeyError(f"openai needs an API key for {self.base_url}: set {KEY_VARIABLE}")
 
     def _make_client(self) -> JsonHttpClient:
-        headers = {"Authorization": f"Bearer {self.__key}"} if self.__key else {}
-        secrets = (self.__key,) if self.__key else ()
+        headers, secrets = bearer(self.__key)
         return JsonHttpClient(self.name, self.base_url, self.settings, headers=headers, secrets=secrets)
+
+    @property
+    def model_name(self) -> str:
+        """The model the spec names (without the `@URL`)."""
+        return self.model
+
+    def listed_models(self, data: dict[str, Any]) -> list[str]:
+        """Ids (and llama.cpp's aliases) in a /models reply."""
+        names: list[str] = []
+        for entry in data.get("data") or []:
+            if isinstance(entry, dict):
+                for name in [entry.get("id"), *(entry.get("aliases") or [])]:
+                    if isinstance(name, str) and name not in names:
+                        names.append(name)
+        return names
 
     def build_body(self, request: ChatRequest) -> dict[str, Any]:
         """The chat/completions body for a request."""
@@ -112,8 +136,8 @@ class OpenAIBackend(HttpBackend):
 
     def chat(self, request: ChatRequest) -> ChatResult:
         """One chat-completions call."""
-        reply = self.client.post("/chat/completions", self.build_body(request))
-        data = reply.data
+        post = self.post_chat(request)
+        reply, data = post.reply, post.reply.data
         choices = data.get("choices")
         first = choices[0] if isinstance(choices, list) and choices and isinstance(choices[0], dict) else None
         message = first.get("message") if first else None
@@ -130,7 +154,7 @@ class OpenAIBackend(HttpBackend):
             model=str(data.get("model") or self.model),
             prompt_tokens=usage.get("prompt_tokens"),
             completion_tokens=usage.get("completion_tokens"),
-            meta={"attempts": reply.attempts, "finish_reason": first.get("finish_reason") if first else None},
+            meta={**post.meta(), "finish_reason": first.get("finish_reason") if first else None},
         )
 
     @classmethod
@@ -141,9 +165,9 @@ class OpenAIBackend(HttpBackend):
         key = _api_key()
         if key is None and _is_official(base):
             return BackendStatus(False, f"{KEY_VARIABLE} not set (needed for {base})")
-        headers = {"Authorization": f"Bearer {key}"} if key else {}
+        headers, secrets = bearer(key)
         try:
-            probe(cls.name, base, "/models", headers=headers, secrets=(key,) if key else (), timeout_s=3.0)
+            probe(cls.name, base, "/models", headers=headers, secrets=secrets, timeout_s=3.0)
         except ModelError as err:
             return BackendStatus(False, f"{base} not usable: {short_reason(err)}")
         return BackendStatus(True, f"server reachable at {base}")

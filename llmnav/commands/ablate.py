@@ -48,9 +48,16 @@ def ablate(
     ] = None,
     workers: Annotated[int, typer.Option("--workers", min=1, help="Parallel worker processes.")] = 1,
     ray: Annotated[
-        str | None, typer.Option("--ray", help="Run as Ray tasks on this cluster address ('auto' for local).")
+        str | None,
+        typer.Option(
+            "--ray",
+            help="Ray tasks: 'local' (a private Ray on loopback), or a cluster: HOST:PORT, ray://HOST:PORT, auto.",
+        ),
     ] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List the episodes and stop.")] = False,
+    drop_images: Annotated[
+        bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
+    ] = False,
     plots: Annotated[
         bool, typer.Option("--plots", help="Write each run's trajectory.png (slower; off by default).")
     ] = False,
@@ -74,6 +81,8 @@ def ablate(
         if value is not None:
             flags[key] = lib.split_list(value)
     data.update({k: v for k, v in flags.items() if v is not None})
+    if drop_images:
+        data["options"] = {**(data.get("options") or {}), "drop_images": True}
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
     root = path_option(out, "--out") or Path("ablations") / spec.default_name()
     ablation = lib.plan(spec, root)

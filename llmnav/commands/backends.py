@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
+import typer
 from rich.markup import escape
 from rich.table import Table
 
@@ -51,8 +53,19 @@ def collect_rows() -> list[BackendRow]:
 
 
 @cli_errors
-def backends() -> None:
+def backends(
+    check: Annotated[
+        str | None,
+        typer.Option(
+            "--check",
+            metavar="SPEC",
+            help="Probe exactly this backend spec: server reachable, model present, images, JSON Schema.",
+        ),
+    ] = None,
+) -> None:
     """List the model backends, a spec example for each, and whether each is ready to use now."""
+    if check is not None:
+        raise typer.Exit(_check(check))
     table = Table(title="llmnav backends", title_justify="left")
     table.add_column("name", style="bold")
     table.add_column("ready")
@@ -63,3 +76,15 @@ def backends() -> None:
         mark = {True: "[green]yes[/]", False: "[yellow]no[/]", None: "[red]broken[/]"}[row.ready]
         table.add_row(escape(row.name), mark, escape(row.example), escape(row.detail), escape(row.description))
     console.print(table)
+
+
+def _check(spec: str) -> int:
+    """Print one line per check of `spec`; 0 when all passed, 1 otherwise (unknown spec: exit 2)."""
+    from llmnav.backends.base import backend_class
+
+    cls, arg = backend_class(spec)
+    checks = cls.check(arg)
+    for item in checks:
+        mark = {True: "[green]ok[/]  ", False: "[red]no[/]  ", None: "[dim]–[/]   "}[item.ok]
+        console.print(f"{mark}{escape(item.name)}: {escape(item.detail)}", highlight=False, soft_wrap=True)
+    return 0 if all(item.ok is not False for item in checks) else 1

@@ -122,6 +122,9 @@ def drive(
     view_page: Annotated[
         bool, typer.Option("--view", help="Write the run's HTML page (view.html) at the end and print its path.")
     ] = False,
+    drop_images: Annotated[
+        bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
+    ] = False,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
     from llmnav.planners.base import DriveOptions
@@ -158,6 +161,7 @@ def drive(
                 "realtime": realtime,
                 "assist": assist,
                 "obstacles": tuple(_parse_obstacle(o) for o in obstacle or []),
+                "drop_images": drop_images,
             }
         )
     except ValidationError as err:

@@ -58,6 +58,7 @@ class DriveOptions(BaseModel):
     max_tokens: int = Field(default=512, ge=16)
     image_width: int = Field(default=640, ge=16, le=640)
     image_height: int = Field(default=480, ge=16, le=480)
+    drop_images: bool = False  # a model server that rejects images: go on without them instead of stopping
     # waypoints (source B)
     max_generations: int = Field(default=5, ge=1)
     max_replans: int = Field(default=5, ge=0)

@@ -122,13 +122,18 @@ def print_result(console: Console, summary: dict[str, Any]) -> None:
     reason = summary.get("reason") or ""
     console.print(f"[bold {colour}]{esc(outcome)}[/]" + (f" — {esc(reason)}" if reason else ""), highlight=False)
     score = summary.get("score")
-    parts = [
-        f"score {score:.2f}" if isinstance(score, (int, float)) else "score N.A.",
-        f"success {'yes' if summary.get('success') else 'no'}",
+    if outcome == "aborted":  # the final pose of a run cut off by an error is no result
+        parts = ["no score (aborted)"]
+    else:
+        parts = [
+            f"score {score:.2f}" if isinstance(score, (int, float)) else "score N.A.",
+            f"success {'yes' if summary.get('success') else 'no'}",
+        ]
+    parts += [
         f"path {summary.get('path_length_m', 0.0):.2f} m",
         f"iterations {summary.get('iterations')}",
     ]
-    if summary.get("distance_m") is not None:
+    if summary.get("distance_m") is not None and outcome != "aborted":
         parts.append(f"distance to target {summary['distance_m']:.2f} m")
     console.print("  ".join(parts), highlight=False)
     console.print(f"run folder: {esc(summary.get('run_dir'))}", highlight=False, soft_wrap=True)

@@ -1,0 +1,79 @@
+"""`llmnav serve`: serve a GGUF model over OpenAI's API with llama.cpp's server until Ctrl-C.
+
+Data on stdout (the base URL, then the `--backend` value to use, one per line, flushed as soon as the
+model is ready, so a script can read them); everything else on stderr.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from pathlib import Path
+from types import FrameType
+from typing import Annotated
+
+import typer
+
+from llmnav.commands.common import cli_errors, err_console
+
+
+def _stop_on_sigterm(signum: int, frame: FrameType | None) -> None:
+    raise KeyboardInterrupt  # `kill PID` stops the server as cleanly as Ctrl-C
+
+
+@cli_errors
+def serve(
+    model: Annotated[
+        Path | None, typer.Option("--model", help="GGUF model file (default: the embedded SmolLM2-135M).")
+    ] = None,
+    host: Annotated[str, typer.Option("--host", help="Address to listen on (default loopback only).")] = "127.0.0.1",
+    port: Annotated[int, typer.Option("--port", min=0, max=65535, help="TCP port; 0 picks a free one.")] = 8080,
+    parallel: Annotated[
+        int, typer.Option("--parallel", min=1, max=64, help="Slots: requests served at the same time.")
+    ] = 1,
+    n_ctx: Annotated[int, typer.Option("--ctx", min=256, help="Context tokens per slot.")] = 4096,
+    threads: Annotated[
+        int | None, typer.Option("--threads", min=1, help="CPU threads (default: the cores but one).")
+    ] = None,
+    api_key: Annotated[
+        str | None,
+        typer.Option("--api-key", help="Key clients must send as a Bearer token (default $LLMNAV_API_KEY)."),
+    ] = None,
+    alias: Annotated[str, typer.Option("--alias", help="Model name clients use.")] = "local",
+    verbose: Annotated[bool, typer.Option("--verbose", help="Let llama.cpp log to stderr.")] = False,
+) -> None:
+    """Serve a model over HTTP (OpenAI-compatible) so runs and sweep workers can share one loaded copy."""
+    from llmnav.serve import CLIENT_KEY_VARIABLE, KEY_VARIABLE, LOOPBACK, LlamaServer, ServeOptions
+
+    key = api_key or os.environ.get(KEY_VARIABLE, "").strip() or None
+    options = ServeOptions(
+        model=model, host=host, port=port, parallel=parallel, n_ctx=n_ctx, threads=threads, api_key=key,
+        alias=alias, verbose=verbose,
+    )  # fmt: skip
+    server = LlamaServer(options)
+    info = server.start(lambda path: err_console.print(f"loading {path} …", highlight=False, soft_wrap=True))
+    try:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, _stop_on_sigterm)
+        typer.echo(info.url)
+        typer.echo(f"--backend {info.backend_spec}")
+        err_console.print(
+            f"serving {info.model_path.name} on {info.url} — {info.parallel} slot(s) of {info.n_ctx} tokens, "
+            f"{info.threads} thread(s); Ctrl-C stops it",
+            highlight=False,
+            soft_wrap=True,
+        )
+        if info.has_key:
+            err_console.print(f"clients must send the key: set {CLIENT_KEY_VARIABLE} to it", highlight=False)
+        elif info.host != LOOPBACK:
+            err_console.print(
+                f"[yellow]warning:[/] listening on {info.host} with no key: anyone who can reach it can use it",
+                highlight=False,
+            )
+        threading.Event().wait()  # until Ctrl-C / SIGTERM
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+    err_console.print("server stopped", highlight=False)

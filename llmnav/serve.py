@@ -1,0 +1,181 @@
+"""A GGUF model served over HTTP by llama.cpp's own server (through `xllamacpp.Server`), in this process.
+
+The server speaks OpenAI's chat-completions API (`/v1/chat/completions`, `/v1/models`), so any run can
+use it with `--backend openai:<alias>@<url>`. `--parallel N` gives it N slots: N episodes (the workers of
+a sweep) share one loaded model instead of loading one copy each. Each slot gets `n_ctx` tokens of
+context. It listens on 127.0.0.1 unless told otherwise; a key, when given, is required as a Bearer token.
+
+llama.cpp's server installs its own SIGINT/SIGTERM handlers when it starts, which would make Ctrl-C do
+nothing in the Python process; `LlamaServer.start` puts Python's handlers back.
+"""
+
+from __future__ import annotations
+
+import errno
+import signal
+import socket
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from llmnav.backends.local import DEFAULT_N_CTX, PROMPT_CACHE_RAM, default_model_path, default_threads
+from llmnav.backends.local import _gguf_path as gguf_path  # the one check of a model path (exists, GGUF)
+from llmnav.errors import BadInputError, ModelUnavailableError
+
+LOOPBACK = "127.0.0.1"
+DEFAULT_PORT = 8080
+DEFAULT_ALIAS = "local"  # the model name clients use: `--backend openai:local@URL`
+KEY_VARIABLE = "LLMNAV_API_KEY"  # the server's key when --api-key is not given
+CLIENT_KEY_VARIABLE = "OPENAI_API_KEY"  # what the `openai` backend sends as its Bearer token
+
+
+class ServeOptions(BaseModel):
+    """How to serve: which model, where, how many slots, which key."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    model: Path | None = None  # GGUF file; None = the embedded SmolLM2-135M
+    host: str = LOOPBACK
+    port: int = Field(default=DEFAULT_PORT, ge=0, le=65535)  # 0 = any free port
+    parallel: int = Field(default=1, ge=1, le=64)  # slots: requests served at the same time
+    n_ctx: int = Field(default=DEFAULT_N_CTX, ge=256)  # [tokens] context per slot
+    threads: int | None = Field(default=None, ge=1)  # None = the usable cores but one
+    api_key: str | None = None
+    alias: str = Field(default=DEFAULT_ALIAS, min_length=1)
+    verbose: bool = False  # let llama.cpp log every request and timing to stderr
+
+
+@dataclass(frozen=True)
+class ServerInfo:
+    """What a client needs to know about a running server (never the key itself)."""
+
+    model_path: Path
+    host: str
+    port: int
+    alias: str
+    parallel: int
+    n_ctx: int
+    threads: int
+    has_key: bool
+
+    @property
+    def url(self) -> str:
+        """The OpenAI-compatible base URL, e.g. http://127.0.0.1:8080/v1."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{self.port}/v1"
+
+    @property
+    def backend_spec(self) -> str:
+        """The `--backend` value that reaches this server."""
+        return f"openai:{self.alias}@{self.url}"
+
+
+def free_port(host: str = LOOPBACK) -> int:
+    """A port the OS says is free on `host` now (another process may still take it before we do)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.bind((host, 0))
+        return int(sock.getsockname()[1])
+
+
+def check_port(host: str, port: int) -> None:
+    """Raise a one-line BadInputError when `host:port` cannot be bound (in use, or not an address here).
+
+    llama.cpp's server reports every start failure as the same bare RuntimeError, so the common causes are
+    checked first, the way the server itself binds (SO_REUSEADDR: a port in TIME_WAIT is free).
+    """
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((host, port))
+        except OSError as err:
+            if err.errno == errno.EADDRINUSE:
+                raise BadInputError(f"port {port} on {host} is already in use: choose another with --port") from None
+            reason = err.strerror or str(err)
+            raise BadInputError(f"cannot listen on {host}:{port}: {reason}") from None
+
+
+def _import_xllamacpp() -> Any:
+    try:
+        import xllamacpp
+    except ImportError:
+        raise ModelUnavailableError(
+            "serving needs the xllamacpp engine: run `make install` or `pip install xllamacpp`"
+        ) from None
+    return xllamacpp
+
+
+class LlamaServer:
+    """llama.cpp's HTTP server holding one model; a context manager (`with LlamaServer(opts) as info:`)."""
+
+    def __init__(self, options: ServeOptions) -> None:
+        self.options = options
+        self._server: Any = None
+        self.info: ServerInfo | None = None
+
+    def start(self, on_loading: Callable[[Path], None] | None = None) -> ServerInfo:
+        """Load the model and listen; returns once the model is ready. Bad input → one-line error.
+
+        `on_loading(model_path)` is called once the cheap checks passed, before the slow model load.
+        """
+        opts = self.options
+        path = gguf_path(str(opts.model)) if opts.model is not None else default_model_path()
+        port = opts.port or free_port(opts.host)
+        check_port(opts.host, port)
+        xllamacpp = _import_xllamacpp()
+        if on_loading is not None:
+            on_loading(path)
+        threads = opts.threads or default_threads()
+        params = xllamacpp.CommonParams()
+        params.model.path = str(path)
+        params.model_alias = {opts.alias}
+        params.hostnames = [opts.host]
+        params.port = port
+        params.n_parallel = opts.parallel
+        params.n_ctx = opts.n_ctx * opts.parallel  # llama.cpp splits the context evenly among the slots
+        params.cache_prompt = True
+        params.cache_ram_mib = PROMPT_CACHE_RAM
+        params.cpuparams.n_threads = threads
+        params.cpuparams_batch.n_threads = threads
+        params.verbosity = 3 if opts.verbose else 0
+        if opts.api_key:
+            params.api_keys = [opts.api_key]
+        handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self._server = xllamacpp.Server(params)
+        except RuntimeError:
+            raise BadInputError(
+                f"llama.cpp's server did not start on {opts.host}:{port} with {path.name} "
+                "(port taken meanwhile, or a model it cannot load)"
+            ) from None
+        finally:
+            _restore_handlers(handlers)
+        self.info = ServerInfo(
+            path, opts.host, port, opts.alias, opts.parallel, opts.n_ctx, threads, bool(opts.api_key)
+        )
+        return self.info
+
+    def stop(self) -> None:
+        """Stop listening and free the model (llama.cpp shuts its server down when the object goes)."""
+        self._server = None
+
+    def __enter__(self) -> ServerInfo:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _restore_handlers(handlers: dict[signal.Signals, Any]) -> None:
+    """Put back the Python-level signal handlers llama.cpp replaced (only possible in the main thread)."""
+    for sig, handler in handlers.items():
+        if handler is None:  # installed outside Python: leave it
+            continue
+        try:
+            signal.signal(sig, handler)
+        except ValueError:  # not the main thread
+            return
