@@ -91,7 +91,7 @@ def test_valid_sections_load() -> None:
     assert sensors.detector.distance_sigma(2.0) == pytest.approx(0.30)
     assert sensors.detector.occlusion == "center" and not sensors.detector.ideal
     assert sensors.odometry.is_exact and sensors.odometry == OdometryConfig.exact()
-    # Without a section: an ideal detector, and odometry with drift on.
+    # Without a section: an ideal detector and exact odometry (bundled worlds set their own).
     plain = parse_scenario(copy.deepcopy(TINY), "tiny.yaml").sensors
     assert plain.detector == DetectorConfig() and plain.detector.ideal
-    assert not plain.odometry.is_exact
+    assert plain.odometry.is_exact and not OdometryConfig.typical().is_exact
