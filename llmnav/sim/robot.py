@@ -58,6 +58,7 @@ class Robot:
         self._dt = dt  # [s] physics step
         self._body_names = body_names  # shared with the world: body id -> name
         self.odometry = odometry if odometry is not None else OdometryConfig()
+        self._odometry_exact = self.odometry.is_exact  # checked every physics step
         self.max_linear_acc = (
             max_linear_acc if max_linear_acc is not None else max(1.0, 2.0 * spec.max_linear)
         )  # [m/s^2]
@@ -207,7 +208,7 @@ class Robot:
         dyaw = wrap_angle(yaw - self._yaw)
         mid = self._yaw + dyaw / 2.0
         ds = (x - self._x) * math.cos(mid) + (y - self._y) * math.sin(mid)
-        if not self.odometry.is_exact:
+        if not self._odometry_exact:
             ds, dyaw = self._measured(ds, dyaw)
         o = self._odom
         omid = o.yaw + dyaw / 2.0
