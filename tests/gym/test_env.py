@@ -82,10 +82,10 @@ def test_same_seed_same_observations_and_the_seed_reaches_the_sensors() -> None:
 
 
 def test_observation_never_holds_the_true_pose_when_odometry_drifts() -> None:
-    env = FactoryEnv(task_id="T1", start_pose=1)
+    env = FactoryEnv(task_id="T1", start_pose=1)  # the factory's odometry drifts (its scenario file says so)
     try:
+        assert env.scenario.sensors.odometry.wheel_noise_m_per_sqrt_m > 0
         env.reset(seed=0)
-        env.world.robot.odom_noise = 0.05  # a drifting odometry (relative std per increment)
         obs = env.step(factory_action("FRONT", 2.0))[0]
         true = env.world.robot.pose()
         odom = env.world.robot.odom()

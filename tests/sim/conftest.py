@@ -15,7 +15,11 @@ WALL_T = 0.2  # [m] wall thickness
 
 
 def room(robot: str = "pr2", **extra: Any) -> Scenario:
-    """A 10 m x 10 m room; the east wall's face is at x = 2.9, the north wall's face at y = 3.9."""
+    """A 10 m x 10 m room; the east wall's face is at x = 2.9, the north wall's face at y = 3.9.
+
+    Without a `sensors` section its detector is ideal and its odometry exact (the class defaults); tests
+    that want errors pass their own configs.
+    """
     data: dict[str, Any] = {
         "name": "room",
         "robot": robot,
