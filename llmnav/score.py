@@ -477,9 +477,27 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
 
 def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
     """Every table that has data; groups are told apart by `group_keys` (default: the varying keys)."""
+    from llmnav.score_policies import null_policy_table, wording_spread_table, wording_table
+
     keys = list(group_keys) if group_keys is not None else varying_keys(runs)
-    builders = (stepwise_table, path_table, waypoint_table, fsm_table)
+    builders = (
+        stepwise_table, path_table, waypoint_table, fsm_table, null_policy_table, wording_table, wording_spread_table
+    )  # fmt: skip
     return [t for t in (b(runs, keys) for b in builders) if t is not None]
+
+
+def select_table(tables: Sequence[Table], name: str) -> Table:
+    """The table called `name` (`--table`); BadInputError naming the ones there are."""
+    for table in tables:
+        if table.name == name:
+            return table
+    there = ", ".join(t.name for t in tables) or "none"
+    raise BadInputError(f"--table {name}: no such table for these runs (tables: {there})")
+
+
+def problems(runs: Sequence[Run]) -> list[str]:
+    """One line per thing that could not be computed, naming the run it came from."""
+    return [f"{run.run_dir}: {text}" for run in runs for text in run.problems]
 
 
 # --- comparisons --------------------------------------------------------------------------------
