@@ -202,3 +202,20 @@ def test_an_unknown_modality_is_bad_input(tmp_path):
         log.event("llm_call", step=1, request=request(1).to_log(), reply=reply(1).to_log())
     with pytest.raises(BadInputError, match="'telepathy'"):
         ReplayBackend(str(odd))
+
+
+def test_an_older_log_on_the_command_line_is_one_line_exit_2(tmp_path):
+    from typer.testing import CliRunner
+
+    from llmnav.cli import app
+
+    old = tmp_path / "old"
+    with RunLog(old, {"planner": "hybrid", "backend": "local"}) as log:
+        log.event("llm_call", step=1, request=request(1).to_log(), reply=reply(1).to_log())
+    result = CliRunner().invoke(
+        app, ["drive", "--task", "Go to room 101", "--backend", f"replay:{old}", "--out", str(tmp_path / "r")]
+    )
+    assert result.exit_code == 2 and result.stdout == ""
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "'modality'" in lines[0] and "older llmnav" in lines[0]
+    assert not (tmp_path / "r").exists()
