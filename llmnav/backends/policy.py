@@ -28,7 +28,7 @@ import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from llmnav.backends.base import Backend, ChatRequest, ChatResult, Message
+from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult, Message
 from llmnav.errors import BackendSpecError, ModelError
 
 POLICIES = ("first", "random", "keyword")
@@ -180,6 +180,15 @@ class PolicyBackend(Backend):
         if options:
             raise BackendSpecError(f"policy takes no options, got: {', '.join(sorted(options))}")
         self.policy, self.seed = parse_policy(self.arg)
+
+    @classmethod
+    def status(cls, arg: str | None = None) -> BackendStatus:
+        """Always ready: nothing to load or reach."""
+        try:
+            parse_policy(arg)
+        except BackendSpecError as err:
+            return BackendStatus(False, str(err))
+        return BackendStatus(True, "no model: answers from the request's JSON Schema")
 
     def chat(self, request: ChatRequest) -> ChatResult:
         """One answer built from `request.json_schema` (free text when the request has no schema)."""
