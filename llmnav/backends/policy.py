@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import random
 import re
 from collections.abc import Callable, Sequence
@@ -104,10 +105,16 @@ def _number(node: dict[str, Any], policy: str, ctx: _Context, integer: bool) -> 
     high: float | None = node.get("maximum")
     if high is None and node.get("exclusiveMaximum") is not None:
         high = float(node["exclusiveMaximum"]) - step
+    if integer:  # the nearest whole numbers inside the bounds
+        low = None if low is None else math.ceil(low)
+        high = None if high is None else math.floor(high)
     if policy == "random":
         lo = low if low is not None else (high - DEFAULT_NUMBER if high is not None else 0.0)
         hi = high if high is not None else lo + DEFAULT_NUMBER
-        value: float = ctx.rng.randint(int(lo), int(hi)) if integer else round(ctx.rng.uniform(lo, hi), 3)
+        if integer:
+            value: float = ctx.rng.randint(int(lo), max(int(lo), int(hi)))
+        else:
+            value = min(max(round(ctx.rng.uniform(lo, hi), 3), lo), hi)
     else:
         value = DEFAULT_NUMBER
         if low is not None and value < low:
@@ -117,8 +124,14 @@ def _number(node: dict[str, Any], policy: str, ctx: _Context, integer: bool) -> 
     return int(value) if integer else float(value)
 
 
-def instance(schema: dict[str, Any], policy: str, ctx: _Context) -> Any:
-    """A value valid for `schema`, chosen by `policy` (raises ValueError on a schema it cannot satisfy)."""
+def instance(schema: dict[str, Any], policy: str, ctx: _Context, defs: dict[str, Any] | None = None) -> Any:
+    """A value valid for `schema`, chosen by `policy` (raises ValueError on a schema it cannot satisfy).
+
+    `$ref`s point into the root's `$defs` (pydantic's plain `model_json_schema()` keeps them).
+    """
+    defs = schema.get("$defs", defs or {})
+    if "$ref" in schema:
+        return instance(defs[str(schema["$ref"]).rsplit("/", 1)[-1]], policy, ctx, defs)
     if "enum" in schema:
         values = list(schema["enum"])
         if not values:
@@ -128,17 +141,17 @@ def instance(schema: dict[str, Any], policy: str, ctx: _Context) -> Any:
         return schema["const"]
     for key in ("anyOf", "oneOf", "allOf"):
         if key in schema and schema[key]:
-            return instance(schema[key][0], policy, ctx)
+            return instance(schema[key][0], policy, ctx, defs)
     kind = schema.get("type")
     if isinstance(kind, list):
         kind = next((k for k in kind if k != "null"), "null")
     if kind == "object" or "properties" in schema:
         props: dict[str, Any] = schema.get("properties", {})
         required = schema.get("required", list(props))
-        return {name: instance(sub, policy, ctx) for name, sub in props.items() if name in required}
+        return {name: instance(sub, policy, ctx, defs) for name, sub in props.items() if name in required}
     if kind == "array":
         count = max(1, int(schema.get("minItems", 1)))
-        return [instance(schema.get("items", {}), policy, ctx) for _ in range(count)]
+        return [instance(schema.get("items", {}), policy, ctx, defs) for _ in range(count)]
     if kind in ("number", "integer"):
         return _number(schema, policy, ctx, integer=kind == "integer")
     if kind == "boolean":

@@ -86,6 +86,14 @@ def test_every_planner_schema_gets_a_guard_valid_answer(policy, model):
     assert result.outcome == "ok", result.error
 
 
+def test_plain_pydantic_schemas_with_refs_are_followed():
+    schema = StepAction.model_json_schema()  # keeps "$defs" and "$ref", unlike response_schema
+    assert "$defs" in schema
+    for spec in ("policy:first", "policy:random:2"):
+        result = parse_answer(get_backend(spec).chat(ChatRequest((Message("user", "x"),), schema)).text, StepAction)
+        assert result.outcome == "ok", result.error
+
+
 def test_schema_bounds_are_respected():
     schema = {
         "type": "object",
@@ -93,12 +101,14 @@ def test_schema_bounds_are_respected():
             "speed": {"type": "number", "minimum": 2.0, "maximum": 3.0},
             "turn": {"type": "number", "exclusiveMaximum": 0.5},
             "count": {"type": "integer", "minimum": 4, "maximum": 6},
+            "half": {"type": "integer", "minimum": 2.5, "maximum": 3.5},
         },
-        "required": ["speed", "turn", "count"],
+        "required": ["speed", "turn", "count", "half"],
     }
     for spec in ("policy:first", *(f"policy:random:{s}" for s in range(20))):
         got = answer(spec, ChatRequest((Message("user", "x"),), schema))
         assert 2.0 <= got["speed"] <= 3.0 and got["turn"] < 0.5 and 4 <= got["count"] <= 6, (spec, got)
+        assert got["half"] == 3, (spec, got)
 
 
 @pytest.mark.parametrize(
