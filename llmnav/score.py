@@ -188,6 +188,11 @@ def condition_label(run: Run, keys: Sequence[str]) -> str:
     return ", ".join(f"{k}={run.condition.get(k)}" for k in keys)
 
 
+def condition_fields(run: Run, keys: Sequence[str]) -> dict[str, Any]:
+    """The grouping keys' values as separate record fields (tidy CSV: one column per condition key)."""
+    return {k: run.condition.get(k) for k in keys}
+
+
 def _task_sort_key(task: str) -> tuple[Any, ...]:
     digits = "".join(ch for ch in task if ch.isdigit())
     return (task.rstrip("0123456789"), int(digits) if digits else -1, task)
@@ -275,6 +280,7 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             {
                 "task": task,
                 "condition": cond,
+                **condition_fields(group[0], keys),
                 "n": len(group),
                 "successes": successes,
                 "success_rate": successes / len(group),
@@ -365,6 +371,7 @@ def path_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             {
                 "task": task,
                 "condition": cond,
+                **condition_fields(group[0], keys),
                 "n": len(group),
                 "path_length_m": _stats_record(paths),
                 "oracle_length_m": _stats_record(oracle_m),
@@ -406,7 +413,7 @@ def waypoint_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             + [f"{ok}/{len(group)}"]
         )
         records.append(
-            {"command": label, "condition": cond, "n": len(group), "successes": ok}
+            {"command": label, "condition": cond, **condition_fields(group[0], keys), "n": len(group), "successes": ok}
             | {n: _stats_record(v) for n, v in vals.items()}
         )
 
@@ -466,7 +473,8 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             + [MISSING if share is None else f"{share:.0%}" for share in shares.values()]
         )
         records.append(
-            {"task": task, "condition": cond, "n": len(group), "suggestions": suggestions}
+            {"task": task, "condition": cond, **condition_fields(group[0], keys), "n": len(group)}
+            | {"suggestions": suggestions}
             | {n: _stats_record(v) for n, v in vals.items()}
             | {f"share_{n}": share for n, share in shares.items()}
         )

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from llmnav.metrics import CONDITION_KEYS
-from llmnav.score import MISSING, Run, Table, _hashable, _num, _task_sort_key, condition_label
+from llmnav.score import MISSING, Run, Table, _hashable, _num, _task_sort_key, condition_fields, condition_label
 from llmnav.stats import mean_sd
 
 POLICY_PREFIX = "policy:"
@@ -172,6 +172,7 @@ def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             {
                 "task": task,
                 "condition": label,
+                **condition_fields(group[0], keys),
                 "model": best.model.record(),
                 "best_policy": best.policy,
                 "null": best.null.record(),
@@ -225,7 +226,11 @@ def wording_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 [task, label, wording, tally.success_cell(), MISSING if rate is None else f"{rate:.2f}",
                  tally.score_cell()]
             )  # fmt: skip
-            records.append({"task": task, "condition": label, "wording": wording, **tally.record()})
+            first = groups[(task, label)][wording][0]
+            records.append(
+                {"task": task, "condition": label, **condition_fields(first, keys), "wording": wording}
+                | tally.record()
+            )
     return Table("Success and score per task wording", columns, rows, records, name="wording")
 
 
@@ -240,7 +245,9 @@ def wording_spread_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | No
         tallies = [Outcomes.of(group) for group in groups[(task, label)].values()]
         rates = [t.success_rate for t in tallies if t.success_rate is not None]
         scores = [t.score_mean for t in tallies if t.score_mean is not None]
-        record: dict[str, Any] = {"task": task, "condition": label, "wordings": len(tallies)}
+        first = next(iter(groups[(task, label)].values()))[0]
+        record: dict[str, Any] = {"task": task, "condition": label, **condition_fields(first, keys)}
+        record["wordings"] = len(tallies)
         cells = [task, label, str(len(tallies))]
         for name, values in (("success_rate", rates), ("score", scores)):
             _, sd, _ = mean_sd(values)

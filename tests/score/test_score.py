@@ -174,7 +174,7 @@ def test_cli_formats_plot_and_errors(tmp_path: Path) -> None:
     md = cli.invoke(app, ["score", str(runs_dir), "--format", "md"]).output
     assert "| Task | Condition |" in md and "| T1 | lidar_sectors=3 |" in md
     csv_text = cli.invoke(app, ["score", str(runs_dir), "--format", "csv"]).stdout
-    assert csv_text.splitlines()[0].startswith("task,condition,n,successes,success_rate,")
+    assert csv_text.splitlines()[0].startswith("task,condition,lidar_sectors,n,successes,success_rate,")
     bad = cli.invoke(app, ["score", str(tmp_path / "nope")])
     assert bad.exit_code == 2 and "no such file" in bad.output and len(bad.output.strip().splitlines()) == 1
     empty = tmp_path / "empty"

@@ -75,6 +75,7 @@ def test_csv_is_one_tidy_table_and_table_picks_another(policy_runs: Path) -> Non
         ("T2", "backend=local"),
         ("T2", "backend=policy:first"),
     ]
+    assert [r["backend"] for r in rows] == ["local", "policy:first", "policy:random:1", "local", "policy:first"]
     local_t1 = rows[0]
     assert (local_t1["n"], local_t1["successes"]) == ("2", "1")
     assert float(local_t1["score_mean"]) == pytest.approx((1 + FAR) / 2, abs=1e-4)
