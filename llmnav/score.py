@@ -1,9 +1,11 @@
 """`llmnav score`: read run folders, group them by task and condition, and build the sources' tables.
 
 Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
-`build_tables` (stepwise / path / waypoint / FSM tables, only those with data) and `compare_groups`
-(`--compare KEY=A KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`.
-Tables are plain data (`Table`): formatted cells for display and raw numbers for JSON.
+`build_tables` (stepwise / path / waypoint / FSM tables, plus the null-policy and wording tables of
+`llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A KEY=B`). Rendering
+(rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data (`Table`): formatted
+cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a scenario that does not
+load, an oracle that fails) is noted on its `Run` and listed by `problems`, never silently dropped.
 """
 
 from __future__ import annotations
