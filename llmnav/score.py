@@ -325,7 +325,7 @@ def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
         except Exception as err:  # noqa: BLE001 — shown as "—" in the table and reported, never fatal
             run.problem(f"no oracle path length: {type(err).__name__}: {one_line(err)}")
             continue
-        if lengths[key] is None:
+        if lengths[key] is None and run.summary.get("task_kind") == "target":  # others have no target: N.A.
             run.problem("no oracle path length: the oracle found no path from this start pose")
     return lengths
 
