@@ -203,7 +203,7 @@ def run_context(view: RunView) -> dict[str, Any]:
     added = [(p[0], p[1]) for p in (as_pose(o) for o in (raw if isinstance(raw, list) else [])) if p is not None]
     scenario = view.scenario
     if scenario is not None and added:
-        from llmnav.baselines.oracle import with_added_obstacles
+        from llmnav.mapping.targets import with_added_obstacles
 
         scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
     base = draw_base_map(scenario, *page_size(scenario), trajectory=view.trajectory)
