@@ -39,7 +39,9 @@ if TYPE_CHECKING:
 
 MANIFEST_FILE = "manifest.json"
 # The factors an ablation may vary, in the order they appear in keys and tables.
-FACTORS: tuple[str, ...] = ("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist")
+FACTORS: tuple[str, ...] = (
+    "planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording",
+)  # fmt: skip
 DEFAULT_BACKEND = "local"
 _SEED_SPACE = 2**31 - 1  # seeds stay positive 32-bit ints (PyBullet, numpy, model servers)
 
@@ -66,6 +68,7 @@ class GridSpec(BaseModel):
     prompt: list[str] | None = None
     history: list[str] | None = None
     assist: list[str] | None = None
+    wording: list[str] | None = None  # "bundled", "paraphrase:<k>" (llmnav.tasks.in_wording)
     options: dict[str, Any] = {}  # fixed DriveOptions for every episode (max_iterations, image size, ...)
 
     @field_validator("poses")
@@ -75,7 +78,7 @@ class GridSpec(BaseModel):
             raise ValueError("start poses are 1-based and at least one is needed")
         return poses
 
-    @field_validator("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist")
+    @field_validator("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording")
     @classmethod
     def _non_empty(cls, values: list[Any] | None) -> list[Any] | None:
         if values is not None and not values:
@@ -110,10 +113,13 @@ class Episode:
     def spec(self, root: Path, scenario: str, *, plots: bool = False) -> EpisodeSpec:
         """The runner's input for this episode (`plots`: write each run's trajectory.png)."""
         from llmnav.runner import EpisodeSpec
+        from llmnav.tasks import worded_text
 
+        text = worded_text(scenario, self.task_id, str(self.factors.get("wording", "bundled")))
         return EpisodeSpec(
             scenario=scenario,
-            task_id=self.task_id,
+            task_id=None if text else self.task_id,
+            task_text=text,
             start_pose=self.start_pose,
             options=self.options,
             backend=self.backend,
@@ -221,7 +227,7 @@ def _factor_options(factors: dict[str, Any]) -> dict[str, Any]:
     """DriveOptions fields set by the factors (backend is not an option)."""
     options: dict[str, Any] = {}
     for name, value in factors.items():
-        if name == "backend":
+        if name in ("backend", "wording"):
             continue
         if name == "sensing":
             options["sensing"] = tuple(part for part in str(value).split("+") if part)
@@ -235,6 +241,7 @@ def _factor_options(factors: dict[str, Any]) -> dict[str, Any]:
 def expand(grid: GridSpec) -> list[Episode]:
     """Every episode of the grid, in a stable order (task, pose, trial, then factors)."""
     from llmnav.scenario import load_scenario
+    from llmnav.tasks import worded_text
 
     scenario = load_scenario(grid.scenario)
     if grid.tasks == "all":
@@ -264,6 +271,8 @@ def expand(grid: GridSpec) -> list[Episode]:
             raise BadInputError(
                 f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}"
             )
+        for wording in factors.get("wording", []):
+            worded_text(grid.scenario, task_id, str(wording))  # a task without this wording is bad input
         for pose, trial, combo in itertools.product(poses, range(1, grid.trials + 1), combos):
             seed = episode_seed(grid.seed, task_id, pose, trial)
             try:

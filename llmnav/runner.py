@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, ConfigDict
 
 from llmnav.errors import LlmnavError, one_line
-from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, NullView, View
+from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Information, NullView, View
 from llmnav.scenario import resolve_scenario_path
 
 if TYPE_CHECKING:
@@ -78,6 +78,7 @@ def task_record(task: Task) -> dict[str, Any]:
         "kind": task.kind,
         "difficulty": task.difficulty,
         "targets": [t.model_dump(mode="json", exclude_none=True) for t in task.targets],
+        "wording": task.wording,
     }
 
 
@@ -89,6 +90,7 @@ def build_config(
     start: Pose2D,
     prompts: dict[str, str],
     backend: Backend | None,
+    information: str | None = None,
 ) -> dict[str, Any]:
     """The run's first log line: enough to reproduce the episode and to group it in tables."""
     import llmnav
@@ -107,6 +109,7 @@ def build_config(
         "start_pose_index": spec.start_pose,
         "start_pose": start.as_list(),
         "planner": spec.options.planner,
+        "information": information,
         "backend": backend.spec if backend is not None else None,
         "options": spec.options.model_dump(mode="json"),
         "seed": spec.options.seed,
@@ -126,6 +129,7 @@ def run_episode(
     spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None
 ) -> dict[str, Any]:
     """Run one episode and return its summary (also written to `summary.json`)."""
+    from llmnav.knowledge import resolve_information
     from llmnav.planners.base import get_planner
     from llmnav.runlog import RunLog
     from llmnav.sim.world import World
@@ -137,6 +141,7 @@ def run_episode(
     start = resolved.start.pose()
     planner = get_planner(spec.options.planner)
     prompts = prompt_hashes(planner, spec.options)  # an unknown --prompt fails here, before anything loads
+    information = resolve_information(spec.options.planner, scenario, spec.options.information)
 
     # Backend before the run folder: a missing key or engine is bad input and leaves nothing behind.
     backend = backend_obj
@@ -161,9 +166,12 @@ def run_episode(
                 start,
                 prompts,
                 backend,
+                information,
             )
             with RunLog(spec.out_dir, config) as log:
-                return _run_logged(planner, world, scenario, task, backend, log, spec, view or NullView())
+                return _run_logged(
+                    planner, world, scenario, task, backend, log, spec, view or NullView(), information
+                )
     finally:
         if owns_backend and backend is not None:
             backend.close()
@@ -178,8 +186,14 @@ def _run_logged(
     log: RunLog,
     spec: EpisodeSpec,
     view: View,
+    information: Information = "oracle",
 ) -> dict[str, Any]:
-    """Run the planner inside an open log; always end the log, summary and plot."""
+    """Run the planner inside an open log; always end the log, summary and plot.
+
+    The planner gets the scenario as its information mode lets it see it (llmnav.knowledge); the
+    summary is computed on the full scenario.
+    """
+    from llmnav.knowledge import scenario_view
 
     def on_pose(pose: Pose2D, t_sim: float) -> None:
         log.sim_time = t_sim
@@ -188,7 +202,8 @@ def _run_logged(
     world.motion.on_pose = on_pose
     log.sim_time = world.sim_time
     log.event("pose", pose=world.robot.pose().as_list())
-    ctx = EpisodeContext(scenario, task, world, backend, log, spec.options, view)
+    known = scenario_view(scenario, information)
+    ctx = EpisodeContext(known, task, world, backend, log, spec.options, view, information)
     crash: BaseException | None = None
     try:
         outcome = planner.run(ctx)
@@ -218,6 +233,7 @@ def _run_logged(
 
     record = read_run(log.run_dir)
     summary = summarize_run(record, scenario, outcome)
+    summary["information"] = information
     summary["run_dir"] = str(log.run_dir)
     log.write_summary(summary)
     if not spec.plots:

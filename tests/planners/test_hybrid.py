@@ -76,6 +76,11 @@ def drive(
     **options: Any,
 ) -> tuple[dict[str, Any], RunRecord]:
     options.setdefault("sensing", ("lidar",))
+    # These tests exercise the relevance ordering on the true map, as the planner worked before the
+    # information modes (test_information.py covers the neutral, sensed defaults).
+    options.setdefault("menu_order", "relevance")
+    if scenario == "factory":
+        options.setdefault("information", "oracle")
     spec = EpisodeSpec(
         scenario=scenario,
         task_id=task_id,
