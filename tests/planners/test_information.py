@@ -91,12 +91,10 @@ def test_the_sensed_view_holds_no_positions() -> None:
 
 
 def _t8_policy(options: dict[int, str], index: int) -> int:
-    """Go to the boxes when listed (finish once there), else look around once, else explore."""
-    for prefix in ("Go to the dark brown wooden boxes (you are there", "Go to the dark brown wooden boxes"):
-        number = first(options, prefix)
-        if number is not None:
-            return (first(options, "Finish") or number) if "you are there" in prefix else number
-    return first(options, "Turn a full circle") or first(options, "Explore") or 1
+    """Finish at the boxes, else go to them when listed, else look around once, else explore."""
+    at_boxes = first(options, "Finish: the task is done (you are at the dark brown wooden boxes")
+    going = first(options, "Go to the dark brown wooden boxes")
+    return at_boxes or going or first(options, "Turn a full circle") or first(options, "Explore") or 1
 
 
 def test_hybrid_sensed_finds_the_boxes_without_reading_ground_truth(
