@@ -4,8 +4,8 @@ Beyond the three sources. A small local model writes absurd free-form actions bu
 well-described options under a grammar (SPEC E), so each decision offers:
 - go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
   the waypoint source), otherwise only objects the detector has seen, each with distance, bearing and
-  whether its name matches the task;
-- explore a frontier cluster of the robot's own LiDAR map (bearing, distance, size; not offered when
+  (with `--menu-order relevance`) whether its name matches the task;
+- explore a frontier cluster of the robot's own LiDAR map (distance, bearing; not offered when
   the map is published);
 - rotate 360° to scan;
 - finish.
@@ -81,7 +81,7 @@ class HybridConfig:
     obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
     # [tokens] the option number comes first and is complete after ~6 tokens; the cap keeps the reasoning
     # short (the guard closes a cut-off string), which on a loaded CPU saves seconds per decision
-    max_tokens: int = 32
+    max_tokens: int = 16
     arrived_m: float = 0.3  # [m] within this of a visited landmark's stand point the robot is "there"
     rescan_m: float = 1.0  # [m] a full turn within this of the last one shows nothing new: not offered
 
@@ -285,12 +285,12 @@ class HybridPlanner(Planner):
             )
         # With a published map every landmark is listed already: exploring would only distract the model.
         frontiers = [] if ctx.scenario.corridors else self._frontiers(grids[0], lidar_map, pose, sensed)
-        for centre, size in frontiers[: self.cfg.max_frontiers]:
+        for centre, _size in frontiers[: self.cfg.max_frontiers]:
             options.append(
                 Option(
                     0,
                     "frontier",
-                    f"Explore unmapped space ({_where(pose, centre)}, {size} cells)",
+                    f"Explore unmapped space ({_where(pose, centre)})",
                     goal=centre,
                 )
             )
@@ -689,11 +689,7 @@ def _estimate(pose: Pose2D, bearing_deg: float, distance_m: float) -> tuple[floa
 
 
 def _where(pose: Pose2D, point: tuple[float, float]) -> str:
-    """'3.2 m away, 40° to your left' from the robot's point of view."""
+    """'3.2 m, 40° left' from the robot's point of view."""
     bearing = math.degrees(pose.bearing_to(*point))
-    side = (
-        "ahead"
-        if abs(bearing) < 10
-        else (f"{abs(bearing):.0f}° to your left" if bearing > 0 else f"{abs(bearing):.0f}° to your right")
-    )
-    return f"{pose.distance_to(*point):.1f} m away, {side}"
+    side = "ahead" if abs(bearing) < 10 else f"{abs(bearing):.0f}° {'left' if bearing > 0 else 'right'}"
+    return f"{pose.distance_to(*point):.1f} m, {side}"
