@@ -94,7 +94,9 @@ def build_config(
 ) -> dict[str, Any]:
     """The run's first log line: enough to reproduce the episode and to group it in tables."""
     import llmnav
+    from llmnav.backends.base import request_modality
 
+    camera = (spec.options.image_width, spec.options.image_height) if "image" in spec.options.sensing else None
     return {
         "versions": {
             "llmnav": llmnav.__version__,
@@ -111,6 +113,8 @@ def build_config(
         "planner": spec.options.planner,
         "information": information,
         "backend": backend.spec if backend is not None else None,
+        # what the requests carried (replay asks the same): {"modality": "text" | "multimodal", "attachments"}
+        **(request_modality(backend, camera) if backend is not None else {"modality": None, "attachments": []}),
         "options": spec.options.model_dump(mode="json"),
         "seed": spec.options.seed,
         "prompt_hashes": prompts,

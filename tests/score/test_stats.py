@@ -8,28 +8,59 @@ import pytest
 
 from llmnav.stats import compare, compare_summary, describe, hedges_g_summary, mean_sd, welch_summary
 
+# Source C, Table 6, e_pos: FSM 0.246 ± 0.078 vs FSM+LLM 0.159 ± 0.069 m, N = 60 each; published
+# t = 6.52, g = 1.18. The inputs are rounded to 3 decimals, so each lies within ± 0.0005 of its printed
+# value; t and g are monotone in every input (up in mean1, down in mean2, down in both SDs), so their
+# extremes over that box are reached at two corners.
+EPOS_HALF_STEP = 0.0005  # half a unit in the last published digit [m]
 
-def test_table6_epos_from_published_numbers() -> None:
-    # FSM 0.246 ± 0.078 vs FSM+LLM 0.159 ± 0.069, N = 60 each; published t = 6.52, g = 1.18.
+
+def _corners() -> tuple[tuple[float, ...], tuple[float, ...]]:
+    h = EPOS_HALF_STEP
+    low = (0.246 - h, 0.078 + h, 60, 0.159 + h, 0.069 + h, 60)
+    high = (0.246 + h, 0.078 - h, 60, 0.159 - h, 0.069 - h, 60)
+    return low, high
+
+
+def test_table6_epos_rounding_envelope_contains_the_published_t() -> None:
+    low, high = _corners()
+    t_low, t_high = welch_summary(*low).t, welch_summary(*high).t  # type: ignore[arg-type]
+    assert t_low <= 6.52 <= t_high
+    # By hand, the corners give 0.086 / sqrt((0.0785² + 0.0695²) / 60) = 6.354 and
+    # 0.088 / sqrt((0.0775² + 0.0685²) / 60) = 6.590: the envelope is this narrow, so a wrong formula fails.
+    assert t_low == pytest.approx(6.354, abs=2e-3) and t_high == pytest.approx(6.590, abs=2e-3)
+
+
+def test_table6_epos_rounding_envelope_contains_the_published_g() -> None:
+    low, high = _corners()
+    g_low, g_high = hedges_g_summary(*low), hedges_g_summary(*high)  # type: ignore[arg-type]
+    # Published g = 1.18 means 1.175 <= g < 1.185; the envelope must overlap it.
+    assert g_low <= 1.185 and g_high >= 1.175
+    # By hand: J = 1 - 3 / 471 = 0.993631; 0.086 / sqrt((0.0785² + 0.0695²) / 2) * J = 1.1527,
+    # 0.088 / sqrt((0.0775² + 0.0685²) / 2) * J = 1.1956.
+    assert g_low == pytest.approx(1.1527, abs=1e-3) and g_high == pytest.approx(1.1956, abs=1e-3)
+
+
+def test_table6_epos_welch_df_and_p() -> None:
     w = welch_summary(0.246, 0.078, 60, 0.159, 0.069, 60)
-    assert round(w.t, 1) == 6.5
-    assert w.p < 1e-8
-    assert 116 < w.df < 118  # Welch–Satterthwaite, close to 2n - 2 for similar SDs
-    g = hedges_g_summary(0.246, 0.078, 60, 0.159, 0.069, 60)
-    assert 1.17 <= round(g, 2) <= 1.18
+    # By hand: v1 = 0.078²/60 = 1.014e-4, v2 = 0.069²/60 = 7.935e-5;
+    # df = (v1 + v2)² / (v1²/59 + v2²/59) = 3.2671e-8 / 2.8099e-10 = 116.27
+    assert w.df == pytest.approx(116.27, abs=0.05)
+    assert w.p < 1e-8  # t ≈ 6.5 on ~116 df: p ≈ 2e-9
 
 
 @pytest.mark.parametrize("share", [0.3, 0.5, 0.7])
-def test_table6_eta_g_follows_from_the_published_t(share: float) -> None:
-    # eta: FSM 0.821 vs FSM+LLM 0.901, N = 60 each; published t = 10.51, g = 1.91. The SDs are not
-    # published, but with equal N Welch's t depends only on s1^2 + s2^2 and Hedges' g only on their mean,
-    # so the published t fixes exactly what g needs: (0.901 - 0.821) / t = sqrt((s1^2 + s2^2) / 60).
-    # Any split of that total (share) must give t = 10.51 back and g = 1.90-1.91.
-    total = 60 * ((0.901 - 0.821) / 10.51) ** 2
-    sd1, sd2 = math.sqrt(share * total), math.sqrt((1 - share) * total)
-    w = welch_summary(0.901, sd1, 60, 0.821, sd2, 60)
-    assert w.t == pytest.approx(10.51, abs=1e-9)
-    assert 1.90 <= round(hedges_g_summary(0.901, sd1, 60, 0.821, sd2, 60), 2) <= 1.91
+def test_table6_eta_published_t_and_g_agree(share: float) -> None:
+    # eta: FSM 0.821 vs FSM+LLM 0.901, N = 60 each; published t = 10.51, g = 1.91; SDs not published.
+    # With equal N, t fixes s1² + s2² = 60 (Δ / t)², and then g = t * J / sqrt(30) whatever Δ and the split
+    # (share) of the variance: the two published numbers must agree through the library's g. Over the
+    # rounding of t (10.505-10.515) g = 1.9057-1.9075 by hand, inside the published 1.905-1.915.
+    for t_published in (10.505, 10.515):
+        total = 60 * ((0.901 - 0.821) / t_published) ** 2
+        sd1, sd2 = math.sqrt(share * total), math.sqrt((1 - share) * total)
+        g = hedges_g_summary(0.901, sd1, 60, 0.821, sd2, 60)
+        assert 1.905 <= g <= 1.915, (t_published, g)
+        assert g == pytest.approx(t_published * (1 - 3 / 471) / math.sqrt(30), abs=1e-9)
 
 
 def test_hand_computed_welch_and_g() -> None:

@@ -1,0 +1,265 @@
+"""Score tables that ask how much the model adds: null policies on the same episodes, and wordings.
+
+- `null_policy_table`: beside each model condition (task × condition), the best null policy
+  (`policy:first|random|keyword`) run on the same episodes — same scenario, task, wording, task text and
+  start pose, same planner and options except the backend — with success and mean score of both on the
+  episodes they share, the differences (Δ = model − policy) and n beside every mean. A row whose best
+  policy does at least as well as the model says so in its own column: a planner that succeeds whatever
+  the model answers shows up here, not in a footnote.
+- `wording_table` and `wording_spread_table`: success and score per task wording (bundled, paraphrase:K,
+  free), and their spread across wordings, when runs record the wording.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from llmnav.metrics import CONDITION_KEYS
+from llmnav.score import MISSING, Run, Table, _hashable, _num, _task_sort_key, condition_fields, condition_label
+from llmnav.stats import mean_sd
+
+POLICY_PREFIX = "policy:"
+ALL_TASKS = "All tasks"
+
+
+def is_policy(run: Run) -> bool:
+    """Whether a null policy answered this run."""
+    return str(run.summary.get("backend") or "").startswith(POLICY_PREFIX)
+
+
+def _setting(run: Run) -> tuple[Any, ...]:
+    """Everything of the condition but the backend: runs compared with a policy must agree on it."""
+    condition = run.condition
+    return tuple(_hashable(condition.get(k)) for k in CONDITION_KEYS if k != "backend")
+
+
+@dataclass(frozen=True)
+class Outcomes:
+    """Success and score over a set of runs (score only where defined: explore tasks have none)."""
+
+    n: int
+    successes: int
+    score_mean: float | None
+    score_n: int
+
+    @property
+    def success_rate(self) -> float | None:
+        """Share of successful runs."""
+        return self.successes / self.n if self.n else None
+
+    @classmethod
+    def of(cls, runs: Sequence[Run]) -> Outcomes:
+        """Tally `runs`."""
+        scores = [v for v in (_num(r.summary.get("score")) for r in runs) if v is not None]
+        mean, _, n_scores = mean_sd(scores)
+        return cls(len(runs), sum(1 for r in runs if r.summary.get("success")), _finite(mean), n_scores)
+
+    def record(self) -> dict[str, Any]:
+        """Raw numbers for JSON and CSV."""
+        return {
+            "n": self.n,
+            "successes": self.successes,
+            "success_rate": self.success_rate,
+            "score_mean": self.score_mean,
+            "score_n": self.score_n,
+        }
+
+    def success_cell(self) -> str:
+        """`k/n`."""
+        return f"{self.successes}/{self.n}"
+
+    def score_cell(self) -> str:
+        """`0.45 (n=18)`: the mean with its n."""
+        return MISSING if self.score_mean is None else f"{self.score_mean:.2f} (n={self.score_n})"
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
+def _delta(a: float | None, b: float | None) -> float | None:
+    return None if a is None or b is None else a - b
+
+
+def _signed(value: float | None) -> str:
+    return MISSING if value is None else f"{value:+.2f}"
+
+
+@dataclass(frozen=True)
+class PolicyResult:
+    """One null policy against one model group, on the episodes both ran."""
+
+    policy: str
+    model: Outcomes
+    null: Outcomes
+
+    @property
+    def rank(self) -> tuple[float, float]:
+        """Best policy first: highest success rate, then highest mean score."""
+        return (self.null.success_rate or 0.0, self.null.score_mean if self.null.score_mean is not None else -1.0)
+
+
+def _against(model_runs: Sequence[Run], policy_runs: Sequence[Run]) -> PolicyResult | None:
+    """Model and policy outcomes restricted to the episodes both ran (None when they share none)."""
+    shared = {r.episode for r in model_runs} & {r.episode for r in policy_runs}
+    if not shared:
+        return None
+    policy = str(policy_runs[0].summary.get("backend"))
+    return PolicyResult(
+        policy,
+        Outcomes.of([r for r in model_runs if r.episode in shared]),
+        Outcomes.of([r for r in policy_runs if r.episode in shared]),
+    )
+
+
+def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """See the module docstring; None when there is no model run with a matching null-policy run."""
+    nulls: dict[tuple[Any, ...], dict[str, list[Run]]] = defaultdict(lambda: defaultdict(list))
+    for run in runs:
+        if is_policy(run):
+            nulls[_setting(run)][str(run.summary.get("backend"))].append(run)
+    model_runs = [r for r in runs if r.summary.get("backend") and not is_policy(r)]
+    if not nulls or not model_runs:
+        return None
+    groups: dict[tuple[str, str, tuple[Any, ...]], list[Run]] = defaultdict(list)
+    for run in model_runs:
+        label = condition_label(run, keys)
+        groups[(run.task, label, _setting(run))].append(run)
+        groups[(ALL_TASKS, label, _setting(run))].append(run)
+    columns = [
+        "Task", "Condition", "Model success", "Model score", "Best null policy", "Null success", "Null score",
+        "Δ success", "Δ score", "Null ≥ model", "Every null policy (success, score)",
+    ]  # fmt: skip
+    rows, records = [], []
+    order = sorted(groups, key=lambda k: (k[0] == ALL_TASKS, _task_sort_key(k[0]), k[1]))
+    for task, label, setting in order:
+        group = groups[(task, label, setting)]
+        candidates = []
+        for policy_runs in nulls.get(setting, {}).values():
+            if task != ALL_TASKS:
+                policy_runs = [r for r in policy_runs if r.task == task]
+            result = _against(group, policy_runs) if policy_runs else None
+            if result is not None:
+                candidates.append(result)
+        if not candidates:
+            continue
+        candidates.sort(key=lambda c: c.policy)
+        best = max(candidates, key=lambda c: c.rank)  # ties: the alphabetically first policy
+        d_success = _delta(best.model.success_rate, best.null.success_rate)
+        d_score = _delta(best.model.score_mean, best.null.score_mean)
+        matches = (d_success is not None and d_success <= 0) and (d_score is None or d_score <= 0)
+        every = "; ".join(f"{c.policy} {c.null.success_cell()}, {c.null.score_cell()}" for c in candidates)
+        rows.append(
+            [
+                task,
+                label,
+                best.model.success_cell(),
+                best.model.score_cell(),
+                best.policy,
+                best.null.success_cell(),
+                best.null.score_cell(),
+                _signed(d_success),
+                _signed(d_score),
+                "YES" if matches else "no",
+                every,
+            ]
+        )
+        records.append(
+            {
+                "task": task,
+                "condition": label,
+                **condition_fields(group[0], keys),
+                "model": best.model.record(),
+                "best_policy": best.policy,
+                "null": best.null.record(),
+                "delta_success_rate": d_success,
+                "delta_score": d_score,
+                "null_matches_model": matches,
+                "policies": {c.policy: {"model": c.model.record(), "null": c.null.record()} for c in candidates},
+            }
+        )
+    if not rows:
+        return None
+    note = (
+        "model vs the best null policy on the episodes both ran (same scenario, task, wording, start pose and "
+        "options); Δ = model − policy; 'Null ≥ model': the policy matched or beat the model"
+    )
+    return Table("Model vs null policies (same episodes)", columns, rows, records, note, name="null_policies")
+
+
+def _by_wording(runs: Sequence[Run], keys: Sequence[str]) -> dict[tuple[str, str], dict[str, list[Run]]]:
+    """(task, condition) -> wording -> runs, with an 'All tasks' entry per condition."""
+    out: dict[tuple[str, str], dict[str, list[Run]]] = defaultdict(lambda: defaultdict(list))
+    for run in runs:
+        if run.wording is None:
+            continue
+        label = condition_label(run, keys)
+        out[(run.task, label)][run.wording].append(run)
+        out[(ALL_TASKS, label)][run.wording].append(run)
+    return out
+
+
+def _ordered(groups: dict[tuple[str, str], Any]) -> list[tuple[str, str]]:
+    return sorted(groups, key=lambda k: (k[0] == ALL_TASKS, _task_sort_key(k[0]), k[1]))
+
+
+def _wording_order(wording: str) -> tuple[int, str]:
+    return (0 if wording == "bundled" else 2 if wording == "free" else 1, wording)
+
+
+def wording_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Success and score per task × condition × wording; None when no run records its wording."""
+    groups = _by_wording(runs, keys)
+    if not groups:
+        return None
+    columns = ["Task", "Condition", "Wording", "Success", "Success rate", "Score"]
+    rows, records = [], []
+    for task, label in _ordered(groups):
+        for wording in sorted(groups[(task, label)], key=_wording_order):
+            tally = Outcomes.of(groups[(task, label)][wording])
+            rate = tally.success_rate
+            rows.append(
+                [task, label, wording, tally.success_cell(), MISSING if rate is None else f"{rate:.2f}",
+                 tally.score_cell()]
+            )  # fmt: skip
+            first = groups[(task, label)][wording][0]
+            records.append(
+                {"task": task, "condition": label, **condition_fields(first, keys), "wording": wording}
+                | tally.record()
+            )
+    return Table("Success and score per task wording", columns, rows, records, name="wording")
+
+
+def wording_spread_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Spread of success rate and mean score across the wordings of each task × condition."""
+    groups = _by_wording(runs, keys)
+    if not groups:
+        return None
+    columns = ["Task", "Condition", "Wordings", "Success rate min–max", "Range", "SD", "Score min–max", "Range", "SD"]
+    rows, records = [], []
+    for task, label in _ordered(groups):
+        tallies = [Outcomes.of(group) for group in groups[(task, label)].values()]
+        rates = [t.success_rate for t in tallies if t.success_rate is not None]
+        scores = [t.score_mean for t in tallies if t.score_mean is not None]
+        first = next(iter(groups[(task, label)].values()))[0]
+        record: dict[str, Any] = {"task": task, "condition": label, **condition_fields(first, keys)}
+        record["wordings"] = len(tallies)
+        cells = [task, label, str(len(tallies))]
+        for name, values in (("success_rate", rates), ("score", scores)):
+            _, sd, _ = mean_sd(values)
+            low, high = (min(values), max(values)) if values else (None, None)
+            spread = _delta(high, low)
+            record |= {f"{name}_min": low, f"{name}_max": high, f"{name}_range": spread, f"{name}_sd": _finite(sd)}
+            cells += [
+                MISSING if low is None or high is None else f"{low:.2f}–{high:.2f}",
+                MISSING if spread is None else f"{spread:.2f}",
+                MISSING if _finite(sd) is None else f"{sd:.2f}",
+            ]
+        rows.append(cells)
+        records.append(record)
+    note = "spread of the per-wording success rates and mean scores (SD over wordings, n = wordings)"
+    return Table("Spread across task wordings", columns, rows, records, note, name="wording_spread")
