@@ -136,7 +136,6 @@ def run_episode(
     from llmnav.knowledge import resolve_information
     from llmnav.planners.base import get_planner
     from llmnav.runlog import RunLog
-    from llmnav.sim.world import World
     from llmnav.tasks import SEQUENCE_JOIN, resolve_task
 
     texts = spec.task_text.split(SEQUENCE_JOIN) if spec.task_text else None
@@ -156,6 +155,9 @@ def run_episode(
         backend = get_backend(spec.backend)
         owns_backend = True
     try:
+        # Imported only now: pybullet prints a banner on stderr, which bad input above must not precede.
+        from llmnav.sim.world import World
+
         with World(scenario, seed=spec.options.seed, **_world_configs(scenario, spec.options)) as world:
             world.reset(start, seed=spec.options.seed)
             for x, y in spec.options.obstacles:

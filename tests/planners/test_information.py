@@ -144,3 +144,27 @@ def test_stepwise_sensed_reads_the_true_pose_only_to_log_it(
     assert contexts[0].information == "sensed" and contexts[0].scenario.objects == []
     assert summary["information"] == "sensed"
     assert reads and {(what, where, fn) for what, where, fn in reads} == {("robot.pose", "stepwise.py", "_log_action")}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--information", "psychic"], "--information: Input should be 'map', 'sensed' or 'oracle'"),
+        (["--menu-order", "magic"], "--menu-order: Input should be 'distance' or 'relevance'"),
+        (["--information", "map"], "--information map: scenario 'factory' publishes no map"),
+    ],
+)
+def test_bad_modes_on_the_command_line_are_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:
+    import subprocess
+
+    out = tmp_path / "run"
+    command = [sys.executable, "-c", "from llmnav.cli import main; main()", "drive", "--task-id", "T1"]
+    result = subprocess.run(
+        [*command, "--planner", "hybrid", "--backend", "replay:none", *args, "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and message in result.stderr, result.stderr
+    assert not out.exists()
