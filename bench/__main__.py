@@ -5,7 +5,15 @@ from __future__ import annotations
 import importlib
 import sys
 
-MODULES = ["bench.sim", "bench.guard", "bench.local", "bench.decision", "bench.ablate", "bench.calibrate"]
+MODULES = [
+    "bench.sim",
+    "bench.guard",
+    "bench.local",
+    "bench.decision",
+    "bench.ablate",
+    "bench.calibrate",
+    "bench.information",
+]
 
 
 def main() -> int:

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, ConfigDict
 
 from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line
-from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, NullView, View
+from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Information, NullView, View
 from llmnav.scenario import resolve_scenario_path
 
 if TYPE_CHECKING:
@@ -80,6 +80,7 @@ def task_record(task: Task) -> dict[str, Any]:
         "kind": task.kind,
         "difficulty": task.difficulty,
         "targets": [t.model_dump(mode="json", exclude_none=True) for t in task.targets],
+        "wording": task.wording,
     }
 
 
@@ -91,6 +92,7 @@ def build_config(
     start: Pose2D,
     prompts: dict[str, str],
     backend: Backend | None,
+    information: str | None = None,
 ) -> dict[str, Any]:
     """The run's first log line: enough to reproduce the episode and to group it in tables."""
     import llmnav
@@ -111,6 +113,7 @@ def build_config(
         "start_pose_index": spec.start_pose,
         "start_pose": start.as_list(),
         "planner": spec.options.planner,
+        "information": information,
         "backend": backend.spec if backend is not None else None,
         # what the requests carried (replay asks the same): {"modality": "text" | "multimodal", "attachments"}
         **(request_modality(backend, camera) if backend is not None else {"modality": None, "attachments": []}),
@@ -143,9 +146,9 @@ def run_episode(
     spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None
 ) -> dict[str, Any]:
     """Run one episode and return its summary (also written to `summary.json`)."""
+    from llmnav.knowledge import resolve_information
     from llmnav.planners.base import get_planner
     from llmnav.runlog import RunLog
-    from llmnav.sim.world import World
     from llmnav.tasks import SEQUENCE_JOIN, resolve_task
 
     texts = spec.task_text.split(SEQUENCE_JOIN) if spec.task_text else None
@@ -158,6 +161,7 @@ def run_episode(
     check_scenario = getattr(planner, "check_scenario", None)  # a planner that cannot run here: bad input
     if check_scenario is not None:
         check_scenario(scenario)
+    information = resolve_information(spec.options.planner, scenario, spec.options.information)
 
     # Backend before the run folder: a missing key or engine is bad input and leaves nothing behind.
     backend = backend_obj
@@ -170,6 +174,9 @@ def run_episode(
     if backend is not None and spec.options.drop_images:
         backend.drop_images = True
     try:
+        # Imported only now: pybullet prints a banner on stderr, which bad input above must not precede.
+        from llmnav.sim.world import World
+
         with World(scenario, seed=spec.options.seed, **_world_configs(scenario, spec.options)) as world:
             world.reset(start, seed=spec.options.seed)
             for x, y in spec.options.obstacles:
@@ -184,9 +191,12 @@ def run_episode(
                 start,
                 prompts,
                 backend,
+                information,
             )
             with RunLog(spec.out_dir, config) as log:
-                return _run_logged(planner, world, scenario, task, backend, log, spec, view or NullView())
+                return _run_logged(
+                    planner, world, scenario, task, backend, log, spec, view or NullView(), information
+                )
     finally:
         if owns_backend and backend is not None:
             backend.close()
@@ -201,8 +211,14 @@ def _run_logged(
     log: RunLog,
     spec: EpisodeSpec,
     view: View,
+    information: Information = "oracle",
 ) -> dict[str, Any]:
-    """Run the planner inside an open log; always end the log, summary and plot."""
+    """Run the planner inside an open log; always end the log, summary and plot.
+
+    The planner gets the scenario as its information mode lets it see it (llmnav.knowledge); the
+    summary is computed on the full scenario.
+    """
+    from llmnav.knowledge import scenario_view
 
     def on_pose(pose: Pose2D, t_sim: float) -> None:
         log.sim_time = t_sim
@@ -213,7 +229,8 @@ def _run_logged(
     log.event("pose", pose=world.robot.pose().as_list())
     from llmnav.guard.view import PlannerWorld
 
-    ctx = EpisodeContext(scenario, task, PlannerWorld(world, log), backend, log, spec.options, view)
+    known = scenario_view(scenario, information)
+    ctx = EpisodeContext(known, task, PlannerWorld(world, log), backend, log, spec.options, view, information)
     crash: BaseException | None = None
     try:
         outcome = planner.run(ctx)
@@ -250,6 +267,7 @@ def _run_logged(
     if crash is None:
         outcome.metrics = {**outcome.metrics, **planner.summarize(record, scenario, task)}
     summary = summarize_run(record, scenario, outcome)
+    summary["information"] = information
     summary["run_dir"] = str(log.run_dir)
     log.write_summary(summary)
     if not spec.plots:

@@ -149,7 +149,12 @@ class StartPose(_Strict):
 
 
 class Task(_Strict):
-    """A task: its exact text, acceptable targets, kind, difficulty and start poses."""
+    """A task: its exact text, acceptable targets, kind, difficulty and start poses.
+
+    `paraphrases` are other wordings of the same task, as people would say them (same targets and start
+    poses); `wording` says which wording `text` is: "bundled" (the scenario's), "paraphrase:<k>" (1-based)
+    or "free" (typed by a user). Files leave `wording` out; `llmnav.tasks` sets it.
+    """
 
     id: str
     text: str
@@ -157,11 +162,16 @@ class Task(_Strict):
     difficulty: Literal["easy", "medium", "hard"] = "medium"
     targets: list[Target] = []
     start_poses: list[StartPose] = []
+    paraphrases: list[Annotated[str, Field(min_length=1)]] = []
+    wording: Annotated[str, Field(pattern=r"^(bundled|free|paraphrase:[1-9][0-9]*)$")] = "bundled"
 
     @model_validator(mode="after")
     def _targets(self) -> Task:
         if self.kind == "target" and not self.targets:
             raise ValueError("a 'target' task needs at least one target")
+        texts = [" ".join(t.lower().split()) for t in (self.text, *self.paraphrases)]
+        if len(set(texts)) != len(texts):
+            raise ValueError("a paraphrase repeats the task text or another paraphrase")
         return self
 
 
@@ -319,6 +329,8 @@ class Scenario(_Strict):
     obstacles: list[Obstacle] = []
     objects: list[LabelledObject] = []
     corridors: list[Corridor] = []
+    # Whether planners are handed the map (llmnav.knowledge); None: "map" where corridors are listed.
+    default_information: Literal["map", "sensed"] | None = None
     tasks: list[Task] = []
     default_start: StartPose = StartPose(x=0.0, y=0.0)
     sensors: SensorConfig = SensorConfig()

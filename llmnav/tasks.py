@@ -1,11 +1,13 @@
 """Task resolution: turn `--task TEXT` / `--task-id ID` into a scenario and a `Task`.
 
 - `--task-id T3` names a task of the scenario (the factory's T1–T10, ...).
-- `--task TEXT` that equals a scenario task's text (case and a final full stop ignored) is that task.
+- `--task TEXT` that equals a scenario task's text (case and punctuation ignored) is that task; text that
+  equals one of its paraphrases is that task in that wording (`wording` "paraphrase:<k>").
 - Other free text becomes an ad-hoc task whose acceptable targets are the labelled objects the text names:
   a room number ("room 101", "101") matches the objects whose names carry that number; otherwise labels,
   aliases and ids are matched as whole words (the longest names win, so "fire extinguisher" beats "fire").
-  Text that names nothing becomes an exploration task.
+  Text that names nothing becomes an exploration task. Either way its `wording` is "free". The names are
+  the objects' labels and aliases (what people call them), never task sentences.
 - Without `--scenario`, free text picks the scenario whose objects it names (a room number → the first
   corridor scenario with that room), else `factory`.
 - Several `--task` texts form a sequence (for the waypoint planner): one task with id `SEQ` whose text joins
@@ -72,19 +74,56 @@ def named_objects(scenario: Scenario, text: str) -> list[LabelledObject]:
     return [obj for obj in scenario.objects if best.get(obj.id) == longest]
 
 
+def names_in_text(names: list[str], text: str) -> bool:
+    """Whether any of these object names occurs in the text as whole words (plural 's'/'es' accepted)."""
+    norm = _normalise(text)
+    return any(n and _word_pattern(n).search(norm) for n in map(_normalise, names))
+
+
 def adhoc_task(scenario: Scenario, text: str) -> Task:
     """A task for free text: targets the named objects, or explores when it names none."""
     objects = named_objects(scenario, text)
     if not objects:
-        return Task(id=ADHOC_ID, text=text, kind="explore", difficulty="medium")
-    return Task(id=ADHOC_ID, text=text, kind="target", targets=[Target(object=o.id) for o in objects])
+        return Task(id=ADHOC_ID, text=text, kind="explore", difficulty="medium", wording="free")
+    targets = [Target(object=o.id) for o in objects]
+    return Task(id=ADHOC_ID, text=text, kind="target", targets=targets, wording="free")
+
+
+def task_wordings(task: Task) -> list[str]:
+    """The wordings a task can be run in: "bundled", then "paraphrase:1" ... one per paraphrase."""
+    return ["bundled", *(f"paraphrase:{k}" for k in range(1, len(task.paraphrases) + 1))]
+
+
+def in_wording(task: Task, wording: str) -> Task:
+    """The task worded as asked (same id, targets and start poses); bad input names the wordings there are."""
+    if wording == "bundled":
+        return task
+    prefix, _, number = wording.partition(":")
+    if prefix == "paraphrase" and number.isdigit() and 1 <= int(number) <= len(task.paraphrases):
+        return task.model_copy(update={"text": task.paraphrases[int(number) - 1], "wording": wording})
+    known = ", ".join(task_wordings(task))
+    raise BadInputError(f"task '{task.id}' has no wording '{wording}' (wordings: {known})")
+
+
+def worded_text(scenario_name: str, task_id: str, wording: str) -> str | None:
+    """The text that runs a scenario task in a wording (None for "bundled": run it by id).
+
+    The hook of the paraphrase factor (`llmnav ablate --paraphrases`): the runner resolves the text back
+    to the same task, in that wording.
+    """
+    if wording == "bundled":
+        return None
+    return in_wording(task_from_id(load_scenario(scenario_name), task_id), wording).text
 
 
 def task_from_text(scenario: Scenario, text: str) -> Task:
-    """The scenario task with exactly this text, else an ad-hoc task."""
+    """The scenario task with exactly this text or one of its paraphrases, else an ad-hoc task."""
     for task in scenario.tasks:
         if _same_text(task.text, text):
             return task
+        for k, paraphrase in enumerate(task.paraphrases, start=1):
+            if _same_text(paraphrase, text):
+                return in_wording(task, f"paraphrase:{k}")
     return adhoc_task(scenario, text)
 
 
@@ -112,8 +151,9 @@ def default_scenario(texts: list[str] | None, task_id: str | None) -> str:
                 return name
         return DEFAULT_SCENARIO
     text = " ".join(texts or [])
-    for name in names:  # an exact task text wins
-        if any(_same_text(t.text, leg) for t in load_scenario(name).tasks for leg in texts or []):
+    for name in names:  # an exact task text (or paraphrase) wins
+        tasks = load_scenario(name).tasks
+        if any(_same_text(w, leg) for t in tasks for w in (t.text, *t.paraphrases) for leg in texts or []):
             return name
     numbers = _room_numbers(_normalise(text))
     if numbers:

@@ -39,7 +39,6 @@ OTHER_VALUES: dict[str, dict[str, object]] = {
     "hybrid_system": {"robot": "pr2"},
     "hybrid_user": {
         "task": "Go to the pile of pellets",
-        "pose": "x 1.0 m, y 2.0 m, heading 90 deg",
         "last_result": "none yet",
         "observation": "Front distance: 3.2 m",
         "options": "1. go to pellets\n2. rotate 360 degrees",

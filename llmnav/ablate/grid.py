@@ -21,7 +21,9 @@ if TYPE_CHECKING:
     from llmnav.runner import EpisodeSpec
 
 # The factors an ablation may vary, in the order they appear in keys and tables.
-FACTORS: tuple[str, ...] = ("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist")
+FACTORS: tuple[str, ...] = (
+    "planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording",
+)  # fmt: skip
 DEFAULT_BACKEND = "local"
 _SEED_SPACE = 2**31 - 1  # seeds stay positive 32-bit ints (PyBullet, numpy, model servers)
 
@@ -45,6 +47,7 @@ class GridSpec(BaseModel):
     prompt: list[str] | None = None
     history: list[str] | None = None
     assist: list[str] | None = None
+    wording: list[str] | None = None  # "bundled", "paraphrase:<k>" (llmnav.tasks.worded_text)
     options: dict[str, Any] = {}  # fixed DriveOptions for every episode (max_iterations, image size, ...)
 
     @field_validator("name")
@@ -62,7 +65,7 @@ class GridSpec(BaseModel):
             raise ValueError("start poses are 1-based and at least one is needed")
         return poses
 
-    @field_validator("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist")
+    @field_validator("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording")
     @classmethod
     def _non_empty(cls, values: list[Any] | None) -> list[Any] | None:
         if values is not None and not values:
@@ -107,10 +110,13 @@ class Episode:
         episode's first choice.
         """
         from llmnav.runner import EpisodeSpec
+        from llmnav.tasks import worded_text
 
+        text = worded_text(scenario, self.task_id, str(self.factors.get("wording", "bundled")))
         return EpisodeSpec(
             scenario=scenario,
-            task_id=self.task_id,
+            task_id=None if text else self.task_id,
+            task_text=text,
             start_pose=self.start_pose,
             options=self.options,
             backend=self.backend,
@@ -219,7 +225,7 @@ def _factor_options(factors: dict[str, Any]) -> dict[str, Any]:
     """DriveOptions fields set by the factors (backend is not an option)."""
     options: dict[str, Any] = {}
     for name, value in factors.items():
-        if name == "backend":
+        if name in ("backend", "wording"):
             continue
         if name == "sensing":
             parts = tuple(part for part in str(value).split("+") if part)
@@ -234,18 +240,25 @@ def _factor_options(factors: dict[str, Any]) -> dict[str, Any]:
 
 
 def condition(
-    scenario_hash: str, task_id: str, start_pose: int, trial: int, backend: str, options: DriveOptions
+    scenario_hash: str,
+    task_id: str,
+    start_pose: int,
+    trial: int,
+    backend: str,
+    options: DriveOptions,
+    wording: str = "bundled",
 ) -> dict[str, Any]:
     """Everything that decides an episode's result.
 
-    Scenario file content, task, start pose, trial, backend spec (model and URL; secrets redacted), every
-    option (seed included) and the prompt templates used.
+    Scenario file content, task and its wording, start pose, trial, backend spec (model and URL; secrets
+    redacted), every option (seed included) and the prompt templates used.
     """
     from llmnav.backends.http import redact
 
     return {
         "scenario_sha256": scenario_hash,
         "task": task_id,
+        "wording": wording,
         "start_pose": start_pose,
         "trial": trial,
         "backend": redact(backend.strip()),
@@ -286,6 +299,7 @@ def check_backend(spec: str) -> None:
 def expand(grid: GridSpec) -> list[Episode]:
     """Every episode of the grid, in a stable order (task, pose, trial, then factors)."""
     from llmnav.scenario import load_scenario, resolve_scenario_path
+    from llmnav.tasks import worded_text
 
     scenario = load_scenario(grid.scenario)
     scenario_hash = hashlib.sha256(resolve_scenario_path(grid.scenario).read_bytes()).hexdigest()
@@ -318,6 +332,8 @@ def expand(grid: GridSpec) -> list[Episode]:
             raise BadInputError(
                 f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}"
             )
+        for wording in factors.get("wording", []):
+            worded_text(grid.scenario, task_id, str(wording))  # a task without this wording is bad input
         for pose, trial, combo in itertools.product(poses, range(1, grid.trials + 1), combos):
             seed = episode_seed(grid.seed, task_id, pose, trial)
             try:
@@ -328,7 +344,8 @@ def expand(grid: GridSpec) -> list[Episode]:
                 raise BadInputError(f"grid value: {_validation_message(err)}") from None
             key = episode_key(task_id, pose, trial, {k: v for k, v in combo.items() if k in varying})
             backend = str(combo.get("backend", (grid.backend or [DEFAULT_BACKEND])[0]))
-            cond = condition(scenario_hash, task_id, pose, trial, backend, options)
+            wording = str(combo.get("wording", "bundled"))
+            cond = condition(scenario_hash, task_id, pose, trial, backend, options, wording)
             episodes.append(
                 Episode(
                     key, _dir_name(key), task_id, pose, trial, seed, combo, backend, options,

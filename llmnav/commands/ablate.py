@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from llmnav.commands.common import cli_errors, console, err_console, esc, path_option
+from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
     from llmnav.ablate import Ablation, ManifestEntry
@@ -37,6 +38,12 @@ def ablate(
     backend: Annotated[str | None, typer.Option("--backend", help=f"Backend specs ({_LIST}).")] = None,
     assist: Annotated[str | None, typer.Option("--assist", help=f"none, ema, llm ({_LIST}).")] = None,
     planner: Annotated[str | None, typer.Option("--planner", help=f"Planners ({_LIST}).")] = None,
+    wording: Annotated[
+        str | None, typer.Option("--wording", help=f"Task wordings: bundled, paraphrase:K ({_LIST}).")
+    ] = None,
+    paraphrases: Annotated[
+        bool, typer.Option("--paraphrases", help="Wording as a factor: bundled and paraphrases 1-3.")
+    ] = False,
     grid: Annotated[
         Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")
     ] = None,
@@ -76,10 +83,14 @@ def ablate(
         flags["poses"] = lib.parse_poses(poses)
     for key, value in (
         ("lidar_sectors", lidar_sectors), ("prompt", prompt), ("history", history), ("sensing", sensing),
-        ("backend", backend), ("assist", assist), ("planner", planner),
+        ("backend", backend), ("assist", assist), ("planner", planner), ("wording", wording),
     ):  # fmt: skip
         if value is not None:
             flags[key] = lib.split_list(value)
+    if paraphrases:
+        if wording is not None:
+            raise BadInputError("give --paraphrases or --wording, not both")
+        flags["wording"] = ["bundled", *(f"paraphrase:{k}" for k in range(1, 4))]
     data.update({k: v for k, v in flags.items() if v is not None})
     if drop_images:
         data["options"] = {**(data.get("options") or {}), "drop_images": True}

@@ -86,6 +86,13 @@ def drive(
     planner: Annotated[
         str, typer.Option(help="stepwise | waypoints | fsm | hybrid | oracle | frontier")
     ] = "hybrid",
+    information: Annotated[
+        str | None,
+        typer.Option(help="What the planner may know: map | sensed | oracle (default: map where published)."),
+    ] = None,
+    menu_order: Annotated[
+        str, typer.Option("--menu-order", help="Hybrid menu order: distance (neutral) | relevance.")
+    ] = "distance",
     sensing: Annotated[str, typer.Option(help="Comma list of lidar, image, detections.")] = "lidar,image",
     lidar_sectors: Annotated[int, typer.Option("--lidar-sectors", help="LiDAR sectors in the summary.")] = 8,
     lidar_fov: Annotated[
@@ -150,6 +157,8 @@ def drive(
         options = DriveOptions.model_validate(
             {
                 "planner": planner,
+                "information": information,
+                "menu_order": menu_order,
                 "sensing": _parse_sensing(sensing),
                 "lidar_sectors": lidar_sectors,
                 "lidar_fov_deg": lidar_fov,

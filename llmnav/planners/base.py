@@ -34,6 +34,9 @@ if TYPE_CHECKING:
 
 PLANNER_GROUP = "llmnav.planners"
 Outcome = Literal["completed", "failed", "aborted"]
+# What a planner may know (see llmnav.knowledge): a published map, only its own sensors, or ground truth.
+Information = Literal["map", "sensed", "oracle"]
+MenuOrder = Literal["distance", "relevance"]
 
 
 class DriveOptions(BaseModel):
@@ -42,6 +45,8 @@ class DriveOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     planner: str = "hybrid"  # a name registered under the `llmnav.planners` entry-point group
+    information: Information | None = None  # None: the planner's default for the scenario (llmnav.knowledge)
+    menu_order: MenuOrder = "distance"  # hybrid: neutral by distance, or "relevance" (task-name matching first)
     sensing: tuple[Literal["lidar", "image", "detections"], ...] = ("lidar", "image")
     lidar_sectors: int = Field(default=8, ge=1, le=72)
     lidar_fov_deg: float = Field(default=90.0, gt=0, le=360)
@@ -130,6 +135,8 @@ class EpisodeContext:
     log: RunLog
     options: DriveOptions
     view: View = field(default_factory=NullView)
+    # What the planner may know (llmnav.knowledge); with "sensed", `scenario` is a view without positions.
+    information: Information = "oracle"
 
     def chat(self, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
         """Send `request` to the backend, logged as an `llm_call` event (see `llmnav.observe.call_model`)."""

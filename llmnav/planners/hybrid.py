@@ -4,17 +4,28 @@ Beyond the three sources. A small local model writes absurd free-form actions bu
 well-described options under a grammar (docs/sources.md, M), so each decision offers:
 - go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
   the waypoint source), otherwise only objects the detector has seen, each with distance, bearing and
-  whether its name matches the task;
-- explore a frontier cluster of the robot's own LiDAR map (bearing, distance, size; not offered when
+  (with `--menu-order relevance`) whether its name matches the task;
+- explore a frontier cluster of the robot's own LiDAR map (distance, bearing; not offered when
   the map is published);
 - rotate 360° to scan;
 - finish.
 The answer's schema restricts `option` to the listed numbers, and it still passes the guard.
 
-The menu is ordered for a weak model, which favours the first and the last entry: while nothing the task
-names is known, looking around (once per spot) and exploring come first; a named landmark comes first
-once known; at it, the menu shrinks to Finish (and one more look); an unfinished task never lists Finish
-last. The texts carry all the information whatever the order.
+What the planner knows follows the episode's information mode (llmnav.knowledge):
+- `map` (corridor worlds): the published map's walls and objects; landmarks are its labelled objects.
+- `sensed` (the default without a published map): pose from odometry; obstacles only from its own LiDAR
+  map, unknown space blocked and inflated as the frontier baseline treats it; landmarks are positions
+  estimated from detections (range and bearing, placed with the odometry pose) and averaged as they are
+  seen again; arrival is judged from those estimates. It never reads the scenario's objects, walls or
+  goal points, nor the true pose.
+- `oracle`: the true grid and goal points (how the planner worked before the modes existed).
+
+The menu order (`--menu-order`): `distance` (default) is neutral: landmarks and frontiers by distance
+(ties by kind, then name), then the full turn, then Finish, with no hint drawn from the task. `relevance`
+is ordered for a weak model that favours the first and the last entry, using name matching of the task
+against object names: while nothing the task names is known, looking around (once per spot) and
+exploring come first; a named landmark comes first once known; at it, the menu shrinks to Finish (and one
+more look); an unfinished task never lists Finish last.
 
 The chosen option runs through A* and `Motion.go_to`. Paths are planned on a grid roomy enough for the
 veto's swept rectangle (falling back to the plain grid), plus whatever the LiDAR has hit away from every
@@ -34,12 +45,18 @@ from llmnav.chat import ChatRequest, Message
 from llmnav.geometry import Pose2D
 from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 
+# [m] goals for a frontier lie within the grid's inflation plus this of one of its cells (sensed mode:
+# unknown space is inflated, so the frontier cells themselves are never free)
+FRONTIER_GOAL_BAND_M = 0.25
+
 if TYPE_CHECKING:
     from llmnav.guard.parse import GuardResult
     from llmnav.guard.schemas import HybridChoice
     from llmnav.mapping.grid import LidarMap, OccupancyGrid
     from llmnav.observe import Observation
+    from llmnav.scenario import Scenario
     from llmnav.sim.motion import MotionResult
+    from llmnav.sim.sensors import Detection
 
 OptionKind = Literal["landmark", "frontier", "scan", "complete"]
 
@@ -62,7 +79,9 @@ class HybridConfig:
     # [m] extra clearance around such hits: the LiDAR sees only an obstacle's near face, not its depth
     unseen_depth_m: float = 0.25
     obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
-    max_tokens: int = 96  # [tokens] an option number and a sentence of reasoning
+    # [tokens] the option number comes first and is complete after ~6 tokens; the cap keeps the reasoning
+    # short (the guard closes a cut-off string), which on a loaded CPU saves seconds per decision
+    max_tokens: int = 16
     arrived_m: float = 0.3  # [m] within this of a visited landmark's stand point the robot is "there"
     rescan_m: float = 1.0  # [m] a full turn within this of the last one shows nothing new: not offered
 
@@ -84,11 +103,13 @@ class Memory:
     """What the planner knows across decisions."""
 
     landmarks: dict[str, tuple[float, float]] = field(default_factory=dict)  # id -> estimated position [m]
+    labels: dict[str, str] = field(default_factory=dict)  # id -> the name the detector (or map) gives it
+    sightings: dict[str, tuple[float, float, int]] = field(default_factory=dict)  # id -> (sum x, sum y, n)
     visited: set[str] = field(default_factory=set)
     wanted: set[str] = field(default_factory=set)  # objects the task names
     scans: int = 0  # full turns made so far
     scanned_at: tuple[float, float] | None = None  # [m] where the last full turn was made
-    last_result: str = "This is the first decision."
+    last_result: str = "nothing yet (first decision)"
 
 
 class HybridPlanner(Planner):
@@ -115,37 +136,48 @@ class HybridPlanner(Planner):
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
-        from llmnav.mapping.grid import GridConfig, LidarMap, build_grid, inflate
+        from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate
         from llmnav.observe import observe
         from llmnav.tasks import named_objects
 
         world, scenario = ctx.world, ctx.scenario
-        grid = build_grid(scenario)
+        sensed = ctx.information == "sensed"
         # A roomier grid whose paths and stand points the veto accepts: its swept rectangle reaches
         # `hypot(stop + r, r + margin)` from a leg's end, more than a round robot's clearance on `grid`.
         radius = world.robot.spec.radius_m
         reach = math.hypot(self.cfg.veto_stop_margin_m + radius, radius + self.cfg.veto_margin_m)
-        margin = max(GridConfig().margin_m, reach - radius + grid.geometry.resolution)
-        roomy = build_grid(scenario, config=GridConfig(margin_m=margin))
-        lidar_map = LidarMap(grid.geometry)
-        near_known = inflate(grid.occupied, self.cfg.unexpected_m, grid.geometry.resolution)
-        memory = Memory(wanted={o.id for o in named_objects(scenario, ctx.task.text)})
-        if scenario.corridors:  # a published map: every labelled object is known up front
-            memory.landmarks = {o.id: o.goal_point for o in scenario.objects}
+        geometry = GridGeometry.from_bounds(scenario.bounds, GridConfig().resolution_m)
+        margins = (max(GridConfig().margin_m, reach - radius + geometry.resolution), GridConfig().margin_m)
+        lidar_map = LidarMap(geometry)
+        if sensed:
+            static: list[OccupancyGrid] = []
+            near_known = None
+            memory = Memory()
+        else:
+            static = [build_grid(scenario, config=GridConfig(margin_m=m)) for m in margins]
+            near_known = inflate(static[1].occupied, self.cfg.unexpected_m, geometry.resolution)
+            wanted = {o.id for o in named_objects(scenario, ctx.task.text)} if self._relevance(ctx) else set()
+            memory = Memory(wanted=wanted, labels={o.id: o.label for o in scenario.objects})
+            if scenario.corridors:  # a published map: every labelled object is known up front
+                memory.landmarks = {o.id: o.goal_point for o in scenario.objects}
         # (The runner logs the start pose and every trajectory sample; nothing to hook here.)
         json_errors = vetoes = 0
 
         for step in range(1, ctx.options.max_iterations + 1):
             ctx.log.sim_time = world.sim_time
             obs = observe(world, ctx.options, ctx.log, step)
-            lidar_map.integrate(obs.pose, obs.scan)
-            self._remember(memory, obs)
+            pose = obs.odom if sensed else obs.pose
+            lidar_map.integrate(pose, obs.scan)
+            self._remember(ctx, memory, pose, obs.detections)
             if "detections" not in ctx.options.sensing:
                 # The menu is built from what the detector sees, whether or not the model is shown it.
                 self._look(ctx, memory)
-            grids = [_with_seen_obstacles(g, lidar_map, near_known, self.cfg.unseen_depth_m) for g in (roomy, grid)]
-            options = self._options(ctx, grids, lidar_map, memory, obs.pose)
-            choice, errors = self._choose(ctx, obs, options, memory, step)
+            if sensed:
+                grids = [_sensed_grid(lidar_map, scenario, radius + m) for m in margins]
+            else:
+                grids = [_with_seen_obstacles(g, lidar_map, near_known, self.cfg.unseen_depth_m) for g in static]
+            options = self._options(ctx, grids, lidar_map, memory, pose)
+            choice, errors = self._choose(ctx, obs, pose, options, memory, step)
             json_errors += errors
             if choice is None:
                 return EpisodeOutcome(
@@ -163,8 +195,8 @@ class HybridPlanner(Planner):
                     command="COMPLETE",
                     parameters=0,
                     option=option.text,
-                    pose_before=obs.pose.as_list(),
-                    pose_after=obs.pose.as_list(),
+                    pose_before=pose.as_list(),
+                    pose_after=pose.as_list(),
                     collided=False,
                 )
                 return EpisodeOutcome(
@@ -186,11 +218,37 @@ class HybridPlanner(Planner):
         )
 
     # --- perception memory ----------------------------------------------------------------------
+    def _remember(self, ctx: EpisodeContext, memory: Memory, pose: Pose2D, detections: list[Detection]) -> set[str]:
+        """Add detections seen from `pose` to the landmark memory; the ids it did not know before.
+
+        Sensed: each landmark is the mean of its estimates so far (noise averages out as it is seen
+        again). Otherwise the latest estimate stands (a published map's position is never replaced).
+        """
+        from llmnav.tasks import names_in_text
+
+        new: set[str] = set()
+        for det in detections:
+            oid = det.object_id
+            if oid not in memory.landmarks:
+                new.add(oid)
+            seen = _estimate(pose, det.bearing_deg, det.distance_m)
+            if ctx.information == "sensed":
+                sx, sy, n = memory.sightings.get(oid, (0.0, 0.0, 0))
+                memory.sightings[oid] = (sx + seen[0], sy + seen[1], n + 1)
+                memory.landmarks[oid] = ((sx + seen[0]) / (n + 1), (sy + seen[1]) / (n + 1))
+                memory.labels.setdefault(oid, det.label)
+                if self._relevance(ctx) and names_in_text([det.label], ctx.task.text):
+                    memory.wanted.add(oid)
+            elif oid in new or not ctx.scenario.corridors:
+                memory.landmarks[oid] = seen
+        return new
+
     @staticmethod
-    def _remember(memory: Memory, obs: Observation) -> None:
-        """Add the observation's detections to the landmark memory."""
-        for det in obs.detections:
-            memory.landmarks[det.object_id] = _estimate(obs.pose, det.bearing_deg, det.distance_m)
+    def _relevance(ctx: EpisodeContext) -> bool:
+        return ctx.options.menu_order == "relevance"
+
+    def _label(self, ctx: EpisodeContext, memory: Memory, object_id: str) -> str:
+        return memory.labels.get(object_id, object_id)
 
     # --- the menu -------------------------------------------------------------------------------
     def _options(
@@ -208,9 +266,11 @@ class HybridPlanner(Planner):
             memory.landmarks.items(),
             key=lambda item: (item[0] not in wanted, pose.distance_to(*item[1])),
         )
+        sensed = ctx.information == "sensed"
         for object_id, position in ranked[: self.cfg.max_landmarks]:
-            obj = ctx.scenario.object(object_id)
-            goal = self._approach(grids, obj.goal, position, pose)
+            # Sensed: the detector measures to the object's goal point, so the estimate is that point.
+            true_goal = None if sensed else ctx.scenario.object(object_id).goal
+            goal = self._approach(grids, position if sensed else true_goal, position, pose)
             if goal is None:
                 continue
             notes = []
@@ -224,24 +284,51 @@ class HybridPlanner(Planner):
                 Option(
                     0,
                     "landmark",
-                    f"Go to {_named(obj.label)} ({where})" + (f" — {'; '.join(notes)}" if notes else ""),
+                    f"Go to {_named(self._label(ctx, memory, object_id))} ({where})"
+                    + (f" — {'; '.join(notes)}" if notes else ""),
                     goal=goal,
-                    face=obj.center,
+                    face=position if sensed else ctx.scenario.object(object_id).center,
                     landmark_id=object_id,
                 )
             )
         # With a published map every landmark is listed already: exploring would only distract the model.
-        frontiers = [] if ctx.scenario.corridors else self._frontiers(grids[0], lidar_map, pose)
-        for centre, size in frontiers[: self.cfg.max_frontiers]:
+        frontiers = [] if ctx.scenario.corridors else self._frontiers(grids[0], lidar_map, pose, sensed)
+        for centre, _size in frontiers[: self.cfg.max_frontiers]:
             options.append(
                 Option(
                     0,
                     "frontier",
-                    f"Explore unmapped space ({_where(pose, centre)}, {size} cells)",
+                    f"Explore unmapped space ({_where(pose, centre)})",
                     goal=centre,
                 )
             )
         scan = Option(0, "scan", "Turn a full circle in place to look around")
+        scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < self.cfg.rescan_m
+        # A second full turn on the same spot shows nothing new (the world is static): not offered.
+        turn = [] if scanned_here else [scan]
+        if not self._relevance(ctx):
+            # Neutral: every place by distance (ties: landmarks first, then by name), a look, then Finish.
+            # Going to where the robot already stands does nothing, so that entry becomes a fact in the
+            # Finish line instead (whatever the task is).
+            here = [
+                o
+                for o in options
+                if o.kind == "landmark" and o.goal and pose.distance_to(*o.goal) <= self.cfg.arrived_m
+            ]
+            moves = sorted(
+                (o for o in options if o not in here),
+                key=lambda o: (
+                    round(pose.distance_to(*o.goal), 1) if o.goal is not None else 0.0,
+                    o.kind != "landmark",
+                    o.text,
+                ),
+            )
+            at = "; ".join(_named(self._label(ctx, memory, o.landmark_id or "")) for o in here)
+            finish = Option(0, "complete", "Finish: the task is done" + (f" (you are at {at})" if at else ""))
+            options = [*moves, *turn, finish]
+            for number, option in enumerate(options, start=1):
+                option.number = number
+            return options
         options.append(scan)
         arrived = [
             o
@@ -254,7 +341,7 @@ class HybridPlanner(Planner):
         # A task that names nothing (turn around, look around) is served by the scan, then by finishing.
         turning_task = not wanted and ctx.task.kind in ("rotate", "explore")
         if arrived:
-            done = f" — you are at {_named(ctx.scenario.object(arrived[0].landmark_id or '').label)}"
+            done = f" — you are at {_named(self._label(ctx, memory, arrived[0].landmark_id or ''))}"
         elif turning_task and memory.scans:
             done = " — you have turned a full circle and looked around"
         else:
@@ -266,9 +353,6 @@ class HybridPlanner(Planner):
         # Going to where the robot already stands does nothing: once there, that entry only distracts.
         others = [o for o in options if o.kind == "landmark" and o not in useful and o not in arrived]
         frontier = [o for o in options if o.kind == "frontier"]
-        scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < self.cfg.rescan_m
-        # A second full turn on the same spot shows nothing new (the world is static): not offered.
-        turn = [] if scanned_here else [scan]
         if done:
             # At what the task names (or after the asked-for turn) nothing else serves the task: a short
             # menu keeps a weak model from wandering off (measured: it did, at random, from a full one).
@@ -313,31 +397,48 @@ class HybridPlanner(Planner):
         return None
 
     def _frontiers(
-        self, grid: OccupancyGrid, lidar_map: LidarMap, pose: Pose2D
+        self, grid: OccupancyGrid, lidar_map: LidarMap, pose: Pose2D, sensed: bool = False
     ) -> list[tuple[tuple[float, float], int]]:
-        """Frontier clusters (known-free cells next to unknown ones), as reachable target points and sizes."""
+        """Frontier clusters (known-free cells next to unknown ones), as reachable target points and sizes.
+
+        With a static map the point is the cluster cell nearest its centroid (free, on the frontier). Sensed,
+        unknown space is inflated, so no frontier cell is free: the point is the free cell within the
+        inflation plus `FRONTIER_GOAL_BAND_M` of the cluster that lies nearest its centroid.
+        """
         import numpy as np
         from scipy import ndimage
 
-        free = lidar_map.free & ~grid.blocked
+        free = lidar_map.free if sensed else lidar_map.free & ~grid.blocked
         unknown = lidar_map.unknown
         frontier = free & ndimage.binary_dilation(unknown, structure=np.ones((3, 3), bool))
         labels, count = ndimage.label(frontier, structure=np.ones((3, 3), bool))
+        if sensed and count:
+            distance, (near_r, near_c) = ndimage.distance_transform_edt(labels == 0, return_indices=True)
+            reach = (grid.inflation_m + FRONTIER_GOAL_BAND_M) / grid.geometry.resolution
+            # Each free cell near a frontier serves the cluster of its nearest frontier cell.
+            goal_label = np.where((distance <= reach) & ~grid.blocked, labels[near_r, near_c], 0)
         out: list[tuple[tuple[float, float], int]] = []
         for index in range(1, count + 1):
             rows, cols = np.nonzero(labels == index)
             if rows.size < self.cfg.frontier_min_cells:
                 continue
-            # The cluster cell nearest its centroid is free and lies on the frontier itself.
             centre_r, centre_c = rows.mean(), cols.mean()
-            best = int(np.argmin((rows - centre_r) ** 2 + (cols - centre_c) ** 2))
-            out.append((grid.geometry.cell_to_world(int(rows[best]), int(cols[best])), int(rows.size)))
+            if sensed:
+                rows_g, cols_g = np.nonzero(goal_label == index)
+                if rows_g.size == 0:
+                    continue
+                best = int(np.argmin((rows_g - centre_r) ** 2 + (cols_g - centre_c) ** 2))
+                point = grid.geometry.cell_to_world(int(rows_g[best]), int(cols_g[best]))
+            else:
+                best = int(np.argmin((rows - centre_r) ** 2 + (cols - centre_c) ** 2))
+                point = grid.geometry.cell_to_world(int(rows[best]), int(cols[best]))
+            out.append((point, int(rows.size)))
         out.sort(key=lambda item: pose.distance_to(*item[0]))
         return out
 
     # --- asking the model ---------------------------------------------------------------------
     def _choose(
-        self, ctx: EpisodeContext, obs: Observation, options: list[Option], memory: Memory, step: int
+        self, ctx: EpisodeContext, obs: Observation, pose: Pose2D, options: list[Option], memory: Memory, step: int
     ) -> tuple[int | None, int]:
         """The model's option number through the guard (bounded corrections); (None, errors) on failure."""
         from llmnav.guard.parse import correction_message, parse_answer
@@ -356,12 +457,13 @@ class HybridPlanner(Planner):
             schema["required"] = ["option", *[k for k in schema["required"] if k != "option"]]
         menu = "\n".join(f"{o.number}. {o.text}" for o in options)
         system = render("hybrid_system", robot=ctx.world.robot.spec.name)
+        # Only the detections are shown: the LiDAR feeds the map and the veto (its sector table would
+        # triple the prompt), and an image travels beside the text to a multimodal backend.
         user = render(
             "hybrid_user",
             task=ctx.task.text,
-            pose=_pose_text(obs.pose),
             last_result=memory.last_result,
-            observation=obs.text(),
+            observation=obs.detections_text or "",
             options=menu,
         )
         images = (obs.image,) if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal else ()
@@ -399,7 +501,7 @@ class HybridPlanner(Planner):
     ) -> tuple[str, int, bool]:
         """Run one option; returns (what happened, vetoes, collided)."""
         world = ctx.world
-        before = world.robot.pose()
+        before = self._pose(ctx)
         if option.kind == "scan":
             new = False
             for _ in range(4):
@@ -417,11 +519,11 @@ class HybridPlanner(Planner):
         if legs is None:
             return f"No collision-free path to: {option.text}.", 0, False
         for x, y in legs:
-            pose = world.robot.pose()
+            pose = self._pose(ctx)
             turn = math.remainder(math.atan2(y - pose.y, x - pose.x) - pose.yaw, math.tau)
             if abs(turn) > 0.087:
                 world.motion.rotate(turn)
-            length = world.robot.pose().distance_to(x, y)
+            length = self._pose(ctx).distance_to(x, y)
             verdict = self._veto(ctx, lidar_map, length)
             if verdict is not None:
                 ctx.log.event("guard", step=step, attempt=0, outcome="veto", error=verdict)
@@ -443,12 +545,12 @@ class HybridPlanner(Planner):
                 self._log_action(ctx, step, "GOTO", length, before, result)
                 return "Stopped exploring early: something the task may be about came into view.", 0, False
         if option.face is not None:
-            pose = world.robot.pose()
+            pose = self._pose(ctx)
             turn = math.remainder(math.atan2(option.face[1] - pose.y, option.face[0] - pose.x) - pose.yaw, math.tau)
             world.motion.rotate(turn)
         if option.landmark_id is not None:
             memory.visited.add(option.landmark_id)
-        after = world.robot.pose()
+        after = self._pose(ctx)
         ctx.log.event(
             "action",
             step=step,
@@ -462,7 +564,7 @@ class HybridPlanner(Planner):
         if option.goal is not None and after.distance_to(*option.goal) > self.cfg.arrived_m:
             short = after.distance_to(*option.goal)
             return f"Stopped {short:.1f} m short of the goal: {option.text.split(' (')[0]}.", 0, False
-        return f"Done: {option.text.split(' (')[0]}; now at {_pose_text(after)}.", 0, False
+        return f"Done: {option.text.split(' (')[0]}.", 0, False
 
     def _plan(self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]) -> list[tuple[float, float]] | None:
         """A* legs from the robot to the goal, no longer than `leg_max_m` each.
@@ -505,7 +607,7 @@ class HybridPlanner(Planner):
 
         scan = ctx.world.lidar.scan()
         # What blocked this leg goes into the map, so the next plan can route around it.
-        lidar_map.integrate(ctx.world.robot.pose(), scan)
+        lidar_map.integrate(self._pose(ctx), scan)
         verdict = check_motion(
             length,
             scan,
@@ -517,13 +619,12 @@ class HybridPlanner(Planner):
 
     def _look(self, ctx: EpisodeContext, memory: Memory) -> set[str]:
         """Run the detector; the landmarks the planner did not know that came into view."""
-        pose = ctx.world.robot.pose()
-        new: set[str] = set()
-        for det in ctx.world.detector.detect():
-            if det.object_id not in memory.landmarks:
-                memory.landmarks[det.object_id] = _estimate(pose, det.bearing_deg, det.distance_m)
-                new.add(det.object_id)
-        return new
+        return self._remember(ctx, memory, self._pose(ctx), ctx.world.detector.detect())
+
+    @staticmethod
+    def _pose(ctx: EpisodeContext) -> Pose2D:
+        """Where the planner believes the robot is: odometry when sensed, else the true pose."""
+        return ctx.world.robot.odom() if ctx.information == "sensed" else ctx.world.robot.pose()
 
     @staticmethod
     def _log_action(
@@ -536,7 +637,7 @@ class HybridPlanner(Planner):
         *,
         vetoed: bool = False,
     ) -> None:
-        after = ctx.world.robot.pose()
+        after = HybridPlanner._pose(ctx)
         fields: dict[str, Any] = {
             "step": step,
             "command": command,
@@ -570,6 +671,20 @@ def _with_seen_obstacles(grid: OccupancyGrid, lidar_map: LidarMap, near_known: A
     )
 
 
+def _sensed_grid(lidar_map: LidarMap, scenario: Scenario, inflation_m: float) -> OccupancyGrid:
+    """A planning grid from the robot's own LiDAR map.
+
+    Occupied and unknown cells (and the world's extent) are inflated by `inflation_m`, as the frontier
+    baseline treats them.
+    """
+    from llmnav.mapping.grid import OccupancyGrid, inflate, near_bounds
+
+    geometry = lidar_map.geometry
+    blocked = inflate(lidar_map.occupied | lidar_map.unknown, inflation_m, geometry.resolution)
+    blocked |= near_bounds(geometry, scenario.bounds, inflation_m)
+    return OccupancyGrid(geometry, lidar_map.occupied, blocked, inflation_m)
+
+
 def _named(label: str) -> str:
     """'the window', but 'room 101': a numbered name takes no article."""
     return label if label[-1:].isdigit() else f"the {label}"
@@ -582,15 +697,7 @@ def _estimate(pose: Pose2D, bearing_deg: float, distance_m: float) -> tuple[floa
 
 
 def _where(pose: Pose2D, point: tuple[float, float]) -> str:
-    """'3.2 m away, 40° to your left' from the robot's point of view."""
+    """'3.2 m, 40° left' from the robot's point of view."""
     bearing = math.degrees(pose.bearing_to(*point))
-    side = (
-        "ahead"
-        if abs(bearing) < 10
-        else (f"{abs(bearing):.0f}° to your left" if bearing > 0 else f"{abs(bearing):.0f}° to your right")
-    )
-    return f"{pose.distance_to(*point):.1f} m away, {side}"
-
-
-def _pose_text(pose: Pose2D) -> str:
-    return f"x={pose.x:.1f} m, y={pose.y:.1f} m, heading {math.degrees(pose.yaw):.0f}°"
+    side = "ahead" if abs(bearing) < 10 else f"{abs(bearing):.0f}° {'left' if bearing > 0 else 'right'}"
+    return f"{pose.distance_to(*point):.1f} m, {side}"

@@ -76,6 +76,11 @@ def drive(
     **options: Any,
 ) -> tuple[dict[str, Any], RunRecord]:
     options.setdefault("sensing", ("lidar",))
+    # These tests exercise the relevance ordering on the true map, as the planner worked before the
+    # information modes (test_information.py covers the neutral, sensed defaults).
+    options.setdefault("menu_order", "relevance")
+    if scenario == "factory":
+        options.setdefault("information", "oracle")
     spec = EpisodeSpec(
         scenario=scenario,
         task_id=task_id,
@@ -239,7 +244,7 @@ def test_an_obstacle_the_map_lacks_is_vetoed_then_avoided(tmp_path: Path) -> Non
     vetoed = [a for a in record.of_type("action") if a.get("vetoed")]
     assert len(vetoed) == 1 and vetoed[0]["pose_after"][0] < 10.75 - 0.105
     second = user_turns(record)[1]
-    assert "Last result: Stopped: the safety check blocked the next leg" in second
+    assert "Last: Stopped: the safety check blocked the next leg" in second
     assert veto["error"] in second
     assert summary["outcome"] == "completed" and summary["success"]
     assert summary["collisions"] == 0 and summary["safety_vetoes"] == 1

@@ -47,7 +47,9 @@ def test_oracle_episode_writes_a_complete_run_folder(tmp_path: Path) -> None:
         "kind": "target",
         "difficulty": "medium",
         "targets": [{"object": "RB"}],
+        "wording": "bundled",
     }
+    assert config["information"] == "oracle" and summary["information"] == "oracle"
     assert config["start_pose_index"] == 1 and config["start_pose"] == [1.5, 3.0, 0.0]
     assert config["backend"] is None  # the oracle needs no model: none is created
     assert config["options"] == DriveOptions(planner="oracle").model_dump(mode="json")

@@ -1,0 +1,75 @@
+"""The information model: what a planner may know about the world, declared per planner, logged per run.
+
+- `map`: a published map of corridors and labelled objects (walls, objects and their positions), as in
+  the waypoint source. The default wherever a scenario publishes corridors (unless its
+  `default_information` says otherwise: the maze lists its corridors for reference, but its robot gets
+  no map).
+- `sensed`: only what the robot's own sensors gave it. The planner receives a scenario view without
+  walls, obstacles, labelled objects, corridors or tasks (only the name, extent, robot and sensor
+  settings), so object positions cannot be read; its pose is odometry, its obstacles come from its own
+  LiDAR map, its landmarks from detections. The default wherever no map is published (factory, maze).
+- `oracle`: ground truth (the oracle baseline; planners that read true positions for their own logic).
+
+Scoring always reads ground truth; this module only decides what the planner is handed.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, get_args
+
+from llmnav.errors import BadInputError
+from llmnav.planners.base import Information
+
+if TYPE_CHECKING:
+    from llmnav.scenario import Scenario
+
+INFORMATION_MODES: tuple[Information, ...] = get_args(Information)
+
+# What each planner can run with, as it is written today. The hybrid plans from a published map, from
+# its sensors, or (like before this model existed) from the true grid and goal points.
+PLANNER_INFORMATION: dict[str, tuple[Information, ...]] = {
+    "hybrid": ("sensed", "map", "oracle"),
+    "stepwise": ("sensed",),  # camera and LiDAR only; the model is never told a position
+    "waypoints": ("map",),  # the corridor rectangles and object positions of the map
+    "fsm": ("oracle",),  # drives on detections, but reads the true target point for its stop check
+    "frontier": ("oracle",),  # explores its own map, then takes the true grid's path to the target
+    "oracle": ("oracle",),
+}
+
+
+def planner_modes(planner: str) -> tuple[Information, ...]:
+    """The information modes a planner can run with."""
+    return PLANNER_INFORMATION.get(planner, ("oracle",))
+
+
+def default_information(planner: str, scenario: Scenario) -> Information:
+    """`map` where the scenario publishes one and the planner reads it, else `sensed`, else its only mode."""
+    modes = planner_modes(planner)
+    published = scenario.default_information or ("map" if scenario.corridors else "sensed")
+    if published == "map" and "map" in modes:
+        return "map"
+    if "sensed" in modes:
+        return "sensed"
+    return modes[0]
+
+
+def resolve_information(planner: str, scenario: Scenario, requested: str | None) -> Information:
+    """The mode an episode runs with; bad input (unknown, unsupported, no map published) raises."""
+    if requested is None:
+        return default_information(planner, scenario)
+    if requested not in INFORMATION_MODES:
+        raise BadInputError(f"--information {requested!r}: expected one of {', '.join(INFORMATION_MODES)}")
+    modes = planner_modes(planner)
+    if requested not in modes:
+        raise BadInputError(f"--information {requested}: the {planner} planner runs with {', '.join(modes)}")
+    if requested == "map" and (not scenario.corridors or scenario.default_information == "sensed"):
+        raise BadInputError(f"--information map: scenario '{scenario.name}' publishes no map")
+    mode: Information = requested  # narrowed by the membership test above
+    return mode
+
+
+def scenario_view(scenario: Scenario, information: Information) -> Scenario:
+    """The scenario as a planner with this information may see it (see the module docstring)."""
+    if information != "sensed":
+        return scenario
+    return scenario.model_copy(update={"walls": [], "obstacles": [], "objects": [], "corridors": [], "tasks": []})
