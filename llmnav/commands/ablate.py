@@ -37,6 +37,11 @@ def ablate(
     backend: Annotated[str | None, typer.Option("--backend", help=f"Backend specs ({_LIST}).")] = None,
     assist: Annotated[str | None, typer.Option("--assist", help=f"none, ema, llm ({_LIST}).")] = None,
     planner: Annotated[str | None, typer.Option("--planner", help=f"Planners ({_LIST}).")] = None,
+    model_latency: Annotated[
+        str | None,
+        typer.Option("--model-latency", help="FSM: latency charged to sim time: MS | measured | recorded."),
+    ] = None,
+    ttl: Annotated[str | None, typer.Option("--ttl", help="FSM: suggestion TTL in ms, or auto.")] = None,
     grid: Annotated[
         Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")
     ] = None,
@@ -71,6 +76,11 @@ def ablate(
         if value is not None:
             flags[key] = lib.split_list(value)
     data.update({k: v for k, v in flags.items() if v is not None})
+    from llmnav.planners.fsm import timing_options
+
+    timing = timing_options(model_latency, ttl, backend)
+    if timing:
+        data["options"] = {**data.get("options", {}), **timing}
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
     root = out if out is not None else Path("ablations") / spec.default_name()
     ablation = lib.plan(spec, root)
