@@ -23,7 +23,8 @@ Compact answers: a JSON Schema is compiled by llama.cpp's own converter (`json_s
 targets llguidance in this engine) with flexible whitespace switched off, so the model cannot spend
 tokens on newlines and indentation (a velocity answer: 13 tokens instead of 25). The schema's bounds
 (`minimum`/`maximum`, enums) are part of that grammar. llguidance ignores a grammar it cannot compile and
-decodes freely instead, so `check_schema` proves a grammar is applied before an episode relies on it.
+decodes freely instead, so `check_schema` proves a grammar is applied (once per schema, before its first
+use; the FSM calls it before its first tick).
 
 Threads by mode (`model_threads`): when the simulation is frozen during the call (sim-time mode, the
 default) the model gets every usable core; when the model runs beside the simulation (`--realtime`, or a
@@ -57,6 +58,7 @@ GGUF_MAGIC = b"GGUF"  # the first four bytes of every GGUF file
 
 # Compact JSON from llguidance: no optional whitespace, no blanks after separators.
 _COMPACT_JSON = {"whitespace_flexible": False, "item_separator": ",", "key_separator": ":"}
+_JSON_VALUE_STARTS = frozenset('{["-0123456789tfn')  # how any compact JSON value begins
 DEFAULT_N_CTX = 4096  # [tokens] llama.cpp's own default (512) is too small for a stepwise history
 THREADS_ENV = "LLMNAV_LOCAL_THREADS"  # overrides the thread count (e.g. on an idle many-core box)
 PROMPT_CACHE_RAM = 256  # [MiB] host-RAM copies of evicted prompt prefixes (llama.cpp default: 8 GiB)
@@ -234,6 +236,7 @@ class LlamaCppEngine:
         self.model_name = path.name.removesuffix(".gguf")
         self.n_ctx = n_ctx
         self.threads = threads
+        self._checked_schemas: set[str] = set()
 
     def generate(self, request: ChatRequest) -> ChatResult:
         """Run one chat completion, grammar-constrained when the request carries a JSON Schema."""
@@ -247,6 +250,7 @@ class LlamaCppEngine:
         if request.seed is not None:
             body["seed"] = request.seed
         if request.json_schema is not None:
+            self.check_schema(request.json_schema)  # once per schema: llguidance fails silently
             body["grammar"] = compact_grammar(request.json_schema)
         started = time.perf_counter()
         try:
@@ -288,12 +292,15 @@ class LlamaCppEngine:
     def check_schema(self, schema: dict[str, Any]) -> None:
         """Raise `ModelError` unless llama.cpp constrains answers to `schema` (see the module docstring).
 
-        A probe asks for plain prose in a few tokens: under a working object/array grammar the first
-        character is forced to `{`/`[`; a grammar that failed to compile leaves the model free to chat.
+        A probe asks for the word Hello in two tokens. Under a working grammar the answer must begin like
+        a JSON value (`{`, `[`, `"`, a digit, `-`, `t`, `f`, `n`); a grammar that failed to compile leaves
+        the model free, and it writes "Hello". Each schema is probed once per loaded model.
         """
-        opener = {"object": "{", "array": "["}.get(str(schema.get("type")))
+        key = json.dumps(schema, sort_keys=True)
+        if key in self._checked_schemas:
+            return
         body: dict[str, Any] = {
-            "messages": [{"role": "user", "content": "Say hello in plain words, no JSON."}],
+            "messages": [{"role": "user", "content": "Write the word Hello."}],
             "temperature": 0.0,
             "max_tokens": 2,
             "cache_prompt": False,
@@ -303,9 +310,13 @@ class LlamaCppEngine:
             reply = self._server.handle_chat_completions(body)
         except ValueError as err:
             raise ModelError(f"llama.cpp cannot compile the answer schema: {_one_line(str(err))}") from None
-        text = str(((reply.get("choices") or [{}])[0].get("message") or {}).get("content") or "")
-        if "error" in reply or (opener is not None and not text.lstrip().startswith(opener)):
-            raise ModelError("llama.cpp cannot compile the answer schema into a grammar (it decoded freely)")
+        choices = reply.get("choices") or [{}]
+        text = str((choices[0].get("message") or {}).get("content") or "")
+        if "error" in reply or not text or text[0] not in _JSON_VALUE_STARTS:
+            raise ModelError(
+                f"llama.cpp cannot compile the answer schema into a grammar (unconstrained probe answer {text!r})"
+            )
+        self._checked_schemas.add(key)
 
 
 def compact_grammar(schema: dict[str, Any]) -> str:
@@ -372,17 +383,20 @@ class LocalBackend(Backend):
     def load(self) -> Engine:
         """Load the model now (or fetch the process-wide copy); `chat` does this on first use."""
         if self._engine is None:
+            # Threads by mode are decided once, by the call that loads the model; every instance without
+            # an explicit thread count then shares that engine (one model per process, whatever the mode).
             threads = self.threads or default_threads()
+            chosen: int | str = self.threads or "by-mode"
             factory: Callable[[], Engine]
             if self.is_hf:
                 from llmnav.backends.hf import HFEngine, hf_directory
 
                 directory = hf_directory((self.arg or "")[len(HF_PREFIX) :])
-                key: tuple[Any, ...] = ("hf", str(directory), threads)
+                key: tuple[Any, ...] = ("hf", str(directory), chosen)
                 factory = lambda: HFEngine(directory, threads=threads)  # noqa: E731
             else:
                 path = _gguf_path(self.arg)
-                key = ("gguf", str(path), self.n_ctx, threads, self.verbose)
+                key = ("gguf", str(path), self.n_ctx, chosen, self.verbose)
                 factory = lambda: LlamaCppEngine(  # noqa: E731
                     path, n_ctx=self.n_ctx, threads=threads, verbose=self.verbose
                 )
