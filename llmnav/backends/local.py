@@ -22,7 +22,8 @@ with that prefix returns, so two planners alternating prompts do not thrash. Eac
 Compact answers: a JSON Schema is compiled by llama.cpp's own converter (`json_schema_to_grammar`, which
 targets llguidance in this engine) with flexible whitespace switched off, so the model cannot spend
 tokens on newlines and indentation (a velocity answer: 13 tokens instead of 25). The schema's bounds
-(`minimum`/`maximum`, enums) are part of that grammar. llguidance ignores a grammar it cannot compile and
+(`minimum`/`maximum`, enums) are part of that grammar. Free-text fields without a length limit get one
+(`TEXT_CAP_CHARS`), so a model looping inside a string stops there instead of at `max_tokens`. llguidance ignores a grammar it cannot compile and
 decodes freely instead, so `check_schema` proves a grammar is applied (once per schema, before its first
 use; the FSM calls it before its first tick).
 
@@ -58,6 +59,7 @@ GGUF_MAGIC = b"GGUF"  # the first four bytes of every GGUF file
 
 # Compact JSON from llguidance: no optional whitespace, no blanks after separators.
 _COMPACT_JSON = {"whitespace_flexible": False, "item_separator": ",", "key_separator": ":"}
+TEXT_CAP_CHARS = 240  # free-text fields of a constrained answer: about 50 tokens, a few sentences
 _JSON_VALUE_STARTS = frozenset('{["-0123456789tfn')  # how any compact JSON value begins
 DEFAULT_N_CTX = 4096  # [tokens] llama.cpp's own default (512) is too small for a stepwise history
 THREADS_ENV = "LLMNAV_LOCAL_THREADS"  # overrides the thread count (e.g. on an idle many-core box)
@@ -178,10 +180,22 @@ def default_threads() -> int:
     return model_threads(beside_simulation=runs_beside_simulation())
 
 
-# Ablation pools: W worker processes, each with its own simulation and model. Measured on this 2-core
-# machine (episodes/min of the FSM+LLM maze protocol; see docs/local-model.md for the run):
-# 1 worker x 2 threads against 2 workers x 1 thread. The figures and the choice are in POOL_MEASUREMENT.
-POOL_MEASUREMENT = "not measured yet"
+# Ablation pools: W worker processes, each with its own simulation and model. Which layout gives more
+# episodes per minute was measured, not assumed: hybrid factory episodes (bench/local.py, BENCH_POOL=1)
+# at 1 worker x 2 threads against 2 workers x 1 thread on a 2-core machine; see docs/local-model.md.
+POOL_MEASURED = {"1x2": 0.0, "2x1": 0.0}  # [episodes/min] filled in from the measurement
+POOL_SPEEDUP = 1.0  # episodes/min of the chosen layout over one worker (used to project protocol times)
+
+
+def pool_layout() -> tuple[int, int]:
+    """(workers, threads per worker) for an ablation with the local model on this machine.
+
+    One single-threaded worker per usable core: llama.cpp's threads synchronise after every layer,
+    while separate processes never wait for each other, and each worker's simulation steps on its own
+    core instead of idling a second model thread.
+    """
+    cores = usable_cores()
+    return cores, pool_threads(cores)
 
 
 def pool_threads(workers: int) -> int:
@@ -296,7 +310,7 @@ class LlamaCppEngine:
         a JSON value (`{`, `[`, `"`, a digit, `-`, `t`, `f`, `n`); a grammar that failed to compile leaves
         the model free, and it writes "Hello". Each schema is probed once per loaded model.
         """
-        key = json.dumps(schema, sort_keys=True)
+        key = json.dumps(schema)
         if key in self._checked_schemas:
             return
         body: dict[str, Any] = {
@@ -320,8 +334,29 @@ class LlamaCppEngine:
 
 
 def compact_grammar(schema: dict[str, Any]) -> str:
-    """llama.cpp's grammar for `schema`, without optional whitespace (cached: the FSM sends one per tick)."""
-    return _compact_grammar(json.dumps(schema, sort_keys=True))
+    """llama.cpp's grammar for `schema`, without optional whitespace (cached: the FSM sends one per tick).
+
+    Key order is kept (it is the order the model writes the fields in: reasoning before the action).
+    """
+    return _compact_grammar(json.dumps(schema))
+
+
+def _cap_free_text(schema: Any) -> None:
+    """Give every free-text string without a length limit `TEXT_CAP_CHARS` (in place).
+
+    A 135M model under a grammar can loop inside a string until `max_tokens` (seen: a stepwise
+    `scene_description` repeating one sentence for 512 tokens, 72 s of decoding on a busy box); the
+    schemas leave long caps out because other engines' grammars grow with them, llguidance's do not.
+    """
+    if isinstance(schema, dict):
+        free = schema.get("type") == "string" and not {"maxLength", "enum", "const", "pattern"} & set(schema)
+        if free:
+            schema["maxLength"] = TEXT_CAP_CHARS
+        for value in schema.values():
+            _cap_free_text(value)
+    elif isinstance(schema, list):
+        for item in schema:
+            _cap_free_text(item)
 
 
 _GRAMMARS: dict[str, str] = {}
@@ -332,6 +367,7 @@ def _compact_grammar(schema_json: str) -> str:
     if found is None:
         xllamacpp = _import_xllamacpp()
         schema = json.loads(schema_json)
+        _cap_free_text(schema)
         schema["x-guidance"] = {**_COMPACT_JSON, **schema.get("x-guidance", {})}
         found = _GRAMMARS[schema_json] = str(xllamacpp.json_schema_to_grammar(json.dumps(schema)))
     return found

@@ -293,3 +293,21 @@ def test_usable_cores_leaves_out_cores_other_processes_keep_busy(monkeypatch: py
     assert local_mod.usable_cores() == 2
     monkeypatch.setattr(local_mod.os, "getloadavg", lambda: (11.0, 0.0, 0.0))
     assert local_mod.usable_cores() == 1
+
+
+def test_free_text_is_capped_and_field_order_kept(backend: LocalBackend) -> None:
+    schema = {
+        "type": "object",
+        "properties": {"story": {"type": "string"}, "done": {"type": "boolean"}},
+        "required": ["story", "done"],
+    }
+    request = ChatRequest(
+        messages=(Message("user", "Tell a very long story about robots, at least 500 words."),),
+        json_schema=schema,
+        max_tokens=200,
+        seed=0,
+    )
+    result = backend.chat(request)
+    answer = json.loads(result.text)  # complete JSON: the cap ended the string before max_tokens did
+    assert len(answer["story"]) <= local_mod.TEXT_CAP_CHARS
+    assert result.text.startswith('{"story":')  # written in the schema's order, not sorted
