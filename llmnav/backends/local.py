@@ -23,9 +23,9 @@ Compact answers: a JSON Schema is compiled by llama.cpp's own converter (`json_s
 targets llguidance in this engine) with flexible whitespace switched off, so the model cannot spend
 tokens on newlines and indentation (a velocity answer: 13 tokens instead of 25). The schema's bounds
 (`minimum`/`maximum`, enums) are part of that grammar. Free-text fields without a length limit get one
-(`TEXT_CAP_CHARS`), so a model looping inside a string stops there instead of at `max_tokens`. llguidance ignores a grammar it cannot compile and
-decodes freely instead, so `check_schema` proves a grammar is applied (once per schema, before its first
-use; the FSM calls it before its first tick).
+(`TEXT_CAP_CHARS`), so a model looping inside a string stops there instead of at `max_tokens`.
+llguidance ignores a grammar it cannot compile and decodes freely instead, so `check_schema` proves a
+grammar is applied (once per schema, before its first use; the FSM calls it before its first tick).
 
 Threads by mode (`model_threads`): when the simulation is frozen during the call (sim-time mode, the
 default) the model gets every usable core; when the model runs beside the simulation (`--realtime`, or a

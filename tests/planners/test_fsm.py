@@ -3,7 +3,6 @@ applied to scripted model answers, fusion arithmetic, determinism, and independe
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 from typing import Any
