@@ -43,6 +43,7 @@ reliability: $(TEST_STAMP)
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check llmnav tests bench
 	$(BIN)/mypy llmnav
+	$(BIN)/lint-imports
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -3,12 +3,24 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 
 def wrap_angle(angle_rad: float) -> float:
     """Wrap an angle to [-pi, pi)."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def path_length(points: Iterable[Sequence[float]]) -> float:
+    """Length [m] of a polyline through (x, y, ...) points: trajectory samples, planned paths alike."""
+    total = 0.0
+    previous: Sequence[float] | None = None
+    for point in points:
+        if previous is not None:
+            total += math.hypot(point[0] - previous[0], point[1] - previous[1])
+        previous = point
+    return total
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from llmnav.geometry import Pose2D, wrap_angle
+from llmnav.geometry import Pose2D, path_length, wrap_angle
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeOutcome
@@ -94,17 +94,6 @@ def best_target(
     if not scored:
         return None
     return max(scored, key=lambda s: (s.score, -s.distance_m))
-
-
-def path_length(poses: Iterable[Sequence[float]]) -> float:
-    """Sum of the distances [m] between consecutive trajectory samples."""
-    total = 0.0
-    previous: Sequence[float] | None = None
-    for pose in poses:
-        if previous is not None:
-            total += math.hypot(pose[0] - previous[0], pose[1] - previous[1])
-        previous = pose
-    return total
 
 
 def total_rotation(poses: Iterable[Sequence[float]]) -> float:

@@ -15,16 +15,16 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from llmnav.backends.base import ChatRequest, ChatResult, Image, Message
+from llmnav.chat import ChatRequest, ChatResult, Image, Message
 from llmnav.errors import LlmnavError, one_line
 
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
+    from llmnav.guard.view import PlannerWorld
     from llmnav.perception import LidarSummary
     from llmnav.planners.base import DriveOptions, EpisodeContext
     from llmnav.runlog import RunLog
     from llmnav.sim.sensors import Detection, LidarScan
-    from llmnav.sim.world import World
 
 
 @dataclass
@@ -88,7 +88,7 @@ def compact_lidar_line(summary: LidarSummary) -> str:
     return f"LiDAR front {metres(summary.front_m)} m; closest m@deg per sector, left to right: {' '.join(cells)}"
 
 
-def observe(world: World, options: DriveOptions, log: RunLog, step: int) -> Observation:
+def observe(world: PlannerWorld, options: DriveOptions, log: RunLog, step: int) -> Observation:
     """Read the sensors `options.sensing` asks for, log the `observation` event, return it."""
     from llmnav.perception import detections_text
 

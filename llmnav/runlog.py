@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from llmnav.backends.base import Image
+from llmnav.chat import Image
 from llmnav.errors import BadInputError
 
 RUN_FILE = "run.jsonl"

@@ -61,13 +61,10 @@ def _file_hash(path: Path) -> str:
 
 
 def prompt_hashes(planner: Planner, options: DriveOptions) -> dict[str, str]:
-    """Hashes of the prompt templates a planner uses (planners list them via an optional `templates`)."""
-    templates = getattr(planner, "templates", None)
-    if templates is None:
-        return {}
+    """Hashes of the prompt templates a planner renders (its `templates` hook)."""
     from llmnav import prompting
 
-    return {name: prompting.template_hash(name) for name in templates(options)}
+    return {name: prompting.template_hash(name) for name in planner.templates(options)}
 
 
 def task_record(task: Task) -> dict[str, Any]:
@@ -151,8 +148,8 @@ def run_episode(
             world.reset(start, seed=spec.options.seed)
             for x, y in spec.options.obstacles:
                 world.add_obstacle(x, y)
-            # The FSM paces its own 50 Hz ticks; every other planner is paced by the physics steps.
-            world.realtime = spec.options.realtime and spec.options.planner != "fsm"
+            # A planner that paces its own control loop is not paced again by the physics steps.
+            world.realtime = spec.options.realtime and not planner.paces_itself
             config = build_config(
                 spec,
                 scenario,
@@ -188,7 +185,9 @@ def _run_logged(
     world.motion.on_pose = on_pose
     log.sim_time = world.sim_time
     log.event("pose", pose=world.robot.pose().as_list())
-    ctx = EpisodeContext(scenario, task, world, backend, log, spec.options, view)
+    from llmnav.guard.view import PlannerWorld
+
+    ctx = EpisodeContext(scenario, task, PlannerWorld(world, log), backend, log, spec.options, view)
     crash: BaseException | None = None
     try:
         outcome = planner.run(ctx)
@@ -217,6 +216,8 @@ def _run_logged(
     from llmnav.runlog import read_run
 
     record = read_run(log.run_dir)
+    if crash is None:
+        outcome.metrics = {**outcome.metrics, **planner.summarize(record, scenario, task)}
     summary = summarize_run(record, scenario, outcome)
     summary["run_dir"] = str(log.run_dir)
     log.write_summary(summary)
@@ -224,9 +225,21 @@ def _run_logged(
         summary["trajectory"] = None
     else:
         _plot(record, scenario, task, log, summary)
+        _planner_figures(planner, record, log, summary)
     if crash is not None:
         raise crash
     return summary
+
+
+def _planner_figures(planner: Planner, record: RunRecord, log: RunLog, summary: dict[str, Any]) -> None:
+    """The planner's own figures (its `figures` hook); a failure is noted, never fatal."""
+    try:
+        written = planner.figures(record, log.run_dir)
+    except Exception as err:  # noqa: BLE001 - as for the trajectory: the result matters more than a figure
+        summary["figures_error"] = f"{type(err).__name__}: {one_line(err)}"
+        return
+    if written:
+        summary["figures"] = [str(path) for path in written]
 
 
 def _plot(record: RunRecord, scenario: Scenario, task: Task, log: RunLog, summary: dict[str, Any]) -> None:

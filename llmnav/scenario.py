@@ -311,7 +311,7 @@ def _check_consistency(sc: Scenario) -> list[tuple[str, str]]:
         if not sc.bounds.contains(*obs.center):
             problems.append((f"obstacles[{i}].center", f"obstacle at {list(obs.center)} is outside bounds"))
     # A start pose must leave the robot's footprint clear of everything solid.
-    from llmnav.sim.robot_specs import ROBOT_SPECS  # local: keep scenario loading free of pybullet
+    from llmnav.robot_specs import ROBOT_SPECS  # local: keep scenario loading free of pybullet
 
     radius = ROBOT_SPECS[sc.robot].radius_m
     solids = sc.solid_shapes()

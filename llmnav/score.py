@@ -264,10 +264,7 @@ def _start_key(run: Run) -> tuple[str, Any]:
 
 def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
     """Oracle shortest-path length per (task, start pose); None where the oracle is unavailable."""
-    try:
-        from llmnav.baselines.oracle import oracle_length  # being written separately; optional here
-    except ImportError:
-        return {}
+    from llmnav.mapping.targets import oracle_length
     lengths: dict[tuple[str, Any], float | None] = {}
     for run in runs:
         key = _start_key(run)

@@ -7,93 +7,26 @@ and registered through the `llmnav.backends` entry-point group, so a third party
 
 from __future__ import annotations
 
-import base64
-import hashlib
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar
 
+from llmnav.chat import ChatRequest, ChatResult, Image, Message, Role
 from llmnav.errors import BackendSpecError
 
-Role = Literal["system", "user", "assistant"]
-
-
-@dataclass(frozen=True)
-class Image:
-    """A JPEG image, base64-encoded, as sent to multimodal models."""
-
-    jpeg_b64: str
-
-    @property
-    def sha256(self) -> str:
-        """Content hash: run logs store each image once, as a file named by it."""
-        return hashlib.sha256(self.jpeg_b64.encode("ascii")).hexdigest()
-
-    @property
-    def jpeg_bytes(self) -> bytes:
-        """The raw JPEG bytes."""
-        return base64.b64decode(self.jpeg_b64)
-
-
-@dataclass(frozen=True)
-class Message:
-    """One chat message: a role, its text and optional images."""
-
-    role: Role
-    text: str
-    images: tuple[Image, ...] = ()
-
-    def to_log(self) -> dict[str, Any]:
-        """Log form: images by hash, never inline (they are written beside the log)."""
-        out: dict[str, Any] = {"role": self.role, "text": self.text}
-        if self.images:
-            out["images"] = [img.sha256 for img in self.images]
-        return out
-
-
-@dataclass(frozen=True)
-class ChatRequest:
-    """What a planner asks of a model."""
-
-    messages: tuple[Message, ...]
-    json_schema: dict[str, Any] | None = None  # the answer's JSON Schema (constrained decoding where supported)
-    temperature: float = 0.0
-    max_tokens: int = 512
-    seed: int | None = None
-
-    def to_log(self) -> dict[str, Any]:
-        """Log form of the request (the replay backend compares this)."""
-        return {
-            "messages": [m.to_log() for m in self.messages],
-            "json_schema": self.json_schema,
-            "temperature": self.temperature,
-            "max_tokens": self.max_tokens,
-            "seed": self.seed,
-        }
-
-
-@dataclass
-class ChatResult:
-    """A model's reply and what it cost."""
-
-    text: str
-    latency_s: float  # [s] wall time of the call, retries included
-    model: str
-    prompt_tokens: int | None = None
-    completion_tokens: int | None = None
-    meta: dict[str, Any] = field(default_factory=dict)  # provider details (finish reason, attempts, ...)
-
-    def to_log(self) -> dict[str, Any]:
-        """Log form of the reply."""
-        return {
-            "text": self.text,
-            "latency_s": round(self.latency_s, 4),
-            "model": self.model,
-            "prompt_tokens": self.prompt_tokens,
-            "completion_tokens": self.completion_tokens,
-            "meta": self.meta,
-        }
+__all__ = [
+    "Backend",
+    "BackendStatus",
+    "ChatRequest",
+    "ChatResult",
+    "Image",
+    "Message",
+    "Role",
+    "get_backend",
+    "parse_spec",
+    "registry",
+]
 
 
 @dataclass(frozen=True)

@@ -1,1 +1,1 @@
-"""Non-LLM baselines every LLM run is compared against: occupancy grid, A*, oracle, frontier."""
+"""Non-LLM baselines every LLM run is compared against: the oracle and frontier exploration."""

@@ -35,23 +35,18 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
-from llmnav.baselines.astar import astar, densify, shortcut
-from llmnav.baselines.grid import GridConfig, GridGeometry, LidarMap, inflate, near_bounds, nearest_free_cell
-from llmnav.baselines.oracle import (
+from llmnav.baselines.drive import (
     Drive,
-    OracleConfig,
-    Point,
     drive_waypoints,
     face_point,
     failure_reason,
     log_action,
-    plan_to_targets,
-    pose_logging,
     rotate_by,
     run_untargeted,
-    scenario_grid,
-    with_added_obstacles,
 )
+from llmnav.mapping.astar import astar, densify, shortcut
+from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, inflate, near_bounds, nearest_free_cell
+from llmnav.mapping.targets import OracleConfig, Point, plan_to_targets, scenario_grid, with_added_obstacles
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
 
 if TYPE_CHECKING:
@@ -352,7 +347,6 @@ class FrontierPlanner(Planner):
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Explore, detect, drive; tasks without targets behave as for the oracle."""
-        with pose_logging(ctx):
-            if not ctx.task.targets:
-                return run_untargeted(ctx, Drive())
-            return _Explorer(ctx, self.config).run()
+        if not ctx.task.targets:
+            return run_untargeted(ctx, Drive())
+        return _Explorer(ctx, self.config).run()

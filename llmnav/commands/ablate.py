@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import cli_errors, console, err_console
 
 if TYPE_CHECKING:
     from llmnav.ablate import Ablation, ManifestEntry
@@ -82,6 +82,7 @@ def ablate(
     if timing:
         data["options"] = {**data.get("options", {}), **timing}
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
+    _note_inapplicable(spec)
     root = out if out is not None else Path("ablations") / spec.default_name()
     ablation = lib.plan(spec, root)
     if dry_run:
@@ -97,6 +98,18 @@ def ablate(
             on_result=progress.advance,
         )
     _print_results(ablation)
+
+
+def _note_inapplicable(spec: Any) -> None:
+    """One line on stderr per planner that ignores some of the grid's factors or fixed options."""
+    from llmnav.ablate import FACTORS
+    from llmnav.planners.base import DriveOptions, inapplicable_options
+
+    given = set(spec.options) | {f for f in FACTORS if getattr(spec, f, None) and f not in ("planner", "backend")}
+    for planner in spec.planner or [DriveOptions().planner]:
+        unused = inapplicable_options(planner, given)
+        if unused:
+            err_console.print(f"note: {', '.join(unused)} do(es) not apply to planner '{planner}'", highlight=False)
 
 
 def _print_plan(ablation: Ablation) -> None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from pydantic import ValidationError
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import cli_errors, console, err_console
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -148,6 +148,7 @@ def drive(
         )
     except ValidationError as err:
         raise _option_error(err) from None
+    _note_inapplicable(options)
     backend_spec = _with_replay_mode(backend, replay_loose)
     scenario_name = scenario or default_scenario(texts, task_id)
     spec = EpisodeSpec(
@@ -168,6 +169,16 @@ def drive(
 
         print_result(console, summary)
     raise typer.Exit(exit_code(summary))
+
+
+def _note_inapplicable(options: Any) -> None:
+    """One line on stderr naming the given flags the chosen planner ignores."""
+    from llmnav.planners.base import changed_options, inapplicable_options
+
+    unused = inapplicable_options(options.planner, changed_options(options))
+    if unused:
+        flags = ", ".join("--" + name.replace("_", "-") for name in unused)
+        err_console.print(f"note: {flags} do(es) not apply to planner '{options.planner}'", highlight=False)
 
 
 def _with_replay_mode(backend: str, loose: bool) -> str:

@@ -42,7 +42,7 @@ def plan(
 ) -> None:
     """Ask the model for waypoints to a target, validate every attempt, and show the verdicts."""
     from llmnav.backends.base import ChatRequest, ChatResult, get_backend
-    from llmnav.baselines.grid import build_grid
+    from llmnav.mapping.grid import build_grid
     from llmnav.planners.waypoints import PlanningClock, generate_plan, ground_target, plan_summary
     from llmnav.tasks import resolve_task
 

@@ -1,21 +1,38 @@
-"""The planner interface, the episode context every planner receives, and the planner registry."""
+"""The planner interface, the episode context every planner receives, and the planner registry.
+
+Planners plug in like backends: each is a `Planner` subclass registered under the `llmnav.planners`
+entry-point group (the built-ins are registered the same way in llmnav's own pyproject.toml), so a third
+party adds one with `pip install`. A planner declares what it needs and does through class attributes
+and small hooks, so nothing above it names it:
+
+- `options`: the `DriveOptions` fields that apply to it (beyond `COMMON_OPTIONS`); `unused_options`
+  tells `drive` and `ablate` which given flags it ignores;
+- `paces_itself`: it paces its own control loop in `--realtime` (the world then does not);
+- `templates(options)`: the prompt templates it renders (hashed into the run's config line);
+- `summarize(record, scenario, task)`: planner metrics computed from the finished run log;
+- `figures(record, out_dir)`: extra figures, written only when plots are on.
+"""
 
 from __future__ import annotations
 
-import importlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.runlog import RunLog
+    from llmnav.chat import ChatRequest, ChatResult
+    from llmnav.guard.view import PlannerWorld
+    from llmnav.runlog import RunLog, RunRecord
     from llmnav.scenario import Scenario, Task
-    from llmnav.sim.world import World
 
-PlannerName = Literal["stepwise", "waypoints", "fsm", "hybrid", "oracle", "frontier"]
+PLANNER_GROUP = "llmnav.planners"
 Outcome = Literal["completed", "failed", "aborted"]
 
 
@@ -24,7 +41,7 @@ class DriveOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    planner: PlannerName = "hybrid"
+    planner: str = "hybrid"  # a name registered under the `llmnav.planners` entry-point group
     sensing: tuple[Literal["lidar", "image", "detections"], ...] = ("lidar", "image")
     lidar_sectors: int = Field(default=8, ge=1, le=72)
     lidar_fov_deg: float = Field(default=90.0, gt=0, le=360)
@@ -59,6 +76,20 @@ class DriveOptions(BaseModel):
     )
     max_ticks: int = Field(default=15000, ge=1)  # [ticks] 300 s of sim time at 50 Hz
 
+    @field_validator("planner")
+    @classmethod
+    def _registered(cls, name: str) -> str:
+        known = planner_names()
+        if name not in known:
+            raise ValueError(f"unknown planner '{name}' (registered: {', '.join(known)})")
+        return name
+
+
+# Options every planner honours (or that describe the episode rather than the planner).
+COMMON_OPTIONS: frozenset[str] = frozenset({"planner", "seed", "realtime", "obstacles"})
+# The options of a model-driven planner that asks once per decision.
+MODEL_OPTIONS: frozenset[str] = frozenset({"temperature", "max_tokens", "max_corrections"})
+
 
 @dataclass
 class StepInfo:
@@ -89,15 +120,31 @@ class NullView:
 
 @dataclass
 class EpisodeContext:
-    """Everything a planner may use during one episode."""
+    """Everything a planner may use during one episode.
+
+    `world` is the planner's view (`llmnav.guard.view.PlannerWorld`): sensors to read and the guarded
+    motion layer; no raw simulator, robot or motion. `chat` and `event` make the context what
+    `llmnav.guard.ask.ask_guarded` needs.
+    """
 
     scenario: Scenario
     task: Task
-    world: World
+    world: PlannerWorld
     backend: Backend | None
     log: RunLog
     options: DriveOptions
     view: View = field(default_factory=NullView)
+
+    def chat(self, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
+        """Send `request` to the backend, logged as an `llm_call` event (see `llmnav.observe.call_model`)."""
+        from llmnav.observe import call_model
+
+        return call_model(self, request, purpose, step)
+
+    def event(self, kind: str, **fields: Any) -> None:
+        """Log one event at the current simulated time."""
+        self.log.sim_time = self.world.sim_time
+        self.log.event(kind, **fields)
 
 
 @dataclass
@@ -115,29 +162,70 @@ class Planner(ABC):
 
     name: ClassVar[str]
     needs_backend: ClassVar[bool] = True
+    options: ClassVar[frozenset[str]] = frozenset()  # DriveOptions fields that apply, beyond COMMON_OPTIONS
+    paces_itself: ClassVar[bool] = False  # paces its own loop under --realtime (the world does not)
 
     def requires_backend(self, options: DriveOptions) -> bool:
         """Whether this episode needs a model (the runner creates no backend otherwise)."""
         return self.needs_backend
 
+    def templates(self, options: DriveOptions) -> list[str]:
+        """Prompt templates this planner renders (their hashes go into the config line)."""
+        return []
+
     @abstractmethod
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Drive one episode to its end; log every event through `ctx.log`; never print."""
 
+    def summarize(self, record: RunRecord, scenario: Scenario, task: Task) -> dict[str, Any]:
+        """Planner metrics computed from the closed run log, merged into the summary's planner metrics."""
+        return {}
 
-_PLANNERS: dict[str, str] = {
-    "stepwise": "llmnav.planners.stepwise:StepwisePlanner",
-    "waypoints": "llmnav.planners.waypoints:WaypointPlanner",
-    "fsm": "llmnav.planners.fsm:FsmPlanner",
-    "hybrid": "llmnav.planners.hybrid:HybridPlanner",
-    "oracle": "llmnav.baselines.oracle:OraclePlanner",
-    "frontier": "llmnav.baselines.frontier:FrontierPlanner",
-}
+    def figures(self, record: RunRecord, out_dir: Path) -> list[Path]:
+        """Write this planner's own figures into `out_dir` (called only when plots are on)."""
+        return []
+
+    @classmethod
+    def unused_options(cls, given: set[str]) -> list[str]:
+        """The options among `given` (DriveOptions field names) that this planner ignores."""
+        applies = COMMON_OPTIONS | cls.options
+        return sorted(name for name in given if name not in applies)
+
+
+def _registered_points() -> dict[str, Any]:
+    return {ep.name: ep for ep in entry_points(group=PLANNER_GROUP)}
+
+
+def planner_names() -> list[str]:
+    """Every planner name registered under the `llmnav.planners` entry-point group, sorted."""
+    return sorted(_registered_points())
+
+
+def planner_class(name: str) -> type[Planner]:
+    """The planner class registered as `name` (only its module is imported)."""
+    points = _registered_points()
+    if name not in points:
+        raise BadInputError(f"unknown planner '{name}' (registered: {', '.join(sorted(points))})")
+    try:
+        cls = points[name].load()
+    except Exception as err:  # noqa: BLE001 - a broken third-party plugin: one line, not a traceback
+        raise BadInputError(f"planner '{name}' failed to load: {type(err).__name__}: {err}") from None
+    if not (isinstance(cls, type) and issubclass(cls, Planner)):
+        raise BadInputError(f"planner '{name}' is not a llmnav Planner subclass")
+    return cls
+
+
+def inapplicable_options(planner: str, given: set[str]) -> list[str]:
+    """The option names among `given` that planner `planner` ignores (for a one-line note to the user)."""
+    return planner_class(planner).unused_options(given)
+
+
+def changed_options(options: DriveOptions) -> set[str]:
+    """The fields of `options` that differ from their defaults (what the user actually set)."""
+    defaults = DriveOptions.model_construct()
+    return {name for name in DriveOptions.model_fields if getattr(options, name) != getattr(defaults, name)}
 
 
 def get_planner(name: str) -> Planner:
-    """Instantiate a planner by name (imported lazily: each pulls only what it needs)."""
-    module_name, _, class_name = _PLANNERS[name].partition(":")
-    cls = getattr(importlib.import_module(module_name), class_name)
-    planner: Planner = cls()
-    return planner
+    """Instantiate a planner by its registered name."""
+    return planner_class(name)()

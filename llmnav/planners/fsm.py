@@ -43,11 +43,14 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from llmnav.backends.base import ChatRequest, ChatResult, Message
+from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
+    from llmnav.runlog import RunRecord
     from llmnav.sim.sensors import Detection
 
 State = Literal["SEARCH", "APPROACH", "ACT_LEFT", "ACT_RIGHT", "ACT_STOP"]
@@ -260,6 +263,8 @@ class FsmPlanner(Planner):
 
     name = "fsm"
     needs_backend = True
+    options = frozenset({"assist", "alpha", "beta", "ttl_ms", "max_ticks", "temperature", "max_tokens"})
+    paces_itself = True  # its 50 Hz ticks follow the wall clock under --realtime, not the physics steps
 
     def __init__(self, config: FsmConfig | None = None) -> None:
         self.cfg = config or FsmConfig()
@@ -499,7 +504,6 @@ class FsmPlanner(Planner):
         log.event("pose", pose=final.as_list())
         outcome.metrics = self._metrics(ctx, stats, final, start_pose)
         outcome.metrics["ttl_ms"] = round(ttl_s * 1000.0, 1)
-        self._plot_profile(ctx)
         return outcome
 
     # --- helpers ----------------------------------------------------------------------------
@@ -586,7 +590,7 @@ class FsmPlanner(Planner):
         return Suggestion(now, now + latency, result.text, latency)
 
     def _metrics(self, ctx: EpisodeContext, stats: FsmStats, final: Any, start: Any) -> dict[str, Any]:
-        from llmnav.metrics import path_length
+        from llmnav.geometry import path_length
         from llmnav.runlog import read_run
 
         target = self._stop_point(ctx) if ctx.task.targets else None
@@ -647,17 +651,16 @@ class FsmPlanner(Planner):
             candidates.append((clearance, (x, y)))
         return max(candidates)[1]
 
-    @staticmethod
-    def _plot_profile(ctx: EpisodeContext) -> None:
+    def figures(self, record: RunRecord, out_dir: Path) -> list[Path]:
+        """The commanded-velocity profile (`velocity_profile.png`), when plots are on."""
         from llmnav.reporting.velocity import plot_velocity_profile
 
-        plot_velocity_profile(ctx.log.run_dir, ctx.log.run_dir / "velocity_profile.png")
+        path = plot_velocity_profile(out_dir, out_dir / "velocity_profile.png")
+        return [] if path is None else [path]
 
 
 def _shortest_length(ctx: EpisodeContext, start: Any, target: tuple[float, float]) -> float | None:
     """L_opt for the trajectory efficiency: the A* length from the start to the target point."""
-    try:
-        from llmnav.baselines.paths import shortest_path_length
-    except ImportError:
-        return None
+    from llmnav.mapping.paths import shortest_path_length
+
     return shortest_path_length(ctx.scenario, (start.x, start.y), target)

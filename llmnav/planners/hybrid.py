@@ -30,14 +30,14 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
-from llmnav.backends.base import ChatRequest, Message
+from llmnav.chat import ChatRequest, Message
 from llmnav.geometry import Pose2D
-from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 
 if TYPE_CHECKING:
-    from llmnav.baselines.grid import LidarMap, OccupancyGrid
     from llmnav.guard.parse import GuardResult
     from llmnav.guard.schemas import HybridChoice
+    from llmnav.mapping.grid import LidarMap, OccupancyGrid
     from llmnav.observe import Observation
     from llmnav.sim.motion import MotionResult
 
@@ -96,6 +96,14 @@ class HybridPlanner(Planner):
 
     name = "hybrid"
     needs_backend = True
+    options = MODEL_OPTIONS | {
+        "sensing",
+        "lidar_sectors",
+        "lidar_fov_deg",
+        "max_iterations",
+        "image_width",
+        "image_height",
+    }
 
     def __init__(self, config: HybridConfig | None = None) -> None:
         self.cfg = config or HybridConfig()
@@ -107,7 +115,7 @@ class HybridPlanner(Planner):
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
-        from llmnav.baselines.grid import GridConfig, LidarMap, build_grid, inflate
+        from llmnav.mapping.grid import GridConfig, LidarMap, build_grid, inflate
         from llmnav.observe import observe
         from llmnav.tasks import named_objects
 
@@ -462,8 +470,8 @@ class HybridPlanner(Planner):
         A robot standing inside the inflation (beside a wall) first steps out to the nearest free cell:
         a long leg along the wall from there would graze it, and the veto would refuse it every time.
         """
-        from llmnav.baselines.grid import nearest_free_cell
-        from llmnav.baselines.paths import SNAP_M, plan_path
+        from llmnav.mapping.grid import nearest_free_cell
+        from llmnav.mapping.paths import SNAP_M, plan_path
 
         first: list[tuple[float, float]] = []
         origin = (start.x, start.y)
@@ -550,7 +558,7 @@ def _with_seen_obstacles(grid: OccupancyGrid, lidar_map: LidarMap, near_known: A
     """
     from dataclasses import replace
 
-    from llmnav.baselines.grid import inflate
+    from llmnav.mapping.grid import inflate
 
     unexpected = lidar_map.occupied & ~near_known
     if not unexpected.any():

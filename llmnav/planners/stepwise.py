@@ -24,12 +24,12 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from llmnav.backends.base import ChatRequest, ChatResult, Message
-from llmnav.guard.parse import GuardResult, correction_message, parse_answer
+from llmnav.chat import ChatRequest, Message
+from llmnav.guard.ask import GuardedAnswer, ask_guarded
 from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, response_schema
-from llmnav.guard.veto import VetoResult, check_motion, veto_message
-from llmnav.observe import Observation, call_model, observe
-from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Outcome, Planner, StepInfo
+from llmnav.guard.veto import VetoResult, veto_message
+from llmnav.observe import Observation, observe
+from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Outcome, Planner, StepInfo
 
 if TYPE_CHECKING:
     from llmnav.sim.motion import MotionResult
@@ -68,6 +68,19 @@ class StepwisePlanner(Planner):
 
     name: ClassVar[str] = "stepwise"
     needs_backend: ClassVar[bool] = True
+    options: ClassVar[frozenset[str]] = MODEL_OPTIONS | {
+        "sensing",
+        "lidar_sectors",
+        "lidar_fov_deg",
+        "prompt",
+        "history",
+        "self_check",
+        "max_iterations",
+        "max_vetoes",
+        "max_step_m",
+        "image_width",
+        "image_height",
+    }
 
     def templates(self, options: DriveOptions) -> list[str]:
         """Prompt templates this episode uses (their hashes go into the config line)."""
@@ -181,44 +194,41 @@ class _Episode:
         return EpisodeOutcome(outcome, reason, iterations=step, metrics=metrics)
 
     # --- one decision ---------------------------------------------------------------------------
-    def _ask(self, step: int, state: _StepState, purpose: str, *, constrained: bool = True) -> str:
+    def _request(self, state: _StepState, *, constrained: bool = True) -> ChatRequest:
         options = self.options
-        messages = (self.system, *history_window(self.exchanges, options.history), *state.turn)
-        request = ChatRequest(
-            messages=messages,
+        return ChatRequest(
+            messages=(self.system, *history_window(self.exchanges, options.history), *state.turn),
             json_schema=self.schema if constrained else None,
             temperature=options.temperature,
             max_tokens=options.max_tokens,
             seed=options.seed,
         )
-        result: ChatResult = call_model(self.ctx, request, purpose, step)
-        state.latency_s += result.latency_s
-        return result.text
 
-    def _guarded(self, step: int, state: _StepState, text: str) -> tuple[StepAction, str]:
-        """Run the guard on `text`, asking for corrections until it passes or the budget is spent."""
-        attempt = 1
-        while True:
-            result: GuardResult[StepAction] = parse_answer(text, StepAction, bounds=self.bounds)
-            self.ctx.log.event(
-                "guard", step=step, outcome=result.outcome, error=result.error, attempt=attempt
-            )
-            if result.ok and result.value is not None:
-                return result.value, text
-            if state.corrections >= self.options.max_corrections:
-                raise _Abort(f"no valid action after {state.corrections} correction turns: {result.error}")
-            state.corrections += 1
-            self.counters.corrections += 1
-            state.turn += [
-                Message("assistant", text),
-                Message("user", correction_message(result, self.schema)),
-            ]
-            text = self._ask(step, state, "correction")
-            attempt += 1
+    def _guarded(
+        self, step: int, state: _StepState, purpose: str, *, reply: str | None = None
+    ) -> tuple[StepAction, str]:
+        """Ask (or judge `reply`) through the guard, with the step's remaining correction turns."""
+        answer: GuardedAnswer[StepAction] = ask_guarded(
+            self.ctx,
+            self._request(state),
+            StepAction,
+            self.bounds,
+            self.options.max_corrections - state.corrections,
+            step=step,
+            purpose=purpose,
+            reply=reply,
+        )
+        state.latency_s += answer.latency_s
+        state.corrections += answer.corrections
+        self.counters.corrections += answer.corrections
+        state.turn += answer.turns
+        if answer.value is None:
+            raise _Abort(f"no valid action after {state.corrections} correction turns: {answer.result.error}")
+        return answer.value, answer.text
 
     def _decide(self, step: int, obs: Observation, state: _StepState) -> tuple[StepAction, str]:
         """A guarded, self-checked, veto-cleared action and the text it came from."""
-        answer, text = self._guarded(step, state, self._ask(step, state, "action"))
+        answer, text = self._guarded(step, state, "action")
         if self.self_check_text is not None:
             answer, text = self._self_check(step, state, answer, text)
         while True:
@@ -234,7 +244,7 @@ class _Episode:
             state.vetoes += 1
             self.counters.vetoes += 1
             state.turn += [Message("assistant", text), Message("user", veto_message(blocked))]
-            answer, text = self._guarded(step, state, self._ask(step, state, "veto"))
+            answer, text = self._guarded(step, state, "veto")
 
     def _self_check(
         self, step: int, state: _StepState, answer: StepAction, text: str
@@ -243,25 +253,25 @@ class _Episode:
         assert self.self_check_text is not None
         self.counters.self_checks += 1
         state.turn += [Message("assistant", text), Message("user", self.self_check_text)]
-        reply = self._ask(step, state, "self_check", constrained=False)
+        result = self.ctx.chat(self._request(state, constrained=False), "self_check", step)
+        state.latency_s += result.latency_s
+        reply = result.text
         if CONFIRMED in reply.upper() and "{" not in reply:
             state.turn = state.turn[:-2]  # confirmed: the exchange keeps the original answer only
             return answer, text
         self.counters.revisions += 1
-        return self._guarded(step, state, reply)
+        return self._guarded(step, state, "self_check", reply=reply)
 
     def _veto(self, answer: StepAction, obs: Observation) -> VetoResult | None:
-        """The veto's verdict when a FRONT/BACK's swept corridor is not clear, else None."""
+        """The motion layer's verdict when a FRONT/BACK's swept corridor is not clear, else None.
+
+        Asked before executing so the model can be told and asked again; the layer checks again (on the
+        same scan) when the motion is commanded, whatever this planner did.
+        """
         cmd, p = answer.action.command, answer.action.parameters
         if cmd not in (ActionCommand.FRONT, ActionCommand.BACK):
             return None
-        spec = self.ctx.world.robot.spec
-        verdict = check_motion(
-            p if cmd is ActionCommand.FRONT else -p,
-            obs.scan,
-            robot_width_m=spec.width_m,
-            robot_radius_m=spec.radius_m,
-        )
+        verdict = self.ctx.world.motion.check_straight(p if cmd is ActionCommand.FRONT else -p, scan=obs.scan)
         return None if verdict.allowed else verdict
 
     # --- acting ---------------------------------------------------------------------------------
@@ -277,7 +287,9 @@ class _Episode:
         else:
             result = motion.rotate(-math.radians(p))
         self.feedback = ""
-        if result.collided:
+        if result.veto is not None:  # cannot happen after _decide's check on the same scan; told if it does
+            self.feedback = f"Your last action ({describe_action(answer)}) was not executed: {result.veto}."
+        elif result.collided:
             self.counters.collisions += 1
             self.feedback = (
                 f"Your last action ({describe_action(answer)}) was stopped after {result.distance_m:.2f} m "

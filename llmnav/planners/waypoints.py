@@ -20,16 +20,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from llmnav.backends.base import ChatRequest, ChatResult, Message
+from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import InvalidActionError
 from llmnav.geometry import Pose2D
+from llmnav.guard.ask import CallContext, GuardedAnswer, ask_guarded
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 
 if TYPE_CHECKING:
-    from llmnav.baselines.grid import OccupancyGrid
     from llmnav.guard.parse import GuardResult
     from llmnav.guard.schemas import TargetChoice, WaypointList
+    from llmnav.mapping.grid import OccupancyGrid
     from llmnav.scenario import LabelledObject, Scenario, Task, WaypointRules
+    from llmnav.sim.motion import MotionResult
 
 Point = tuple[float, float]
 ModelCall = Callable[[ChatRequest, str], ChatResult]  # (request, purpose) -> reply
@@ -192,13 +194,15 @@ def ground_target(
     *,
     near: Point | None = None,
     tolerance_m: float = 0.05,
+    step: int | None = None,
+    on_event: Callable[..., None] | None = None,
 ) -> LabelledObject:
     """The object a command refers to: exact-name match first, else the model picks from the list.
 
     `near` (the final waypoint of a plan made already) settles an ambiguous command without a model call
-    when exactly one candidate's goal point lies within `tolerance_m` [m] of it.
+    when exactly one candidate's goal point lies within `tolerance_m` [m] of it. The model's pick goes
+    through `ask_guarded` (`max_tries` replies at most); `on_event` receives its `guard` events.
     """
-    from llmnav.guard.parse import correction_message, parse_answer
     from llmnav.guard.schemas import response_schema, target_choice_model
     from llmnav.prompting import render
     from llmnav.tasks import named_objects
@@ -214,21 +218,20 @@ def ground_target(
         if len(close) == 1:
             return close[0]
     model = target_choice_model(tuple(o.id for o in candidates))
-    schema = response_schema(model)
     listing = "\n".join(
         f"- {o.id}: {o.label} at ({o.goal_point[0]:.1f}, {o.goal_point[1]:.1f})" for o in candidates
     )
-    messages = [
+    messages = (
         Message("system", render("ground_system")),
         Message("user", render("ground_user", command=task.text, objects=listing)),
-    ]
-    for _ in range(max_tries):
-        reply = call(ChatRequest(tuple(messages), schema, 0.0, 64), "ground")
-        result: GuardResult[TargetChoice] = parse_answer(reply.text, model)
-        if result.value is not None:
-            return scenario.object(result.value.object_id)
-        messages += [Message("assistant", reply.text), Message("user", correction_message(result, schema))]
-    raise InvalidActionError(f"the model named no listed object for '{task.text}' after {max_tries} tries")
+    )
+    request = ChatRequest(messages, response_schema(model), 0.0, 64)
+    answer: GuardedAnswer[TargetChoice] = ask_guarded(
+        CallContext(call, on_event), request, model, None, max_tries - 1, step=step, purpose="ground"
+    )
+    if answer.value is None:
+        raise InvalidActionError(f"the model named no listed object for '{task.text}' after {max_tries} tries")
+    return scenario.object(answer.value.object_id)
 
 
 def waypoint_schema(rules: WaypointRules) -> dict[str, Any]:
@@ -254,11 +257,15 @@ def generate_plan(
     seen_obstacles: list[Point] | None = None,
     obstacle_clearance_m: float = 0.555,
     on_attempt: Callable[[Attempt], None] | None = None,
+    step: int | None = None,
+    on_event: Callable[..., None] | None = None,
 ) -> PlanResult:
-    """Ask for waypoints until a plan validates or `max_generations` attempts are spent.
+    """Ask for waypoints through `ask_guarded` until a plan validates or `max_generations` replies are spent.
 
-    `seen_obstacles` are obstacle centres found on the way (replanning); every segment must keep
-    `obstacle_clearance_m` [m] from them, and the prompt says so.
+    The map rules (`validate_waypoints`) are the guard's bounds; a plan breaking them is sent back with
+    every broken rule listed. `seen_obstacles` are obstacle centres found on the way (replanning); every
+    segment must keep `obstacle_clearance_m` [m] from them, and the prompt says so. `on_event` receives
+    the guard's events (one `guard` event per reply).
     """
     from llmnav.guard.parse import correction_message, parse_answer
     from llmnav.guard.schemas import WaypointList
@@ -292,37 +299,70 @@ def generate_plan(
     )
     user = render("waypoints_user", target_name=target.label, max_waypoints=rules.max_waypoints)
     schema = waypoint_schema(rules)
-    messages = [Message("system", system), Message("user", user)]
+    request = ChatRequest((Message("system", system), Message("user", user)), schema, temperature, 512, seed)
     plan = PlanResult(target.id, goal)
-    for number in range(1, max_generations + 1):
-        reply = clock(ChatRequest(tuple(messages), schema, temperature, 512, seed), "waypoints")
-        result: GuardResult[WaypointList] = parse_answer(reply.text, WaypointList)
-        if result.value is None:
-            problem = f"{result.outcome}: {result.error}"
-            attempt = Attempt(number, reply.latency_s, [], [problem], result.outcome)
-            feedback = correction_message(result, schema)
-        else:
-            points = [(float(x), float(y)) for x, y in result.value.points]
-            problems = validate_waypoints(
-                points,
-                (start.x, start.y),
-                goal,
-                scenario,
-                grid,
-                rules,
-                extra_obstacles=seen_obstacles,
-                obstacle_radius_m=obstacle_clearance_m,
-            )
-            attempt = Attempt(number, reply.latency_s, points, problems, "bounds" if problems else "ok")
-            feedback = render("waypoints_feedback", problems="\n".join(f"- {p}" for p in problems))
+    rules_check = PlanRules(scenario, (start.x, start.y), goal, grid, seen_obstacles or [], obstacle_clearance_m)
+
+    def record(number: int, text: str, result: GuardResult[WaypointList], latency_s: float) -> None:
+        if result.outcome in ("parse", "schema"):
+            attempt = Attempt(number, latency_s, [], [f"{result.outcome}: {result.error}"], result.outcome)
+        else:  # ok, or bounds: the plan was read, the map rules judged it
+            read: GuardResult[WaypointList] = parse_answer(text, WaypointList)
+            points = read.value.points if read.value is not None else []
+            problems = rules_check.problems(points) if result.outcome == "bounds" else []
+            attempt = Attempt(number, latency_s, points, problems, result.outcome)
         plan.attempts.append(attempt)
         if on_attempt is not None:
             on_attempt(attempt)
-        if attempt.valid:
-            break
-        messages += [Message("assistant", reply.text), Message("user", feedback)]
+
+    def feedback(result: GuardResult[WaypointList]) -> str:
+        if result.outcome == "bounds":
+            return render("waypoints_feedback", problems="\n".join(f"- {p}" for p in (result.error or "").split("\n")))
+        return correction_message(result, schema)
+
+    ask_guarded(
+        CallContext(clock, on_event),
+        request,
+        WaypointList,
+        rules_check,
+        max_generations - 1,
+        step=step,
+        purpose="waypoints",
+        feedback=feedback,
+        on_reply=record,
+    )
     plan.planning_time_s = clock.elapsed_s()
     return plan
+
+
+@dataclass(frozen=True)
+class PlanRules:
+    """The map rules as guard bounds: a plan read from the answer must satisfy `validate_waypoints`."""
+
+    scenario: Scenario
+    start: Point
+    target: Point
+    grid: OccupancyGrid | None
+    seen_obstacles: list[Point]
+    clearance_m: float
+
+    def problems(self, points: list[Point]) -> list[str]:
+        """Every broken rule, one sentence each."""
+        return validate_waypoints(
+            points,
+            self.start,
+            self.target,
+            self.scenario,
+            self.grid,
+            self.scenario.waypoint_rules,
+            extra_obstacles=self.seen_obstacles,
+            obstacle_radius_m=self.clearance_m,
+        )
+
+    def check(self, value: Any) -> str | None:
+        """The broken rules, one per line, or None."""
+        found = self.problems([(float(x), float(y)) for x, y in value.points])
+        return "\n".join(found) or None
 
 
 def map_to_odom(point: Point, start_map: Pose2D, start_odom: Pose2D) -> Point:
@@ -341,6 +381,7 @@ class WaypointPlanner(Planner):
 
     name = "waypoints"
     needs_backend = True
+    options = frozenset({"temperature", "max_generations", "max_replans", "replan_cooldown_s", "preset_waypoints"})
 
     def __init__(self, config: WaypointConfig | None = None) -> None:
         self.cfg = config or WaypointConfig()
@@ -352,7 +393,7 @@ class WaypointPlanner(Planner):
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Ground, plan, validate, execute, replan — per leg of the command sequence."""
-        from llmnav.baselines.grid import build_grid
+        from llmnav.mapping.grid import build_grid
         from llmnav.observe import call_model
         from llmnav.tasks import sequence_legs
 
@@ -372,6 +413,7 @@ class WaypointPlanner(Planner):
             "generations": 0,
             "valid_generations": 0,
             "collision_events": 0,
+            "vetoed_segments": 0,
             "replans": 0,
             "legs": [],
         }
@@ -392,13 +434,6 @@ class WaypointPlanner(Planner):
                 problems=attempt.problems,
                 latency_s=attempt.latency_s,
             )
-            ctx.log.event(
-                "guard",
-                step=step,
-                attempt=attempt.number,
-                outcome=attempt.outcome,
-                error="; ".join(attempt.problems)[:500] or None,
-            )
 
         last_replan = -math.inf  # [s] sim time of the previous replan
         preset = [(float(x), float(y)) for x, y in opts.preset_waypoints]
@@ -406,7 +441,9 @@ class WaypointPlanner(Planner):
             step += 1
             clock = PlanningClock(call)
             near = preset[-1] if preset else None
-            target = ground_target(scenario, leg, clock, near=near, tolerance_m=rules.target_tolerance_m)
+            target = ground_target(
+                scenario, leg, clock, near=near, tolerance_m=rules.target_tolerance_m, step=step, on_event=ctx.event
+            )
             grounding_s = clock.elapsed_s()  # [s] counted in this leg's first planning time
             note("grounding", command=leg.text, target=target.id)
             seen: list[Point] = []
@@ -420,6 +457,8 @@ class WaypointPlanner(Planner):
                     attempt = Attempt(1, 0.0, preset, problems, "bounds" if problems else "ok")
                     plan = PlanResult(target.id, target.goal_point, [attempt])
                     log_attempt(attempt)
+                    error = "\n".join(problems) or None
+                    ctx.event("guard", step=step, attempt=1, outcome=attempt.outcome, error=error, purpose="preset")
                     preset = []
                 else:
                     plan = generate_plan(
@@ -434,6 +473,8 @@ class WaypointPlanner(Planner):
                         seen_obstacles=seen,
                         obstacle_clearance_m=clearance,
                         on_attempt=log_attempt,
+                        step=step,
+                        on_event=ctx.event,
                     )
                 plan.planning_time_s += grounding_s
                 grounding_s = 0.0
@@ -455,7 +496,7 @@ class WaypointPlanner(Planner):
                         json_retries=len(plan.attempts) - 1,
                     )
                 )
-                stop = self._execute(ctx, waypoints, metrics, step, start)
+                stop, last = self._execute(ctx, waypoints, metrics, step, start)
                 if stop is None:
                     break
                 if stop == "collision":
@@ -465,8 +506,11 @@ class WaypointPlanner(Planner):
                 if stop in ("obstacle", "emergency"):  # a LiDAR reading below the stop distance
                     metrics["collision_events"] += 1
                     obstacle = self._obstacle_ahead(ctx, wide=stop == "emergency")
-                    if obstacle is not None:
-                        seen.append(obstacle)
+                elif stop == "vetoed":  # the motion layer refused the next segment: something is on it
+                    metrics["vetoed_segments"] += 1
+                    obstacle = self._obstacle_at(ctx, last.veto_hit if last is not None else None)
+                if obstacle is not None:
+                    seen.append(obstacle)
                 if replans >= opts.max_replans:
                     metrics["legs"].append({"target": target.id, "reached": False, "replans": replans})
                     return self._end(
@@ -500,11 +544,16 @@ class WaypointPlanner(Planner):
         metrics: dict[str, Any],
         step: int,
         start_map: Pose2D,
-    ) -> str | None:
-        """Follow the waypoints; None when all are reached, else the stop reason."""
+    ) -> tuple[str | None, MotionResult | None]:
+        """Follow the waypoints; (None, last result) when all are reached, else (the stop reason, its result).
+
+        Every segment goes through the guarded motion layer, which vetoes it before the robot moves when
+        the LiDAR sees something on it (the map-based validation cannot know what the map lacks).
+        """
         world, cfg = ctx.world, self.cfg
         start_odom = world.robot.odom()
         t0 = world.sim_time
+        result: MotionResult | None = None
         try:
             for index, point in enumerate(waypoints, start=1):
                 before = world.robot.pose()
@@ -532,14 +581,24 @@ class WaypointPlanner(Planner):
                     collided=result.collided,
                     collision_with=result.collision_with,
                     stopped_reason=result.stopped_reason,
+                    **({"veto": result.veto} if result.veto is not None else {}),
                 )
                 if result.collided:
-                    return "collision"
+                    return "collision", result
                 if result.stopped_reason is not None:
-                    return result.stopped_reason
+                    return result.stopped_reason, result
         finally:
             metrics["execution_time_s"] += world.sim_time - t0
-        return None
+        return None, result
+
+    def _obstacle_at(self, ctx: EpisodeContext, hit: tuple[float, float] | None) -> Point | None:
+        """Estimated centre of what a veto saw: the blocking return pushed back by the assumed radius."""
+        if hit is None:
+            return None
+        pose = ctx.world.robot.pose()
+        heading = pose.yaw + math.atan2(hit[1], hit[0])
+        depth = math.hypot(*hit) + self.cfg.obstacle_radius_m  # [m] from the robot to the assumed centre
+        return (pose.x + depth * math.cos(heading), pose.y + depth * math.sin(heading))
 
     def _obstacle_ahead(self, ctx: EpisodeContext, *, wide: bool = False) -> Point | None:
         """Estimated centre of what stopped the robot; None when the LiDAR sees nothing there.

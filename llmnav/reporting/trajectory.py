@@ -27,8 +27,8 @@ def _oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[t
     if task.kind != "target":
         return None
     try:
-        from llmnav.baselines.oracle import oracle_path
         from llmnav.geometry import Pose2D
+        from llmnav.mapping.targets import oracle_path
 
         path = oracle_path(scenario, task, Pose2D.from_list(start))
     except (ImportError, LlmnavError):

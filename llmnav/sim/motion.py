@@ -57,7 +57,9 @@ class MotionResult:
     distance_m: float  # travelled (ground truth)
     rotated_rad: float  # signed, accumulated (ground truth)
     duration_s: float  # sim time
-    stopped_reason: str | None  # "collision" | "obstacle" | "emergency" | "timeout" | None
+    stopped_reason: str | None  # "collision" | "obstacle" | "emergency" | "timeout" | "vetoed" | None
+    veto: str | None = None  # why the guarded motion layer refused the motion (the robot did not move)
+    veto_hit: tuple[float, float] | None = None  # [m] robot-frame position of the return that blocked it
 
 
 class _Track:

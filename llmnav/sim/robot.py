@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from llmnav.geometry import Pose2D, wrap_angle
+from llmnav.robot_specs import RobotSpec
 from llmnav.sim.bodies import ROBOT_GROUP, SCENERY_GROUP
-from llmnav.sim.robot_specs import RobotSpec
 
 CONTACT_DISTANCE = 0.002  # [m] a contact point closer than this counts as touching
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from llmnav.backends.base import Image
+from llmnav.chat import Image
 from llmnav.scenario import CameraConfig, DetectorConfig, LidarConfig
 
 if TYPE_CHECKING:

@@ -14,11 +14,11 @@ from types import TracebackType
 import pybullet as p
 
 from llmnav.geometry import Pose2D
+from llmnav.robot_specs import ROBOT_SPECS
 from llmnav.scenario import CameraConfig, DetectorConfig, LabelledObject, LidarConfig, Obstacle, Scenario
 from llmnav.sim.bodies import create_shape
 from llmnav.sim.motion import Motion
 from llmnav.sim.robot import Robot
-from llmnav.sim.robot_specs import ROBOT_SPECS
 from llmnav.sim.sensors import Camera, Detector, Lidar
 
 PHYSICS_HZ = 240  # [Hz]

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from llmnav.baselines.frontier import FrontierConfig, FrontierPlanner
-from llmnav.baselines.grid import GridGeometry, LidarMap
 from llmnav.geometry import Pose2D
+from llmnav.guard.view import PlannerWorld
+from llmnav.mapping.grid import GridGeometry, LidarMap
 from llmnav.planners.base import DriveOptions, EpisodeContext
 from llmnav.runlog import RunLog, read_run
 from llmnav.scenario import Scenario, load_scenario, parse_scenario
@@ -21,7 +22,8 @@ def run(sc: Scenario, task_id: str, tmp_path: Path, config: FrontierConfig | Non
     with World(sc) as world:
         world.reset(sc.start_poses(task)[0].pose())
         with RunLog(tmp_path, {"test": True}) as log:
-            ctx = EpisodeContext(sc, task, world, None, log, DriveOptions(planner="frontier"))
+            world.motion.on_pose = lambda pose, t: log.event("pose", pose=pose.as_list())
+            ctx = EpisodeContext(sc, task, PlannerWorld(world, log), None, log, DriveOptions(planner="frontier"))
             outcome = FrontierPlanner(config).run(ctx)
         final = world.robot.pose()
         collisions = world.motion.collisions

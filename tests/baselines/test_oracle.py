@@ -7,10 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from llmnav.baselines.astar import line_of_sight
-from llmnav.baselines.oracle import OraclePlanner, oracle_length, oracle_path, scenario_grid
+from llmnav.baselines.oracle import OraclePlanner
 from llmnav.errors import BadInputError
 from llmnav.geometry import Pose2D
+from llmnav.mapping.astar import line_of_sight
+from llmnav.mapping.targets import oracle_length, oracle_path, scenario_grid
 from llmnav.scenario import Scenario, load_scenario, parse_scenario
 
 # A 10 m x 6 m room split by a wall at x = 5 with a 1.2 m gap at the top; a box target in the right half.
@@ -125,6 +126,7 @@ def test_every_factory_start_pose_has_a_plausible_oracle_path() -> None:
 
 
 def run_planner(sc: Scenario, task_id: str, tmp_path: Path, planner: object) -> tuple[object, object, object]:
+    from llmnav.guard.view import PlannerWorld
     from llmnav.planners.base import DriveOptions, EpisodeContext
     from llmnav.runlog import RunLog, read_run
     from llmnav.sim.world import World
@@ -133,7 +135,8 @@ def run_planner(sc: Scenario, task_id: str, tmp_path: Path, planner: object) -> 
     with World(sc) as world:
         world.reset(sc.start_poses(task)[0].pose())
         with RunLog(tmp_path, {"test": True}) as log:
-            ctx = EpisodeContext(sc, task, world, None, log, DriveOptions(planner="oracle"))
+            world.motion.on_pose = lambda pose, t: log.event("pose", pose=pose.as_list())
+            ctx = EpisodeContext(sc, task, PlannerWorld(world, log), None, log, DriveOptions(planner="oracle"))
             outcome = planner.run(ctx)  # type: ignore[attr-defined]
             final = world.robot.pose()
     return outcome, final, read_run(tmp_path)

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from llmnav.baselines.grid import build_grid
 from llmnav.geometry import Pose2D
+from llmnav.mapping.grid import build_grid
 from llmnav.planners.waypoints import map_to_odom, validate_waypoints
 from llmnav.scenario import parse_scenario
 

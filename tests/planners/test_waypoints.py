@@ -79,7 +79,10 @@ def test_invalid_plan_named_point_by_point_then_valid_plan_executed(tmp_path: Pa
 
     # "room 105" names one object: grounding needs no model call
     calls = record.of_type("llm_call")
-    assert [c["purpose"] for c in calls] == ["waypoints", "waypoints"]
+    assert [c["purpose"] for c in calls] == ["waypoints", "correction"]
+    # one guard event per reply, attempts counted from 1, the map rules judged as bounds
+    guards = [(g["attempt"], g["outcome"]) for g in record.of_type("guard")]
+    assert guards == [(1, "bounds"), (2, "ok")]
     assert [g["target"] for g in planner_events(record, "grounding")] == ["R105"]
 
     first = calls[0]["request"]
@@ -162,20 +165,24 @@ def test_regeneration_stops_at_max_generations_with_the_reason(tmp_path: Path) -
     assert metrics["legs"] == [{"target": "R105", "reached": False, "replans": 0}]
 
 
-def test_obstacle_stop_then_replan_around_it_from_the_current_pose(tmp_path: Path) -> None:
+def test_a_segment_through_an_unexpected_obstacle_is_vetoed_then_replanned(tmp_path: Path) -> None:
     box = (3.5, 0.0)
     straight = plan_text((5.0, 0.0), ROOM_105)  # valid on the map, but the box stands on it
     detour = plan_text((2.6, 1.2), (4.5, 1.2), ROOM_105)
     summary, record = drive(tmp_path, [straight, straight, detour], obstacles=(box,))
     assert summary["outcome"] == "completed", summary["reason"]
 
+    # the motion layer refused the segment through the box before the robot moved, and the log says so
     first = record.of_type("action")[0]
-    assert first["stopped_reason"] == "obstacle"
-    gap = box[0] - BOX / 2 - first["pose_after"][0]  # [m] robot centre to the box face
-    assert 0.35 < gap <= 0.5 + 0.02  # stopped at the 0.5 m critical distance, before the emergency one
+    assert (first["index"], first["stopped_reason"]) == (1, "vetoed")
+    assert first["pose_after"] == first["pose_before"]
+    assert "would collide with an obstacle" in first["veto"]
+    veto = next(g for g in record.of_type("guard") if g["outcome"] == "veto")
+    assert veto["motion"] == "GO_TO" and veto["parameters"] == [5.0, 0.0] and veto["error"] == first["veto"]
+    assert summary["safety_vetoes"] == 1
 
     (replan,) = planner_events(record, "replan")
-    assert (replan["reason"], replan["number"], replan["waited_s"]) == ("obstacle", 1, 0.0)
+    assert (replan["reason"], replan["number"], replan["waited_s"]) == ("vetoed", 1, 0.0)
     assert replan["pose"] == pytest.approx(first["pose_after"], abs=1e-3)
     assert math.dist(replan["obstacle"], box) < 0.3  # the estimated centre of what was seen
 
@@ -198,7 +205,7 @@ def test_obstacle_stop_then_replan_around_it_from_the_current_pose(tmp_path: Pat
     assert min(box_distance(p[0], p[1], box) for p in poses) > BURGER_RADIUS + 0.1
     assert summary["distance_m"] <= 0.11 and summary["collisions"] == 0
     metrics = summary["planner_metrics"]
-    assert (metrics["collision_events"], metrics["replans"]) == (1, 1)
+    assert (metrics["collision_events"], metrics["vetoed_segments"], metrics["replans"]) == (0, 1, 1)
     assert metrics["replanning_rate"] == pytest.approx(1 / metrics["execution_time_s"])
     assert (metrics["generations"], metrics["valid_generations"]) == (3, 2)
 
@@ -222,7 +229,7 @@ def test_emergency_stop_for_an_obstacle_beside_the_route(tmp_path: Path) -> None
 
 
 def test_replans_are_bounded_and_spaced_by_the_cooldown(tmp_path: Path) -> None:
-    # a wall of boxes across the corridor: every route stops in front of it
+    # a wall of boxes across the corridor: every route is vetoed at the segment that crosses it
     wall = tuple((3.5, y) for y in (-1.75, -1.25, -0.75, -0.25, 0.25, 0.75, 1.25, 1.75))
     replies = [
         plan_text((5.0, 0.0), ROOM_105),
@@ -232,9 +239,9 @@ def test_replans_are_bounded_and_spaced_by_the_cooldown(tmp_path: Path) -> None:
     ]
     summary, record = drive(tmp_path, replies, obstacles=wall, max_replans=2, replan_cooldown_s=10.0)
     assert summary["outcome"] == "failed" and exit_code(summary) == 1
-    assert summary["reason"] == "path to room 105 still blocked (obstacle) after 2 replans"
+    assert summary["reason"] == "path to room 105 still blocked (vetoed) after 2 replans"
     assert len(record.of_type("llm_call")) == 3
-    assert [a["stopped_reason"] for a in record.of_type("action")] == ["obstacle", None, "obstacle", None, "obstacle"]
+    assert [a["stopped_reason"] for a in record.of_type("action")] == ["vetoed", None, "vetoed", None, "vetoed"]
 
     replans = planner_events(record, "replan")
     assert [r["number"] for r in replans] == [1, 2]
@@ -250,7 +257,7 @@ def test_replans_are_bounded_and_spaced_by_the_cooldown(tmp_path: Path) -> None:
         assert listed.count("(") - listed.count("(keep") == k
 
     metrics = summary["planner_metrics"]
-    assert (metrics["collision_events"], metrics["replans"]) == (3, 2)
+    assert (metrics["collision_events"], metrics["vetoed_segments"], metrics["replans"]) == (0, 3, 2)
     assert metrics["replanning_rate"] == pytest.approx(2 / metrics["execution_time_s"])
     assert metrics["legs"] == [{"target": "R105", "reached": False, "replans": 2}]
     assert summary["collisions"] == 0
@@ -296,7 +303,9 @@ def test_an_ambiguous_command_is_grounded_by_the_models_choice(tmp_path: Path) -
     summary, record = drive(tmp_path, replies, scenario="corridor_b", tasks=("Go to the window",))
     assert summary["outcome"] == "completed", summary["reason"]
     calls = record.of_type("llm_call")
-    assert [c["purpose"] for c in calls] == ["ground", "ground", "waypoints"]
+    assert [c["purpose"] for c in calls] == ["ground", "correction", "waypoints"]
+    guards = [(g["purpose"], g["attempt"], g["outcome"]) for g in record.of_type("guard")]
+    assert guards == [("ground", 1, "schema"), ("ground", 2, "ok"), ("waypoints", 1, "ok")]
     ask = calls[0]["request"]
     schema = response_schema(target_choice_model(("WIN1", "WIN2")))
     assert ask["json_schema"] == schema and ask["json_schema"]["properties"]["object_id"]["enum"] == [
@@ -325,7 +334,8 @@ def test_grounding_gives_up_after_three_unlisted_ids(tmp_path: Path) -> None:
     summary, record = drive(tmp_path, replies, scenario="corridor_b", tasks=("Go to the window",))
     assert summary["outcome"] == "aborted" and exit_code(summary) == 1
     assert summary["reason"] == "the model named no listed object for 'Go to the window' after 3 tries"
-    assert [c["purpose"] for c in record.of_type("llm_call")] == ["ground"] * 3
+    assert [c["purpose"] for c in record.of_type("llm_call")] == ["ground", "correction", "correction"]
+    assert [g["attempt"] for g in record.of_type("guard")] == [1, 2, 3]
     assert record.of_type("action") == []
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from llmnav.baselines.grid import build_grid
+from llmnav.mapping.grid import build_grid
 from llmnav.planners.waypoints import validate_waypoints
 from llmnav.scenario import load_scenario
 

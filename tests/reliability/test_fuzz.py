@@ -29,10 +29,10 @@ from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction
 from llmnav.guard.veto import check_motion
 from llmnav.metrics import summarize_run
 from llmnav.planners.base import DriveOptions
+from llmnav.robot_specs import PR2
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 from llmnav.scenario import load_scenario
-from llmnav.sim.robot_specs import PR2
 
 CATEGORY = "guard fuzzing"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")

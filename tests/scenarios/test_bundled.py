@@ -6,8 +6,8 @@ import math
 
 import pytest
 
+from llmnav.robot_specs import ROBOT_SPECS
 from llmnav.scenario import Scenario, list_scenarios, load_scenario
-from llmnav.sim.robot_specs import ROBOT_SPECS
 
 BUNDLED = ["corridor_a", "corridor_b", "corridor_c", "factory", "maze_arena"]
 

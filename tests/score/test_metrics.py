@@ -11,12 +11,11 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from score_fakes import config_for, tiny_scenario, write_run  # noqa: E402
 
-from llmnav.geometry import Pose2D  # noqa: E402
+from llmnav.geometry import Pose2D, path_length  # noqa: E402
 from llmnav.metrics import (  # noqa: E402
     best_target,
     distance_score,
     heading_score,
-    path_length,
     score_pose,
     summarize_run,
     total_rotation,

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from llmnav.geometry import Pose2D
-from llmnav.sim.robot_specs import BURGER, PR2
+from llmnav.robot_specs import BURGER, PR2
 from llmnav.sim.world import World
 
 

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from llmnav.baselines.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate
 from llmnav.geometry import Pose2D
+from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate
+from llmnav.robot_specs import BURGER, PR2
 from llmnav.scenario import parse_scenario
-from llmnav.sim.robot_specs import BURGER, PR2
 
 
 def small_scenario(robot: str = "burger") -> object:

@@ -9,8 +9,9 @@ import pytest
 from scipy.sparse import lil_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from llmnav.baselines.astar import astar, densify, line_of_sight, octile_distance, polyline_length, shortcut
 from llmnav.errors import BadInputError
+from llmnav.geometry import path_length
+from llmnav.mapping.astar import astar, densify, line_of_sight, octile_distance, shortcut
 
 
 def reference_distance(blocked: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> float:
@@ -122,7 +123,7 @@ def test_shortcut_is_clear_and_not_longer() -> None:
     for a, b in zip(corners, corners[1:], strict=False):
         assert line_of_sight(blocked, a, b)
     as_points = [(float(c), float(r)) for r, c in corners]
-    assert polyline_length(as_points) <= path.length_m + 1e-9
+    assert path_length(as_points) <= path.length_m + 1e-9
 
 
 def test_line_of_sight_refuses_a_diagonal_squeeze() -> None:
@@ -136,4 +137,4 @@ def test_densify_spacing() -> None:
     points = densify([(0.0, 0.0), (5.0, 0.0), (5.0, 1.0)], 2.0)
     assert points[0] == (0.0, 0.0) and points[-1] == (5.0, 1.0)
     assert all(math.dist(p, q) <= 2.0 + 1e-9 for p, q in zip(points, points[1:], strict=False))
-    assert polyline_length(points) == pytest.approx(6.0)
+    assert path_length(points) == pytest.approx(6.0)

@@ -28,8 +28,8 @@ from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
+    from llmnav.robot_specs import RobotSpec
     from llmnav.scenario import Bounds, Scenario, Shape
-    from llmnav.sim.robot_specs import RobotSpec
 
 Cell = tuple[int, int]  # (row, col)
 
@@ -154,7 +154,7 @@ def build_grid(
     `robot` defaults to the scenario's robot model. Shapes whose bottom is above the robot's height
     (signs hung on walls) are left out: the robot passes beneath them.
     """
-    from llmnav.sim.robot_specs import ROBOT_SPECS  # plain data module, no pybullet
+    from llmnav.robot_specs import ROBOT_SPECS  # plain data module, no pybullet
 
     config = config or GridConfig()
     robot = robot or ROBOT_SPECS[scenario.robot]

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from llmnav.baselines.astar import astar, polyline_length, shortcut
-from llmnav.baselines.grid import nearest_free_cell
+from llmnav.geometry import path_length
+from llmnav.mapping.astar import astar, shortcut
+from llmnav.mapping.grid import nearest_free_cell
 
 if TYPE_CHECKING:
-    from llmnav.baselines.grid import OccupancyGrid
+    from llmnav.mapping.grid import OccupancyGrid
     from llmnav.scenario import Scenario
 
 Point = tuple[float, float]
@@ -36,7 +37,7 @@ def plan_path(grid: OccupancyGrid, start: Point, goal: Point) -> list[Point] | N
 
 def shortest_path_length(scenario: Scenario, start: Point, goal: Point) -> float | None:
     """Length [m] of the shortest collision-free path between two points of a scenario."""
-    from llmnav.baselines.oracle import scenario_grid
+    from llmnav.mapping.targets import scenario_grid
 
     path = plan_path(scenario_grid(scenario), start, goal)
-    return None if path is None else polyline_length(path)
+    return None if path is None else path_length(path)

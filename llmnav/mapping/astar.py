@@ -211,11 +211,6 @@ def shortcut(cells: list[Cell], blocked: np.ndarray) -> list[Cell]:
     return kept
 
 
-def polyline_length(points: list[tuple[float, float]]) -> float:
-    """Length [m] of a polyline through world points."""
-    return sum(math.dist(p, q) for p, q in zip(points, points[1:], strict=False))
-
-
 def densify(points: list[tuple[float, float]], max_spacing_m: float) -> list[tuple[float, float]]:
     """Insert evenly spaced points so no segment is longer than `max_spacing_m` (first point kept)."""
     if max_spacing_m <= 0:

@@ -1,0 +1,114 @@
+"""Driving a planned path in the simulator, shared by the oracle and frontier baselines.
+
+Each helper commands the guarded motion layer (`ctx.world.motion`), logs one `action` event per motion
+and keeps a running `Drive` tally. A leg the layer vetoes ends the drive like any failed motion.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from llmnav.planners.base import EpisodeContext, EpisodeOutcome, StepInfo
+
+if TYPE_CHECKING:
+    from llmnav.sim.motion import MotionResult
+
+Point = tuple[float, float]  # [m]
+
+
+@dataclass
+class Drive:
+    """What a sequence of motions did."""
+
+    travelled_m: float = 0.0  # [m] ground-truth distance driven
+    steps: int = 0  # motions executed (action events logged)
+    last: MotionResult | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Whether the last motion reached its goal."""
+        return self.last is None or self.last.ok
+
+
+def log_action(ctx: EpisodeContext, step: int, command: str, parameters: object, result: MotionResult) -> None:
+    """One `action` event for a motion (and a line in the live view)."""
+    ctx.log.sim_time = ctx.world.sim_time
+    ctx.log.event(
+        "action",
+        step=step,
+        command=command,
+        parameters=parameters,
+        pose_before=result.start.as_list(),
+        pose_after=result.end.as_list(),
+        collided=result.collided,
+        collision_with=result.collision_with,
+        stopped_reason=result.stopped_reason,
+        **({"veto": result.veto} if result.veto is not None else {}),
+    )
+    ctx.view.on_step(StepInfo(step=step, action=f"{command} {parameters}"))
+
+
+def drive_waypoints(
+    ctx: EpisodeContext,
+    waypoints: Sequence[Point],
+    drive: Drive,
+    *,
+    tol_m: float = 0.1,
+    final_tol_m: float = 0.05,
+    obstacle_stop_m: float | None = None,
+) -> Drive:
+    """go_to each waypoint in turn, logging one `action` per waypoint; stops at the first failed motion."""
+    for i, (x, y) in enumerate(waypoints):
+        tol = final_tol_m if i == len(waypoints) - 1 else tol_m
+        result = ctx.world.motion.go_to(x, y, tol_m=tol, obstacle_stop_m=obstacle_stop_m)
+        drive.steps += 1
+        drive.travelled_m += result.distance_m
+        drive.last = result
+        log_action(ctx, drive.steps, "GO_TO", [round(x, 3), round(y, 3)], result)
+        if not result.ok:
+            break
+    return drive
+
+
+def rotate_by(ctx: EpisodeContext, angle_rad: float, drive: Drive) -> Drive:
+    """One logged in-place rotation (positive = counter-clockwise)."""
+    result = ctx.world.motion.rotate(angle_rad)
+    drive.steps += 1
+    drive.travelled_m += result.distance_m
+    drive.last = result
+    command = "ROTATE_LEFT" if angle_rad >= 0 else "ROTATE_RIGHT"
+    log_action(ctx, drive.steps, command, round(math.degrees(abs(angle_rad)), 2), result)
+    return drive
+
+
+def face_point(ctx: EpisodeContext, point: Point, drive: Drive, *, min_angle_rad: float = 0.02) -> Drive:
+    """Turn in place to face a point (skipped when already within `min_angle_rad` [rad])."""
+    bearing = ctx.world.robot.pose().bearing_to(*point)
+    if abs(bearing) < min_angle_rad:
+        return drive
+    return rotate_by(ctx, bearing, drive)
+
+
+def failure_reason(result: MotionResult | None) -> str:
+    """One line saying why a motion stopped."""
+    if result is None:
+        return "no motion"
+    if result.collided:
+        return f"collision with {result.collision_with or 'an obstacle'}"
+    if result.veto is not None:
+        return f"motion vetoed: {result.veto}"
+    return f"motion stopped: {result.stopped_reason or 'goal not reached'}"
+
+
+def run_untargeted(ctx: EpisodeContext, drive: Drive) -> EpisodeOutcome:
+    """Tasks without targets: `rotate` turns 360° (four quarter turns), `explore` ends at once."""
+    if ctx.task.kind != "rotate":
+        return EpisodeOutcome("completed", "no target", iterations=0, metrics={"travelled_m": 0.0})
+    for _ in range(4):
+        rotate_by(ctx, math.pi / 2, drive)
+        if not drive.ok:
+            return EpisodeOutcome("failed", failure_reason(drive.last), iterations=drive.steps)
+    return EpisodeOutcome("completed", "rotated 360 degrees", iterations=drive.steps, metrics={"travelled_m": 0.0})

@@ -1,0 +1,247 @@
+"""Shortest collision-free paths from a pose to a task's targets (the oracle's path, every run's yardstick).
+
+It builds the true occupancy grid of the scenario (`grid.build_grid`, inflated by robot radius + margin)
+and runs one A* (`astar.astar`) from the start cell to the union of every acceptable target's *approach
+cells*:
+
+- an object target: free cells whose centre lies 1.5–2.5 m from the object's goal point (the distance at
+  which the stepwise source asks the robot to stop, and at which the score's distance term is 1), shrunk
+  by 0.1 m on both sides so the robot's stop tolerance cannot carry it out of the band;
+- a point target (T4's free spot between the stairs and the barrels): the point's own cell when free,
+  otherwise the same band around it.
+
+The heuristic is the octile distance to the nearest target's goal point minus that target's outer radius
+(stretched to octile), a lower bound of the remaining cost, so the first approach cell A* settles is the
+nearest by path length.
+
+Reported length: `OraclePath.length_m` (what `oracle_length` and the metric `oracle_length_m` give) is
+the length of the line-of-sight shortcut of the A* path, itself a collision-free path on the inflated
+grid, and the one the oracle drives. The raw 8-connected grid length (`grid_length_m`, metric
+`oracle_grid_length_m`) is kept beside it: it overstates the true shortest path by up to ~8 % (grid
+zig-zags), so with it the oracle's own drives would come out *shorter* than the "shortest" path.
+
+Reference: Hart, Nilsson, Raphael (1968), see `astar.py`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from llmnav.errors import BadInputError
+from llmnav.geometry import Pose2D, path_length
+from llmnav.mapping.astar import GridPath, astar, densify, shortcut
+from llmnav.mapping.grid import Cell, GridConfig, OccupancyGrid, build_grid, nearest_free_cell
+
+if TYPE_CHECKING:
+    from llmnav.scenario import Scenario, Target, Task
+
+Point = tuple[float, float]  # [m]
+SQRT2 = math.sqrt(2.0)
+OCTILE_STRETCH = math.sqrt(4.0 - 2.0 * SQRT2)  # max octile / Euclidean ratio (at 22.5 deg), ~1.082
+
+
+@dataclass(frozen=True)
+class OracleConfig:
+    """Where the oracle may stop and how its path is driven."""
+
+    approach_min_m: float = 1.5  # [m] closest acceptable distance to a target's goal point
+    approach_max_m: float = 2.5  # [m] farthest acceptable distance (the score's full-distance radius)
+    band_slack_m: float = 0.1  # [m] the planned band is shrunk by this on both sides so the driven stop
+    # (within final_tol_m of the approach point) still lies inside the acceptable band
+    start_snap_m: float = 0.5  # [m] a start inside the inflation may step this far to the nearest free cell
+    waypoint_spacing_m: float = 2.0  # [m] longest straight leg handed to go_to (keeps legs short and logged)
+    waypoint_tol_m: float = 0.1  # [m] go_to tolerance at intermediate waypoints (source B's reach tolerance)
+    final_tol_m: float = 0.05  # [m] tolerance at the approach point (stay inside the band)
+    grid: GridConfig = field(default_factory=GridConfig)
+
+
+@dataclass(frozen=True)
+class OraclePath:
+    """A shortest path to one target's approach point."""
+
+    target: Target
+    target_point: Point  # [m] what the robot finally faces: the object itself, or a point target
+    approach: Point  # [m] where the path ends
+    cells: list[Cell]
+    points: list[Point]  # [m] the shortcut polyline: start pose, corners, approach point
+    grid_points: list[Point]  # [m] the raw grid path: start pose, then cell centres
+    waypoints: list[Point]  # [m] `points` densified for go_to; excludes the start, ends at `approach`
+    length_m: float  # [m] length of `points` (the value reported)
+    grid_length_m: float  # [m] length of `grid_points` (raw 8-connected length)
+
+
+@dataclass(frozen=True)
+class _Goal:
+    """One target's approach cells and the radius used by the heuristic."""
+
+    target: Target
+    point: Point
+    mask: np.ndarray
+    reach_m: float  # [m] every goal cell centre lies within this of `point`
+    face: Point | None = None  # [m] what to face on arrival when it is not `point`
+
+
+def _approach_goal(
+    grid: OccupancyGrid, target: Target, point: Point, config: OracleConfig, *, exact: bool = False
+) -> _Goal:
+    """Where the oracle may stop for one target.
+
+    The point itself when it is a stand point (a point target, or a corridor world's room plate with its
+    `goal`), else the 1.5–2.5 m band around it.
+    """
+    geometry = grid.geometry
+    if (exact or target.point is not None) and grid.is_free(*point):
+        mask = np.zeros(geometry.shape, dtype=bool)
+        mask[geometry.world_to_cell(*point)] = True
+        return _Goal(target, point, mask, geometry.resolution * math.sqrt(0.5))
+    xs, ys = geometry.centres()
+    distance = np.hypot(xs - point[0], ys - point[1])
+    low, high = config.approach_min_m + config.band_slack_m, config.approach_max_m - config.band_slack_m
+    mask = (distance >= low) & (distance <= high) & ~grid.blocked
+    return _Goal(target, point, mask, high)
+
+
+def plan_to_targets(
+    grid: OccupancyGrid,
+    scenario: Scenario,
+    targets: Sequence[Target],
+    start: Point,
+    config: OracleConfig | None = None,
+) -> OraclePath | None:
+    """Shortest path on `grid` from `start` to the nearest approach cell of any target (None: unreachable)."""
+    config = config or OracleConfig()
+    geometry = grid.geometry
+    goals = []
+    for target in targets:
+        point = scenario.object(target.object).goal_point if target.object is not None else target.point
+        assert point is not None
+        # In corridor worlds (source B) an object's `goal` is a stand point the robot must reach exactly.
+        obj = scenario.object(target.object) if target.object is not None else None
+        exact = bool(scenario.corridors) and obj is not None and obj.goal is not None
+        goal = _approach_goal(grid, target, (float(point[0]), float(point[1])), config, exact=exact)
+        if exact:  # standing on the stand point, face the object (a plate on the wall), not the point
+            goal = replace(goal, face=scenario.object(target.object or "").center)
+        goals.append(goal)
+    union = np.zeros(geometry.shape, dtype=bool)
+    for goal in goals:
+        union |= goal.mask
+    start_cell = nearest_free_cell(grid.blocked, geometry, start[0], start[1], config.start_snap_m)
+    if start_cell is None or not union.any():
+        return None
+
+    # Octile distance is a norm at most OCTILE_STRETCH times the Euclidean one, so octile(cell, point) minus
+    # OCTILE_STRETCH x reach never overestimates the cost to any goal cell within `reach` of the point.
+    xs, ys = geometry.centres()
+    heuristic = np.full(geometry.shape, np.inf)
+    for goal in goals:
+        dx, dy = np.abs(xs - goal.point[0]), np.abs(ys - goal.point[1])
+        octile = np.maximum(dx, dy) + (SQRT2 - 1.0) * np.minimum(dx, dy)
+        heuristic = np.minimum(heuristic, octile - OCTILE_STRETCH * goal.reach_m)
+    heuristic = np.maximum(heuristic, 0.0)
+    path: GridPath | None = astar(
+        grid.blocked, start_cell, union, resolution_m=geometry.resolution, heuristic=heuristic
+    )
+    if path is None:
+        return None
+    goal = next(g for g in goals if g.mask[path.goal])
+    centres = [geometry.cell_to_world(*cell) for cell in path.cells]
+    # The exact start pose replaces its cell's centre; a path of one cell still steps to that centre.
+    grid_points = [(start[0], start[1]), *(centres[1:] if len(centres) > 1 else centres)]
+    corners = [geometry.cell_to_world(*cell) for cell in shortcut(path.cells, grid.blocked)]
+    points = [(start[0], start[1]), *(corners[1:] if len(corners) > 1 else corners)]
+    waypoints = densify(points, config.waypoint_spacing_m)[1:]
+    return OraclePath(
+        target=goal.target,
+        target_point=goal.face or goal.point,
+        approach=centres[-1],
+        cells=path.cells,
+        points=points,
+        grid_points=grid_points,
+        waypoints=waypoints,
+        length_m=path_length(points),
+        grid_length_m=path_length(grid_points),
+    )
+
+
+@dataclass(frozen=True, eq=True)
+class _ScenarioKey:
+    """Hashable handle of a (frozen, but list-holding) Scenario for caches: equal content, equal key."""
+
+    digest: str
+    scenario: Scenario = field(compare=False, hash=False)
+
+    @classmethod
+    def of(cls, scenario: Scenario) -> _ScenarioKey:
+        return cls(hashlib.sha256(scenario.model_dump_json().encode()).hexdigest(), scenario)
+
+
+@lru_cache(maxsize=8)
+def _grid_for(key: _ScenarioKey, config: GridConfig) -> OccupancyGrid:
+    return build_grid(key.scenario, config=config)
+
+
+def scenario_grid(scenario: Scenario, config: GridConfig | None = None) -> OccupancyGrid:
+    """The true inflated grid of a scenario (cached by content: do not modify the returned arrays)."""
+    return _grid_for(_ScenarioKey.of(scenario), config or GridConfig())
+
+
+def with_added_obstacles(scenario: Scenario, centres: Sequence[Point], size_m: float = 0.5) -> Scenario:
+    """The scenario plus the boxes `llmnav drive --obstacle` drops (size [m] as `World.add_obstacle`)."""
+    from llmnav.scenario import Obstacle
+
+    if not centres:
+        return scenario
+    added = [
+        Obstacle(id=f"added:{i}", center=(float(x), float(y)), size=(size_m, size_m))
+        for i, (x, y) in enumerate(centres, start=1)
+    ]
+    return scenario.model_copy(update={"obstacles": [*scenario.obstacles, *added]})
+
+
+def oracle_path(
+    scenario: Scenario, task: Task, start: Pose2D, *, config: OracleConfig | None = None
+) -> OraclePath | None:
+    """A* from `start` to the nearest acceptable approach point; None if unreachable or without targets."""
+    config = config or OracleConfig()
+    if not task.targets:
+        return None
+    grid = scenario_grid(scenario, config.grid)
+    return plan_to_targets(grid, scenario, task.targets, (start.x, start.y), config)
+
+
+@lru_cache(maxsize=1024)
+def _cached_length(key: _ScenarioKey, task_id: str, x: float, y: float) -> float | None:
+    scenario = key.scenario
+    path = oracle_path(scenario, scenario.task(task_id), Pose2D(x, y, 0.0))
+    return None if path is None else path.length_m
+
+
+def oracle_length(
+    scenario: Scenario, task: Task | str, start_pose_index_or_pose: int | Pose2D
+) -> float | None:
+    """The oracle's path length [m] (`OraclePath.length_m`), cached; None without targets or path.
+
+    An int is a 1-based index into the task's start poses (as `llmnav drive --start-pose`); a Pose2D is
+    used as is.
+    """
+    task_obj = scenario.task(task) if isinstance(task, str) else task
+    if isinstance(start_pose_index_or_pose, Pose2D):
+        pose = start_pose_index_or_pose
+    else:
+        poses = scenario.start_poses(task_obj)
+        index = int(start_pose_index_or_pose)
+        if not 1 <= index <= len(poses):
+            raise BadInputError(
+                f"start pose {index} of task {task_obj.id} does not exist (1-based, 1..{len(poses)})"
+            )
+        pose = poses[index - 1].pose()
+    if not task_obj.targets:
+        return None
+    return _cached_length(_ScenarioKey.of(scenario), task_obj.id, round(pose.x, 6), round(pose.y, 6))
