@@ -38,6 +38,7 @@ import math
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -50,6 +51,7 @@ from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, P
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from llmnav.guard.parse import GuardResult
     from llmnav.runlog import RunRecord
     from llmnav.sim.sensors import Detection
 
@@ -134,25 +136,28 @@ def rate_limit(target: float, previous: float, max_rate: float, dt: float) -> fl
 
 
 def check_suggestion(
-    text: str | None, stamp: float, t_recv: float, ttl_s: float, cfg: FsmConfig
+    text: str | None,
+    stamp: float,
+    t_recv: float,
+    ttl_s: float,
+    cfg: FsmConfig,
+    guard: Callable[[str], GuardResult[Any]] | None = None,
 ) -> tuple[Verdict, tuple[float, float] | None, str]:
     """Judge a model answer: (verdict, (v [m/s], w [rad/s]) if usable, detail).
 
-    Order: parse, freshness, bounds. The answer is `[v, w]` in whole mm/s and mrad/s.
+    Order: parse, freshness, bounds. The answer is `[v, w]` in whole mm/s and mrad/s. `guard` turns the
+    text into a value (the episode passes the guarded ask loop, which logs its verdict); default: the
+    guard's parser alone.
     """
-    from llmnav.guard.parse import GuardResult, parse_answer
+    from llmnav.guard.parse import parse_answer
     from llmnav.guard.schemas import VelocityMilli
 
     if text is None:
         return "error", None, "model call failed"
-    try:  # fast path inside the 50 Hz tick: a bare, valid JSON object (what grammar-constrained models send)
-        value: VelocityMilli | None = VelocityMilli.model_validate_json(text)
-    except ValueError:  # anything else gets the full guard: fences, prose, repair, classified errors
-        result: GuardResult[VelocityMilli] = parse_answer(text, VelocityMilli)
-        if result.value is None:
-            return "parse", None, result.error or result.outcome
-        value = result.value
-    assert value is not None
+    result = guard(text) if guard is not None else parse_answer(text, VelocityMilli)
+    if result.value is None:
+        return "parse", None, result.error or result.outcome
+    value: VelocityMilli = result.value
     if t_recv - stamp > ttl_s:
         return "stale", None, f"{(t_recv - stamp) * 1000:.0f} ms old > TTL {ttl_s * 1000:.0f} ms"
     v, w = value.v / 1000.0, value.w / 1000.0
@@ -263,7 +268,9 @@ class FsmPlanner(Planner):
 
     name = "fsm"
     needs_backend = True
-    options = frozenset({"assist", "alpha", "beta", "ttl_ms", "max_ticks", "temperature", "max_tokens"})
+    options = frozenset(
+        {"assist", "alpha", "beta", "ttl_ms", "ttl_auto", "model_latency", "max_ticks", "temperature", "max_tokens"}
+    )
     paces_itself = True  # its 50 Hz ticks follow the wall clock under --realtime, not the physics steps
 
     def __init__(self, config: FsmConfig | None = None) -> None:
@@ -305,6 +312,7 @@ class FsmPlanner(Planner):
         raw_v: float | None = None
         raw_w: float | None = None
         pending: Suggestion | None = None
+        sent: ChatRequest | None = None  # the request in flight (at most one), for the guard's record
         in_flight = False
         last_publish = -math.inf
         next_pose = next_cmd = next_detect = 0.0
@@ -355,7 +363,9 @@ class FsmPlanner(Planner):
                         pending, in_flight = None, False
                         stats.suggestions += 1
                         stats.model_latency_ms.append(delivered.latency_s * 1000.0)
-                        verdict, value, detail = check_suggestion(delivered.text, delivered.stamp, now, ttl_s, cfg)
+                        verdict, value, detail = check_suggestion(
+                            delivered.text, delivered.stamp, now, ttl_s, cfg, self._guard(ctx, sent)
+                        )
                         if value is not None:
                             stats.accepted += 1
                             held = HeldSuggestion(delivered.stamp, *value)
@@ -462,7 +472,7 @@ class FsmPlanner(Planner):
                 ):
                     seen = visible[target_id]
                     assert schema is not None
-                    request = self._request(system_prompt, schema, seen, base_v, base_w, opts)
+                    request = sent = self._request(system_prompt, schema, seen, base_v, base_w, opts)
                     last_publish, in_flight = now, True
                     if worker is not None:
                         worker.submit(now, request)
@@ -568,6 +578,18 @@ class FsmPlanner(Planner):
             max_tokens=min(opts.max_tokens, ANSWER_MAX_TOKENS),
             seed=opts.seed,
         )
+
+    @staticmethod
+    def _guard(ctx: EpisodeContext, request: ChatRequest | None) -> Callable[[str], GuardResult[Any]]:
+        """The guarded ask loop judging a reply already in hand (no correction turns: the loop cannot wait)."""
+        from llmnav.guard.ask import ask_guarded
+        from llmnav.guard.schemas import VelocityMilli
+
+        def judge(text: str) -> GuardResult[Any]:
+            asked = request or ChatRequest(messages=())
+            return ask_guarded(ctx, asked, VelocityMilli, None, 0, reply=text, purpose="suggestion").result
+
+        return judge
 
     @staticmethod
     def _call(ctx: EpisodeContext, request: ChatRequest) -> ChatResult:
