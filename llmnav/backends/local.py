@@ -181,10 +181,13 @@ def default_threads() -> int:
 
 
 # Ablation pools: W worker processes, each with its own simulation and model. Which layout gives more
-# episodes per minute was measured, not assumed: hybrid factory episodes (bench/local.py, BENCH_POOL=1)
-# at 1 worker x 2 threads against 2 workers x 1 thread on a 2-core machine; see docs/local-model.md.
-POOL_MEASURED = {"1x2": 0.0, "2x1": 0.0}  # [episodes/min] filled in from the measurement
-POOL_SPEEDUP = 1.0  # episodes/min of the chosen layout over one worker (used to project protocol times)
+# episodes per minute was measured, not assumed: 4 hybrid factory episodes (T1, T5; poses 1-2; at most
+# 6 decisions) with the local model on this 2-core machine, shared with other busy processes:
+#   1 worker x 2 threads: 526.6 s, 0.456 episodes/min (load average 11.7 at the start, 21.0 at the end)
+#   2 workers x 1 thread: 447.0 s, 0.537 episodes/min (load average 19.9 at the start, 22.7 at the end)
+# Two single-threaded workers were 18 % faster although they started under the heavier load: chosen.
+POOL_MEASURED = {"1x2": 0.456, "2x1": 0.537}  # [episodes/min]
+POOL_SPEEDUP = POOL_MEASURED["2x1"] / POOL_MEASURED["1x2"]  # of the chosen layout over one worker
 
 
 def pool_layout() -> tuple[int, int]:
