@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-MODULES = ["bench.sim", "bench.guard", "bench.local", "bench.decision", "bench.ablate"]
+MODULES = ["bench.sim", "bench.guard", "bench.local", "bench.decision", "bench.ablate", "bench.calibrate"]
 
 
 def main() -> int:

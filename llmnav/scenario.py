@@ -28,6 +28,12 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class _Physical(_Strict):
+    """A block of physical parameters: NaN and infinities are rejected like any out-of-range value."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
 class Shape(_Strict):
     """A box or cylinder footprint standing on the floor (or lifted by `z`)."""
 
@@ -175,8 +181,8 @@ class Corridor(_Strict):
         return (self.x[0] + margin <= x <= self.x[1] - margin) and (self.y[0] + margin <= y <= self.y[1] - margin)
 
 
-class LidarConfig(_Strict):
-    """2D LiDAR defaults."""
+class LidarConfig(_Physical):
+    """2D LiDAR defaults; `noise_std_m` [m] is the std of the Gaussian range noise of each ray."""
 
     fov_deg: float = Field(default=360.0, gt=0, le=360)
     rays: int = Field(default=360, ge=8, le=4096)
@@ -197,13 +203,70 @@ class CameraConfig(_Strict):
     jpeg_quality: int = Field(default=80, ge=10, le=100)
 
 
-class DetectorConfig(_Strict):
-    """Detections from the segmentation mask."""
+class DetectorConfig(_Physical):
+    """The object detector: which labelled objects it reports, and the errors of what it reports.
 
-    min_pixels: int = Field(default=30, ge=1)
-    max_distance_m: float = Field(default=12.0, gt=0)
-    distance_noise_std_m: float = Field(default=0.0, ge=0)
-    dropout: float = Field(default=0.0, ge=0, le=1)
+    An object is a candidate when it covers at least `min_pixels` of the detector's 160x120 segmentation
+    frame (so walls in front of it hide it), lies within `max_distance_m` and, with `occlusion: center`,
+    its centre is in the camera's line of sight (a ray test: a detector that only sees an edge of a sign
+    cannot localise it). Each candidate is then missed with probability `dropout` per frame.
+
+    Distance readings at true range d: d * (1 + distance_bias) + N(0, sigma(d)^2), with
+    sigma(d) = distance_noise_std_m + distance_noise_per_m * d (a constant part, e.g. box jitter, and a
+    part growing with range, as monocular range-from-size does), drawn afresh each frame.
+    Bearing readings: the true bearing + N(0, bearing_noise_std_deg^2); the image offset is shifted by the
+    same angle. The defaults are an ideal detector; every bundled scenario sets its own errors.
+    """
+
+    min_pixels: int = Field(default=30, ge=1)  # [px] at 160x120, scaled to the frame's resolution
+    max_distance_m: float = Field(default=12.0, gt=0)  # [m] maximum range of a detection
+    occlusion: Literal["mask", "center"] = "mask"  # "center": also needs a clear ray to the object's centre
+    distance_noise_std_m: float = Field(default=0.0, ge=0, le=10)  # [m] constant part of sigma(d)
+    distance_noise_per_m: float = Field(default=0.0, ge=0, le=1)  # [m/m] growth of sigma(d) with range
+    distance_bias: float = Field(default=0.0, gt=-1, lt=1)  # [-] relative bias (+0.05: reads 5 % long)
+    bearing_noise_std_deg: float = Field(default=0.0, ge=0, le=45)  # [deg]
+    dropout: float = Field(default=0.0, ge=0, le=1)  # [-] probability a candidate is missed in a frame
+
+    def distance_sigma(self, distance_m: float) -> float:
+        """Standard deviation [m] of a distance reading at true range `distance_m` [m]."""
+        return self.distance_noise_std_m + self.distance_noise_per_m * distance_m
+
+    @property
+    def ideal(self) -> bool:
+        """Whether readings are exact (no noise, bias or dropout)."""
+        return (
+            self.distance_noise_std_m == 0
+            and self.distance_noise_per_m == 0
+            and self.distance_bias == 0
+            and self.bearing_noise_std_deg == 0
+            and self.dropout == 0
+        )
+
+
+class OdometryConfig(_Physical):
+    """Wheel odometry errors (see `llmnav.sim.robot`), per wheel as encoders see them.
+
+    Systematic, drawn once per episode from its seed: each wheel's effective radius is off by a relative
+    N(0, wheel_scale_std^2) (distance scale error and a steady curve), the effective track width by
+    N(0, track_scale_std^2) (every measured turn too large or too small). Random: each wheel's measured
+    travel gets N(0, wheel_noise_m_per_sqrt_m^2 * |travel|), a random walk that grows with the square root
+    of the distance the wheel rolled (slip, uneven floor). The default is a typical small base on a
+    clean floor; all zeros makes odometry exact. Scoring never uses odometry, only the true pose.
+    """
+
+    wheel_scale_std: float = Field(default=0.002, ge=0, le=0.2)  # [-] relative, per wheel
+    track_scale_std: float = Field(default=0.01, ge=0, le=0.2)  # [-] relative
+    wheel_noise_m_per_sqrt_m: float = Field(default=0.005, ge=0, le=0.5)  # [m/sqrt(m)]
+
+    @classmethod
+    def exact(cls) -> OdometryConfig:
+        """Odometry equal to the true motion."""
+        return cls(wheel_scale_std=0.0, track_scale_std=0.0, wheel_noise_m_per_sqrt_m=0.0)
+
+    @property
+    def is_exact(self) -> bool:
+        """Whether this configuration adds no error at all."""
+        return self.wheel_scale_std == 0 and self.track_scale_std == 0 and self.wheel_noise_m_per_sqrt_m == 0
 
 
 class SensorConfig(_Strict):
@@ -212,6 +275,7 @@ class SensorConfig(_Strict):
     lidar: LidarConfig = LidarConfig()
     camera: CameraConfig = CameraConfig()
     detector: DetectorConfig = DetectorConfig()
+    odometry: OdometryConfig = OdometryConfig()
 
 
 class WaypointRules(_Strict):

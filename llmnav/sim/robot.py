@@ -7,9 +7,13 @@ walls and obstacles are static bodies, so the solver stops it at them and nothin
 Roll, pitch and height are pinned back whenever a contact disturbs them.
 
 The body's inertial frame is its link frame, so `getBasePositionAndOrientation` (which reports the
-centre of mass) is also the link pose; `pose()` is exact ground truth. `odom()` integrates the body's
-measured motion along its heading (what wheel encoders see: sideways slip is invisible to them), with
-optional seeded multiplicative noise (0 by default, so tests are exact).
+centre of mass) is also the link pose; `pose()` is exact ground truth, the only pose scoring uses.
+
+`odom()` is what wheel encoders give: the body's motion along its heading (sideways slip is invisible to
+them) split into the travel of the two wheels, each read with the errors of `OdometryConfig` - a
+per-episode radius error per wheel and track-width error (systematic: UMBmark's E_d and E_b), and a
+random walk per wheel whose variance grows with the distance it rolled - then integrated back into a
+pose. The errors are drawn from the episode seed, so a run repeats exactly.
 """
 
 from __future__ import annotations
@@ -21,9 +25,11 @@ import numpy as np
 
 from llmnav.geometry import Pose2D, wrap_angle
 from llmnav.robot_specs import RobotSpec
+from llmnav.scenario import OdometryConfig
 from llmnav.sim.bodies import ROBOT_GROUP, SCENERY_GROUP
 
 CONTACT_DISTANCE = 0.002  # [m] a contact point closer than this counts as touching
+NOISE_BLOCK = 4096  # wheel-noise draws fetched from the generator at a time (one per wheel per step)
 
 
 def _yaw_of(q: tuple[float, float, float, float]) -> float:
@@ -42,7 +48,7 @@ class Robot:
         *,
         dt: float,
         body_names: dict[int, str],
-        odom_noise: float = 0.0,
+        odometry: OdometryConfig | None = None,
         max_linear_acc: float | None = None,
         max_angular_acc: float | None = None,
     ) -> None:
@@ -51,7 +57,7 @@ class Robot:
         self.spec = spec
         self._dt = dt  # [s] physics step
         self._body_names = body_names  # shared with the world: body id -> name
-        self.odom_noise = odom_noise  # relative std of each odometry increment (0 = exact)
+        self.odometry = odometry if odometry is not None else OdometryConfig()
         self.max_linear_acc = (
             max_linear_acc if max_linear_acc is not None else max(1.0, 2.0 * spec.max_linear)
         )  # [m/s^2]
@@ -91,6 +97,10 @@ class Robot:
             physicsClientId=client,
         )
         self._rng = np.random.default_rng(0)
+        self._wheel_scale = (1.0, 1.0)  # this episode's (right, left) travel factors
+        self._track_scale = 1.0  # this episode's factor on the track width odometry assumes
+        self._noise = np.zeros((0, 2))  # pre-drawn standard normals, (right, left) per physics step
+        self._noise_at = 0
         self._cmd = (0.0, 0.0)  # commanded (v, w), already limited
         self._vel = (0.0, 0.0)  # acceleration-limited (v, w) applied to the body
         self._x = self._y = self._yaw = 0.0  # ground truth cache, refreshed after each step
@@ -159,6 +169,11 @@ class Robot:
         )
         p.resetBaseVelocity(self.body, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=client)
         self._rng = np.random.default_rng(seed)
+        odo = self.odometry
+        right, left, track = self._rng.standard_normal(3)  # the episode's systematic errors
+        self._wheel_scale = (1.0 + odo.wheel_scale_std * right, 1.0 + odo.wheel_scale_std * left)
+        self._track_scale = 1.0 + odo.track_scale_std * track
+        self._noise, self._noise_at = np.zeros((0, 2)), 0
         self._cmd = (0.0, 0.0)
         self._vel = (0.0, 0.0)
         self._x, self._y, self._yaw = start.x, start.y, wrap_angle(start.yaw)
@@ -192,10 +207,48 @@ class Robot:
         dyaw = wrap_angle(yaw - self._yaw)
         mid = self._yaw + dyaw / 2.0
         ds = (x - self._x) * math.cos(mid) + (y - self._y) * math.sin(mid)
-        if self.odom_noise > 0.0:
-            ds *= 1.0 + self.odom_noise * float(self._rng.standard_normal())
-            dyaw *= 1.0 + self.odom_noise * float(self._rng.standard_normal())
+        if not self.odometry.is_exact:
+            ds, dyaw = self._measured(ds, dyaw)
         o = self._odom
         omid = o.yaw + dyaw / 2.0
         self._odom = Pose2D(o.x + ds * math.cos(omid), o.y + ds * math.sin(omid), wrap_angle(o.yaw + dyaw))
         self._x, self._y, self._yaw = x, y, yaw
+
+    def _measured(self, ds: float, dyaw: float) -> tuple[float, float]:
+        """What the encoders report for a true step of `ds` [m] along the heading and `dyaw` [rad]."""
+        if self._noise_at >= len(self._noise):
+            self._noise, self._noise_at = self._rng.standard_normal((NOISE_BLOCK, 2)), 0
+        n_right, n_left = self._noise[self._noise_at]
+        self._noise_at += 1
+        return wheel_odometry(
+            ds,
+            dyaw,
+            half_track_m=self.spec.half_track_m,
+            wheel_scale=self._wheel_scale,
+            track_scale=self._track_scale,
+            noise_m_per_sqrt_m=self.odometry.wheel_noise_m_per_sqrt_m,
+            normals=(float(n_right), float(n_left)),
+        )
+
+
+def wheel_odometry(
+    ds: float,
+    dyaw: float,
+    *,
+    half_track_m: float,
+    wheel_scale: tuple[float, float],
+    track_scale: float,
+    noise_m_per_sqrt_m: float,
+    normals: tuple[float, float],
+) -> tuple[float, float]:
+    """One odometry increment (ds [m], dyaw [rad]) as wheel encoders measure a true (ds, dyaw).
+
+    The true step is split into the travel of the right and left wheel, each scaled by its radius error
+    (`wheel_scale`, 1 = exact) and given a random error of std noise * sqrt(|travel|) (`normals` are the
+    two standard-normal draws), then recombined with a track width off by `track_scale`.
+    """
+    right = ds + half_track_m * dyaw  # [m] true travel of each wheel
+    left = ds - half_track_m * dyaw
+    right = right * wheel_scale[0] + noise_m_per_sqrt_m * math.sqrt(abs(right)) * normals[0]
+    left = left * wheel_scale[1] + noise_m_per_sqrt_m * math.sqrt(abs(left)) * normals[1]
+    return (right + left) / 2.0, (right - left) / (2.0 * half_track_m * track_scale)

@@ -1,5 +1,9 @@
 """The robot's sensors: a 2D LiDAR, an RGB camera and a detector reading the segmentation mask.
 
+The detector decides what is seen from the true scene (mask, range, line of sight) and reports it with
+the seeded errors of `DetectorConfig`: range-dependent distance noise and bias, bearing noise, dropout
+(docs/sensing.md). Planners only ever get these measured values.
+
 The LiDAR is one batched ray cast, the camera PyBullet's TinyRenderer. TinyRenderer's cost is per
 covered pixel (a wall filling the upper half of a 640x480 view costs ~28 ms; bodies out of view or
 small ones, cylinders included, cost ~nothing), so fewer or coarser shapes do not help. The EGL plugin
@@ -30,6 +34,7 @@ if TYPE_CHECKING:
 
 LIDAR_CLEARANCE = 0.01  # [m] rays start this far outside the robot's body so they never hit it
 CAMERA_NEAR = 0.05  # [m] near clipping plane
+CAMERA_AHEAD = 0.02  # [m] the camera sits this far in front of the body's edge
 DETECTOR_SIZE = (160, 120)  # [px] the detector's own low-resolution segmentation capture
 FLOOR_SHADE = 238.0  # TinyRenderer's brightness of a lit upward face, per unit of colour
 BACKGROUND_DEPTH = 0.99999  # depth-buffer value from which a pixel counts as empty background
@@ -164,6 +169,17 @@ class Camera:
         self._floor_rgb = np.array([round(FLOOR_SHADE * c) for c in floor_color[:3]], dtype=np.uint8)
         self._floor_images: dict[tuple[int, int], np.ndarray] = {}  # (width, rows) -> solid floor image
 
+    @property
+    def raycaster(self) -> tuple[Any, int]:
+        """The pybullet module and client the camera renders with (for line-of-sight tests)."""
+        return self._p, self._client
+
+    def eye(self) -> tuple[float, float, float]:
+        """The camera's position [m]: just in front of the body, so the robot never sees itself."""
+        pose = self._robot.pose()
+        ahead = self._robot.spec.radius_m + CAMERA_AHEAD
+        return (pose.x + ahead * math.cos(pose.yaw), pose.y + ahead * math.sin(pose.yaw), self.mount_height_m)
+
     def _floor_image(self, width: int, rows: int) -> np.ndarray:
         """A rows x width image of floor colour (cached: the camera renders few resolutions)."""
         image = self._floor_images.get((width, rows))
@@ -184,9 +200,7 @@ class Camera:
             raise ValueError(f"camera resolution {width}x{height} outside 16x16..640x480")
         pose = self._robot.pose()
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        # The eye sits just in front of the body so the robot never sees itself.
-        ahead = self._robot.spec.radius_m + 0.02  # [m]
-        eye = (pose.x + ahead * c, pose.y + ahead * s, self.mount_height_m)
+        eye = self.eye()
         target = (eye[0] + c, eye[1] + s, eye[2])
         view = p.computeViewMatrix(eye, target, (0.0, 0.0, 1.0), physicsClientId=self._client)
         proj = p.computeProjectionMatrixFOV(
@@ -221,19 +235,24 @@ class Camera:
 
 @dataclass
 class Detection:
-    """One labelled object seen in the image."""
+    """One labelled object seen in the image, as the detector reports it (with its errors)."""
 
     object_id: str
     label: str
-    bearing_deg: float  # [deg] positive = left
-    distance_m: float  # [m] robot centre -> object goal point, with optional noise
+    bearing_deg: float  # [deg] positive = left; measured, so it carries the bearing noise
+    distance_m: float  # [m] robot centre -> object goal point; measured, so it carries the distance error
     pixel_fraction: float  # share of the image the object covers
-    offset: float  # horizontal offset of its pixel centroid in [-1, 1], negative = left
+    offset: float  # horizontal offset of its pixel centroid in [-1, 1], negative = left (bearing noise too)
     sign: str | None  # traffic-sign class when the object is a sign
 
 
 class Detector:
-    """Detections read off a segmentation mask: which labelled objects are visible, where and how far."""
+    """Detections read off a segmentation mask, with the error model of `DetectorConfig`.
+
+    Which objects are candidates is decided by what the camera really sees (the mask, and a ray to the
+    object's centre with `occlusion: center`); what is reported about them carries seeded errors. The
+    noise stream restarts with `reseed` (the world does it on every reset), so a seed repeats exactly.
+    """
 
     def __init__(
         self,
@@ -261,43 +280,72 @@ class Detector:
             frame = self._camera.capture(segmentation=True, width=DETECTOR_SIZE[0], height=DETECTOR_SIZE[1])
         seg = frame.segmentation
         assert seg is not None
+        cfg = self.config
         height, width = seg.shape
         total = width * height
-        min_pixels = max(1, round(self.config.min_pixels * total / (DETECTOR_SIZE[0] * DETECTOR_SIZE[1])))
+        min_pixels = max(1, round(cfg.min_pixels * total / (DETECTOR_SIZE[0] * DETECTOR_SIZE[1])))
         flat = seg.ravel()
         valid = flat >= 0
         counts = np.bincount(flat[valid], minlength=1)
         cols = np.tile(np.arange(width), height)[valid]
         col_sums = np.bincount(flat[valid], weights=cols, minlength=1)
         pose = self._robot.pose()
+        candidates = [
+            body
+            for body in sorted(self._objects)
+            if body < len(counts)
+            and counts[body] >= min_pixels
+            and pose.distance_to(*self._objects[body].goal_point) <= cfg.max_distance_m
+        ]
+        if cfg.occlusion == "center" and candidates:
+            candidates = self._centre_visible(candidates)
+        tan_half = math.tan(frame.horizontal_fov_rad / 2.0)
         out: list[Detection] = []
-        for body in sorted(self._objects):
-            if body >= len(counts) or counts[body] < min_pixels:
-                continue
+        for body in candidates:
             obj = self._objects[body]
+            # Three draws per candidate, in body order, whatever the configuration: a seed repeats exactly.
+            missed, distance_noise, bearing_noise = self._rng.random(), *self._rng.standard_normal(2)
+            if missed < cfg.dropout:
+                continue
             gx, gy = obj.goal_point
             true_distance = pose.distance_to(gx, gy)
-            if true_distance > self.config.max_distance_m:
-                continue
-            # One draw of each per visible object, in body order, so runs with a seed repeat exactly.
-            noise = self._rng.standard_normal()
-            drop = self._rng.random()
-            if drop < self.config.dropout:
-                continue
-            centroid = col_sums[body] / counts[body] + 0.5  # [px] pixel centres
-            offset = float(min(1.0, max(-1.0, (centroid - width / 2.0) / (width / 2.0))))
+            distance = true_distance * (1.0 + cfg.distance_bias) + cfg.distance_sigma(true_distance) * distance_noise
+            bearing_error = math.radians(cfg.bearing_noise_std_deg) * float(bearing_noise)  # [rad] + = left
             # Bearing from the robot centre (like distance_m), not from the camera a little ahead of it.
-            bearing = math.degrees(pose.bearing_to(gx, gy))
-            distance = max(0.0, true_distance + self.config.distance_noise_std_m * float(noise))
+            bearing = math.degrees(pose.bearing_to(gx, gy) + bearing_error)
+            centroid = col_sums[body] / counts[body] + 0.5  # [px] pixel centres
+            offset = (centroid - width / 2.0) / (width / 2.0)  # image x over the half width, + = right
+            if bearing_error:  # the same angular error moves the centroid (pinhole: x = tan(angle))
+                offset = math.tan(math.atan(offset * tan_half) - bearing_error) / tan_half
             out.append(
                 Detection(
                     object_id=obj.id,
                     label=obj.label,
                     bearing_deg=bearing,
-                    distance_m=distance,
+                    distance_m=max(0.0, float(distance)),
                     pixel_fraction=float(counts[body]) / total,
-                    offset=offset,
+                    offset=float(min(1.0, max(-1.0, offset))),
                     sign=obj.sign,
                 )
             )
         return out
+
+    def _centre_visible(self, bodies: list[int]) -> list[int]:
+        """The bodies whose centre the camera sees: one ray each, from the eye to the centre.
+
+        A ray that hits nothing, or hits the object itself, sees it; non-solid objects have no collision
+        shape, so only solid scenery can hide a centre. The ray stops 1 cm short so a sign hanging just in
+        front of a wall is not hidden by that wall.
+        """
+        p, client = self._camera.raycaster
+        eye = self._camera.eye()
+        starts, ends = [], []
+        for body in bodies:
+            obj = self._objects[body]
+            centre = (obj.center[0], obj.center[1], obj.z + obj.height / 2.0)
+            span = math.dist(eye, centre)
+            stop = max(0.0, span - 0.01) / span if span > 0 else 0.0
+            starts.append(eye)
+            ends.append(tuple(e + stop * (c - e) for e, c in zip(eye, centre, strict=True)))
+        hits = p.rayTestBatch(starts, ends, numThreads=1, physicsClientId=client)
+        return [body for body, hit in zip(bodies, hits, strict=True) if hit[0] < 0 or hit[0] == body]

@@ -15,7 +15,15 @@ import pybullet as p
 
 from llmnav.geometry import Pose2D
 from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.scenario import CameraConfig, DetectorConfig, LabelledObject, LidarConfig, Obstacle, Scenario
+from llmnav.scenario import (
+    CameraConfig,
+    DetectorConfig,
+    LabelledObject,
+    LidarConfig,
+    Obstacle,
+    OdometryConfig,
+    Scenario,
+)
 from llmnav.sim.bodies import create_shape
 from llmnav.sim.motion import Motion
 from llmnav.sim.robot import Robot
@@ -33,7 +41,8 @@ class World:
     `motion` (Motion); `sim_time` [s] since reset; `step_count`; `dt` [s] physics step; `seed`;
     `client` (the PyBullet physicsClientId); `body_names` (body id -> wall/obstacle
     name or object id); `object_bodies` (object id -> body id); `labelled` (body id -> LabelledObject).
-    `odom_noise` is the relative std of each odometry increment (0: odometry equals ground truth).
+    Sensor configs not given come from the scenario's `sensors` section (odometry errors included;
+    `OdometryConfig.exact()` makes odometry equal the true motion).
     """
 
     def __init__(
@@ -44,7 +53,7 @@ class World:
         lidar: LidarConfig | None = None,
         camera: CameraConfig | None = None,
         detector: DetectorConfig | None = None,
-        odom_noise: float = 0.0,
+        odometry: OdometryConfig | None = None,
     ) -> None:
         self.scenario = scenario
         self.seed = seed
@@ -54,7 +63,7 @@ class World:
         self._pace_anchor: tuple[float, float] | None = None  # (wall, sim) time pacing started from
         self.client = int(p.connect(p.DIRECT))
         try:
-            self._build(scenario, lidar, camera, detector, odom_noise)
+            self._build(scenario, lidar, camera, detector, odometry)
         except BaseException:
             self.close()
             raise
@@ -65,7 +74,7 @@ class World:
         lidar: LidarConfig | None,
         camera: CameraConfig | None,
         detector: DetectorConfig | None,
-        odom_noise: float,
+        odometry: OdometryConfig | None,
     ) -> None:
         client = self.client
         p.setTimeStep(self.dt, physicsClientId=client)
@@ -87,8 +96,10 @@ class World:
         self._added = 0
 
         spec = ROBOT_SPECS[scenario.robot]
-        self.robot = Robot(p, client, spec, dt=self.dt, body_names=self.body_names, odom_noise=odom_noise)
         sensors = scenario.sensors
+        self.robot = Robot(
+            p, client, spec, dt=self.dt, body_names=self.body_names, odometry=odometry or sensors.odometry
+        )
         lidar_cfg = lidar or sensors.lidar
         camera_cfg = camera or sensors.camera
         # Mount heights come from the robot spec unless the scenario or caller set them explicitly.

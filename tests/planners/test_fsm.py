@@ -8,12 +8,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.planners.base import DriveOptions
 from llmnav.planners.fsm import FsmConfig, project
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.scenario import OdometryConfig, resolve_scenario_path
 
 CFG = FsmConfig()
 
@@ -23,11 +25,26 @@ def script(path: Path, replies: list[tuple[str, float]]) -> str:
     return write_script(path, replies, purpose="suggestion")
 
 
+def ideal_maze(tmp_path: Path) -> str:
+    """maze_arena with a noise-free detector and exact odometry (its sensing errors are tested elsewhere)."""
+    data = yaml.safe_load(resolve_scenario_path("maze_arena").read_text(encoding="utf-8"))
+    data["sensors"] = {"detector": {}, "odometry": OdometryConfig.exact().model_dump()}
+    path = tmp_path / "maze_ideal.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return str(path)
+
+
 def run_fsm(
-    tmp_path: Path, name: str, *, assist: str, backend: ReplayBackend | None = None, **options: Any
+    tmp_path: Path,
+    name: str,
+    *,
+    assist: str,
+    backend: ReplayBackend | None = None,
+    scenario: str = "maze_arena",
+    **options: Any,
 ) -> tuple[dict[str, Any], RunRecord]:
     spec = EpisodeSpec(
-        scenario="maze_arena",
+        scenario=scenario,
         task_id="M1",
         start_pose=1,
         options=DriveOptions(planner="fsm", assist=assist, **options),  # type: ignore[arg-type]
@@ -47,7 +64,9 @@ MIXED = [
 
 
 def test_baseline_fsm_follows_the_signs_to_the_stop_sign(tmp_path):
-    summary, record = run_fsm(tmp_path, "none", assist="none")
+    # Perfect sensing: the controller alone stops within centimetres (the calibrated, noisy maze is
+    # checked against the source's stop error in test_fsm_calibration.py).
+    summary, record = run_fsm(tmp_path, "none", assist="none", scenario=ideal_maze(tmp_path))
     metrics = summary["planner_metrics"]
     assert summary["outcome"] == "completed", summary["reason"]
     assert metrics["e_pos_m"] < 0.15

@@ -84,7 +84,8 @@ def test_signs_sit_at_the_burger_camera_height_with_one_colour_per_class(maze: S
 
 @pytest.fixture(scope="module")
 def world(maze: Scenario) -> Iterator[World]:
-    with World(maze) as w:
+    # The scenario's detector (its range and occlusion rule) without dropout: this checks what is in view.
+    with World(maze, detector=maze.sensors.detector.model_copy(update={"dropout": 0.0})) as w:
         yield w
 
 

@@ -15,7 +15,10 @@ WALL_T = 0.2  # [m] wall thickness
 
 
 def room(robot: str = "pr2", **extra: Any) -> Scenario:
-    """A 10 m x 10 m room; the east wall's face is at x = 2.9, the north wall's face at y = 3.9."""
+    """A 10 m x 10 m room; the east wall's face is at x = 2.9, the north wall's face at y = 3.9.
+
+    Its detector is the ideal default and its odometry exact; tests wanting errors pass their own configs.
+    """
     data: dict[str, Any] = {
         "name": "room",
         "robot": robot,
@@ -48,6 +51,9 @@ def room(robot: str = "pr2", **extra: Any) -> Scenario:
             },
         ],
     }
+    # Exact odometry: these rooms test motion control and sensors against known geometry; the drift model
+    # has its own tests (test_odometry.py), which ask for it explicitly.
+    data["sensors"] = {"odometry": {"wheel_scale_std": 0, "track_scale_std": 0, "wheel_noise_m_per_sqrt_m": 0}}
     data.update(extra)
     return parse_scenario(data, "test-room")
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from llmnav.geometry import Pose2D, wrap_angle
+from llmnav.scenario import OdometryConfig
 from llmnav.sim.world import World
 
 
@@ -143,7 +144,8 @@ def _script(w: World) -> list[Pose2D]:
 
 
 def test_determinism_across_worlds(make_room) -> None:
-    with World(make_room(), seed=7, odom_noise=0.02) as a, World(make_room(), seed=7, odom_noise=0.02) as b:
+    drift = OdometryConfig(wheel_scale_std=0.02, track_scale_std=0.02, wheel_noise_m_per_sqrt_m=0.02)
+    with World(make_room(), seed=7, odometry=drift) as a, World(make_room(), seed=7, odometry=drift) as b:
         pa, pb = _script(a), _script(b)
         assert pa == pb
         assert a.robot.odom() != a.robot.pose()  # the noise really is on
