@@ -29,7 +29,7 @@ PROTOCOL_EPISODES = 200  # factory protocol: 10 tasks x 5 start poses x 4 trials
 # (label, scenario, task, options, episodes): short runs that still make many decisions.
 CASES: list[tuple[str, str, str, DriveOptions, int]] = [
     ("stepwise (lidar)", "factory", "T1", DriveOptions(planner="stepwise", sensing=("lidar",), max_iterations=8), 1),
-    ("hybrid", "factory", "T1", DriveOptions(planner="hybrid", max_iterations=12), 2),
+    ("hybrid", "factory", "T1", DriveOptions(planner="hybrid", max_iterations=8), 2),
     ("fsm + llm", "maze_arena", "M1", DriveOptions(planner="fsm", assist="llm", max_ticks=3000), 1),
 ]
 
