@@ -1,181 +1,187 @@
-"""Benchmark of the embedded `local` backend (SmolLM2-135M via xllamacpp) against docs/sources.md (M).
+"""Benchmark of the embedded `local` backend inside the real planners, against the fast-decision targets.
 
-Measures cold load, the first (cold-cache) stepwise decision, warm decisions (system prompt served from
-the KV cache), decode speed and the process's peak RSS, and prints them beside the targets.
+Runs real episodes on bundled tasks with the shipped SmolLM2-135M in sim-time mode, with the planners'
+own prompts: stepwise (LiDAR only, factory T1), hybrid (factory T1) and FSM + LLM assist (maze_arena
+M1). Every model call is read back from the run log: new and cached prompt tokens, output tokens and
+latency. "Cold" is a planner's first call (its fixed prompt not yet in the prompt cache), "warm" every
+later call. Then it projects the 200-episode factory protocol (hybrid; 10 tasks x 5 poses x 4 trials)
+from the measured hybrid episode time and the pool layout `llmnav.backends.local.pool_layout` picks.
+
+`BENCH_POOL=1` also measures episodes/min of an ablation pool, 1 worker x N threads against N workers
+x 1 thread (the measurement behind `pool_layout`). Numbers depend on the machine's load: the load
+average is printed with them, and medians are used throughout.
 """
 
 from __future__ import annotations
 
-import json
 import os
-import resource
 import statistics
 import sys
+import tempfile
 import time
+from dataclasses import dataclass, field
+from pathlib import Path
 
-from llmnav.backends.base import ChatRequest, ChatResult, Message
-from llmnav.backends.local import LocalBackend
+from llmnav.planners.base import DriveOptions
 
-REPEATS = 5  # warm decisions measured
-# llama.cpp threads: docs/sources.md (M) was measured with 2; on a busy 2-core box 1 is far faster (local.py).
-THREADS = int(os.environ.get("LLMNAV_LOCAL_THREADS", "2"))
-MAX_TOKENS = 160  # [tokens] budget of one stepwise answer
+PROTOCOL_EPISODES = 200  # factory protocol: 10 tasks x 5 start poses x 4 trials
 
-# A stepwise system prompt of realistic size (~600 tokens): role, commands, constraints, sensors, format.
-SYSTEM_PROMPT = """You are the autonomous controller of a wheeled robot working in a factory hall.
-Each turn you receive the user's task (on the first turn), a summary of the laser scanner and the
-result of your previous action. You answer with exactly one JSON object and nothing else.
+# (label, scenario, task, options, episodes): short runs that still make many decisions.
+CASES: list[tuple[str, str, str, DriveOptions, int]] = [
+    ("stepwise (lidar)", "factory", "T1", DriveOptions(planner="stepwise", sensing=("lidar",), max_iterations=8), 1),
+    ("hybrid", "factory", "T1", DriveOptions(planner="hybrid", max_iterations=8), 2),
+    ("fsm + llm", "maze_arena", "M1", DriveOptions(planner="fsm", assist="llm", max_ticks=3000), 1),
+]
 
-Commands you can give, one per answer:
-- FRONT: drive straight forward; parameters is the distance in metres.
-- BACK: drive straight backward; parameters is the distance in metres.
-- ROTATE_LEFT: turn in place counter-clockwise; parameters is the angle in degrees.
-- ROTATE_RIGHT: turn in place clockwise; parameters is the angle in degrees.
-- COMPLETE: the task is done; parameters is 0.
+# Targets of the fast-decision work (the issue this benchmark answers).
+TARGET_HYBRID_WARM_S = 0.8  # [s] a warm hybrid decision
+TARGET_FSM_P95_MS = 250.0  # [ms] FSM suggestion latency, p95
+TARGET_NEW_TOKENS = {"stepwise (lidar)": 120, "hybrid": 120, "fsm + llm": 30}  # after the first call
+TARGET_PROTOCOL_MIN = 30.0  # [min] 200 factory episodes with the local model
 
-Movement rules:
-- Prefer moves of at least 1.0 metre and turns of at least 15 degrees, unless a precise final
-  approach needs smaller steps.
-- Never drive into an obstacle: check the front distance before every FRONT and keep half a metre
-  of clearance. If the front is blocked, rotate towards the most open sector first.
-- When you reach the target, stop between 1.5 and 2.5 metres from it, facing it, then send COMPLETE.
 
-How to work, every turn:
-1. Read the task and remember it; it does not change.
-2. Read the laser summary. The front distance is the free range straight ahead. Each sector line gives
-   the closest distance inside its angular range and the bearing where it occurs; bearings are
-   positive to the left. Small values mean an obstacle; large values or inf mean open space.
-3. Compare with what you saw before: did the last action bring you closer? Are you turning in circles?
-4. Choose the single action that makes the most progress safely. If you have no idea where the target
-   is, explore: rotate in steps of 45 degrees to look around, then drive towards open space.
-5. Write the answer.
+@dataclass
+class Calls:
+    """Per-call figures of one planner, split into cold (first) and warm (later) calls."""
 
-Laser guidelines:
-- The scanner sees 360 degrees up to 10 metres. Its summary has 8 sectors over the front 90 degrees.
-- A front distance below 1.0 metre means you must not drive forward.
-- Narrow gaps narrower than the robot (0.7 metres) are not passable even if the far range is large.
+    new: list[int] = field(default_factory=list)
+    cached: list[int] = field(default_factory=list)
+    output: list[int] = field(default_factory=list)
+    cold_s: list[float] = field(default_factory=list)
+    warm_s: list[float] = field(default_factory=list)
+    episode_s: list[float] = field(default_factory=list)
+    outcomes: list[str] = field(default_factory=list)
 
-Output format: one JSON object with these keys.
-- goal: the target you are looking for, in a few words.
-- reasoning: one or two short sentences on why you chose the action.
-- scene_description: what the sensors tell you about the surroundings, briefly.
-- action: an object with command (one of the five commands) and parameters (a number).
 
-Example answer:
-{"goal": "pile of pellets", "reasoning": "The front is open for 6 m and the target should be ahead.",
- "scene_description": "Open floor ahead, shelves on the right at 1.2 m.",
- "action": {"command": "FRONT", "parameters": 2.0}}
+def _percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
 
-Priorities, in order: avoid collisions; use the laser summary; be accurate rather than fast; stay
-consistent with your earlier answers; explore when the target has not been seen yet; finish with
-COMPLETE only when the target is close and in front of you.
-"""
 
-STEP_SCHEMA = {
-    "type": "object",
-    "properties": {
-        "goal": {"type": "string", "maxLength": 60},
-        "reasoning": {"type": "string", "maxLength": 120},
-        "scene_description": {"type": "string", "maxLength": 100},
-        "action": {
-            "type": "object",
-            "properties": {
-                "command": {"enum": ["FRONT", "BACK", "ROTATE_LEFT", "ROTATE_RIGHT", "COMPLETE"]},
-                "parameters": {"type": "number"},
+def run_case(scenario: str, task: str, options: DriveOptions, episodes: int, root: Path) -> Calls:
+    """Run `episodes` episodes of one planner with the local backend and collect its calls."""
+    from llmnav.runlog import read_run
+    from llmnav.runner import EpisodeSpec, run_episode
+
+    calls = Calls()
+    first = True
+    for index in range(episodes):
+        out = root / f"{options.planner}-{index}"
+        spec = EpisodeSpec(
+            scenario=scenario, task_id=task, start_pose=1 + index, options=options, backend="local", out_dir=out
+        )
+        started = time.perf_counter()
+        summary = run_episode(spec)
+        calls.episode_s.append(time.perf_counter() - started)
+        calls.outcomes.append(str(summary.get("outcome")))
+        for event in read_run(out).of_type("llm_call"):
+            reply = event.get("reply")
+            if reply is None:
+                continue
+            new = event.get("new_prompt_tokens")
+            (calls.cold_s if first else calls.warm_s).append(float(reply["latency_s"]))
+            if not first and isinstance(new, int):
+                calls.new.append(new)
+            calls.cached.append(int(reply.get("meta", {}).get("cached_tokens") or 0))
+            calls.output.append(int(reply.get("completion_tokens") or 0))
+            first = False
+    return calls
+
+
+def measure_pool(root: Path, episodes: int = 4) -> dict[str, float]:
+    """Episodes/min of a small hybrid ablation at 1 worker x all threads and at N workers x 1 thread."""
+    from llmnav import ablate
+
+    cores = os.cpu_count() or 1
+    rates: dict[str, float] = {}
+    for workers, threads in ((1, cores), (cores, 1)):
+        os.environ["LLMNAV_LOCAL_THREADS"] = str(threads)
+        grid = ablate.grid_from_mapping(
+            {
+                "scenario": "factory",
+                "tasks": ["T1", "T5"],
+                "poses": list(range(1, episodes // 2 + 1)),
+                "planner": ["hybrid"],
+                "options": {"max_iterations": 12},
             },
-            "required": ["command", "parameters"],
-        },
-    },
-    "required": ["goal", "reasoning", "scene_description", "action"],
-}
-
-# Targets: the measured speeds in docs/sources.md (M), xllamacpp on these machines.
-TARGET_LOAD = (0.9, 1.1)  # [s]
-TARGET_WARM = (1.6, 2.3)  # [s]
-TARGET_DECODE = (35.0, 40.0)  # [tok/s] generation under grammar
-TARGET_PROMPT = 130.0  # [tok/s] prompt evaluation
-TARGET_RSS = 268.0  # [MB]
+            "bench",
+        )
+        plan = ablate.plan(grid, root / f"pool-{workers}x{threads}")
+        started = time.perf_counter()
+        ablate.run(plan, workers=workers)
+        rates[f"{workers}x{threads}"] = plan.size / ((time.perf_counter() - started) / 60.0)
+    os.environ.pop("LLMNAV_LOCAL_THREADS", None)
+    return rates
 
 
-def _user_turn(step: int) -> str:
-    front = 4.0 - 0.4 * step
-    sectors = "; ".join(
-        f"sector {i}: {1.5 + 0.3 * ((i + step) % 5):.1f} m at {-45 + 11.25 * i:+.0f} deg" for i in range(8)
-    )
-    return f"Task: go to the pile of pellets. Step {step + 1}. Front distance {front:.1f} m. {sectors}."
-
-
-def _request(step: int) -> ChatRequest:
-    messages = (Message("system", SYSTEM_PROMPT), Message("user", _user_turn(step)))
-    return ChatRequest(messages=messages, json_schema=STEP_SCHEMA, max_tokens=MAX_TOKENS, seed=step)
-
-
-def _decision(backend: LocalBackend, step: int) -> ChatResult:
-    result = backend.chat(_request(step))
-    json.loads(result.text)  # a decision is only a decision if it parses
-    return result
-
-
-def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux reports KiB
-
-
-def _row(name: str, value: str, target: str, ratio: float | None) -> str:
-    shown = f"{ratio:.2f}x" if ratio is not None else ""
-    return f"  {name:<34} {value:>12}   {target:<14} {shown}"
+def _row(name: str, value: str, target: str, ok: bool | None) -> str:
+    verdict = "" if ok is None else ("meets" if ok else "MISSES")
+    return f"  {name:<44} {value:>14}   {target:<12} {verdict}"
 
 
 def main() -> None:
-    """Print the benchmark table."""
-    backend = LocalBackend(threads=THREADS)
-    started = time.perf_counter()
-    backend.load()
-    load_s = time.perf_counter() - started
+    """Run the planners with the local model and print the table."""
+    from llmnav.backends.local import model_threads, pool_layout
 
-    cold = _decision(backend, 0)
-    warm = [_decision(backend, step) for step in range(1, REPEATS + 1)]
-    warm_s = statistics.median(r.latency_s for r in warm)
-    decode = statistics.median(r.meta["tokens_per_s"] for r in warm if r.meta.get("tokens_per_s"))
-    prompt_speed = cold.prompt_tokens / (cold.meta["prompt_ms"] / 1000) if cold.meta.get("prompt_ms") else 0.0
-    cached = statistics.median(r.meta["cached_tokens"] for r in warm)
-    answer_tokens = statistics.median(r.completion_tokens or 0 for r in warm)
-    rss = _peak_rss_mb()
-    load_avg = os.getloadavg()[0]  # other processes on the box skew every number; shown for context
+    load_before = os.getloadavg()[0]
+    results: dict[str, Calls] = {}
+    with tempfile.TemporaryDirectory(prefix="llmnav-bench-local-") as tmp:
+        for label, scenario, task, options, episodes in CASES:
+            results[label] = run_case(scenario, task, options, episodes, Path(tmp))
+        pool = measure_pool(Path(tmp)) if os.environ.get("BENCH_POOL") == "1" else None
+    load_after = os.getloadavg()[0]
+    threads = model_threads(beside_simulation=False)
+    print(
+        f"[bench.local] SmolLM2-135M in process, sim-time mode, {threads} model thread(s); "
+        f"load avg {load_before:.1f} -> {load_after:.1f} on {os.cpu_count()} cores"
+    )
+    for label, calls in results.items():
+        if not calls.cold_s:
+            print(f"  {label}: no model calls ({', '.join(calls.outcomes)})")
+            continue
+        warm = calls.warm_s or calls.cold_s
+        new_median = statistics.median(calls.new) if calls.new else float("nan")
+        print(
+            f"  {label}: {len(calls.cold_s) + len(calls.warm_s)} calls in {len(calls.episode_s)} episode(s) "
+            f"({', '.join(calls.outcomes)}); cached prompt tokens median {statistics.median(calls.cached):.0f}, "
+            f"output tokens median {statistics.median(calls.output):.0f}"
+        )
+        target_new = TARGET_NEW_TOKENS[label]
+        print(_row("new prompt tokens after the first, median", f"{new_median:.0f}", f"<= {target_new}",
+                   new_median <= target_new if calls.new else None))  # fmt: skip
+        print(_row("  max", f"{max(calls.new) if calls.new else float('nan'):.0f}", "", None))
+        print(_row("cold decision [s] (first call)", f"{statistics.median(calls.cold_s):.2f}", "", None))
+        p50, p95 = statistics.median(warm), _percentile(warm, 0.95)
+        if label == "hybrid":
+            print(
+                _row("warm decision p50 [s]", f"{p50:.2f}", f"<= {TARGET_HYBRID_WARM_S}", p50 <= TARGET_HYBRID_WARM_S)
+            )
+        else:
+            print(_row("warm decision p50 [s]", f"{p50:.3f}", "", None))
+        if label == "fsm + llm":
+            ok = p95 * 1000 <= TARGET_FSM_P95_MS
+            print(_row("suggestion latency p95 [ms]", f"{p95 * 1000:.0f}", f"<= {TARGET_FSM_P95_MS:.0f}", ok))
+        else:
+            print(_row("warm decision p95 [s]", f"{p95:.2f}", "", None))
+    hybrid = results["hybrid"]
+    workers, per_worker = pool_layout()
+    episode_s = statistics.median(hybrid.episode_s)
+    # Episodes run in parallel at the chosen layout; the measured speed-up of that layout (POOL_SPEEDUP)
+    # turns the serial episode time into the protocol's wall time.
+    from llmnav.backends.local import POOL_SPEEDUP
 
-    print(f"[bench.local] {backend.load().model_name}, {THREADS} threads, load avg {load_avg:.1f}")
-    print(
-        f"  prompt {cold.prompt_tokens} tokens ({cached:.0f} cached warm), answers ~{answer_tokens:.0f} tok"
-    )
-    print(
-        _row("cold load [s]", f"{load_s:.2f}", f"{TARGET_LOAD[0]}-{TARGET_LOAD[1]}", load_s / TARGET_LOAD[1])
-    )
-    print(_row("cold first decision [s]", f"{cold.latency_s:.2f}", "", None))
+    protocol_min = PROTOCOL_EPISODES * episode_s / 60.0 / (POOL_SPEEDUP if workers > 1 else 1.0)
     print(
         _row(
-            f"warm decision, median of {REPEATS} [s]",
-            f"{warm_s:.2f}",
-            f"{TARGET_WARM[0]}-{TARGET_WARM[1]}",
-            warm_s / TARGET_WARM[1],
+            f"200 factory episodes [min] ({workers} worker(s) x {per_worker} thread(s))",
+            f"{protocol_min:.0f}",
+            f"<= {TARGET_PROTOCOL_MIN:.0f}",
+            protocol_min <= TARGET_PROTOCOL_MIN,
         )
     )
-    print(
-        _row(
-            "prompt evaluation [tok/s]",
-            f"{prompt_speed:.0f}",
-            f"{TARGET_PROMPT:.0f}",
-            prompt_speed / TARGET_PROMPT,
-        )
-    )
-    print(
-        _row(
-            "generation under grammar [tok/s]",
-            f"{decode:.1f}",
-            f"{TARGET_DECODE[0]:.0f}-{TARGET_DECODE[1]:.0f}",
-            decode / TARGET_DECODE[0],
-        )
-    )
-    print(_row("peak RSS [MB]", f"{rss:.0f}", f"~{TARGET_RSS:.0f}", rss / TARGET_RSS))
-    print(f"  warm speed-up from the cached system prompt: {cold.latency_s / warm_s:.1f}x")
+    print(f"  (hybrid episode median {episode_s:.1f} s wall, serial)")
+    if pool is not None:
+        print("  pool: " + ", ".join(f"{layout} {rate:.2f} episodes/min" for layout, rate in pool.items()))
     sys.stdout.flush()
 
 

@@ -311,6 +311,7 @@ def summarize_run(
         "iterations": iterations,
         "latency_s_mean": _rounded(_mean(latencies)),
         "llm_calls": len(record.of_type("llm_call")),
+        "new_prompt_tokens_median": new_prompt_tokens_median(record.of_type("llm_call")),
         "json_errors": sum(1 for g in guards if g in GUARD_JSON_OUTCOMES),
         "safety_vetoes": sum(1 for g in guards if g == GUARD_VETO_OUTCOME),
         "final_pose": final.as_list() if final is not None else None,
@@ -326,3 +327,15 @@ def summarize_run(
         "wall_time_s": _rounded(_last_time(events, "t_wall")),
         "planner_metrics": planner_metrics,
     }
+
+
+def new_prompt_tokens_median(calls: Sequence[dict[str, Any]]) -> float | None:
+    """Median of the prompt tokens the model read afresh per call, after the episode's first call.
+
+    The first call pays for the fixed system prompt once; the budget that matters is every call after it.
+    None when the backend does not report them (or there is at most one call).
+    """
+    import statistics
+
+    counts = [c["new_prompt_tokens"] for c in calls[1:] if isinstance(c.get("new_prompt_tokens"), int)]
+    return float(statistics.median(counts)) if counts else None

@@ -11,6 +11,7 @@ the error) so that every planner's calls look the same in logs and replay identi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -20,6 +21,7 @@ from llmnav.errors import LlmnavError, one_line
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
     from llmnav.guard.view import PlannerWorld
+    from llmnav.perception import LidarSummary
     from llmnav.planners.base import DriveOptions, EpisodeContext
     from llmnav.runlog import RunLog
     from llmnav.sim.sensors import Detection, LidarScan
@@ -54,11 +56,36 @@ class Observation:
 
 
 def lidar_text(scan: LidarScan, options: DriveOptions) -> tuple[float | None, str]:
-    """Front distance [m] and the sector text, per `--lidar-sectors` and `--lidar-fov`."""
+    """Front distance [m] and the compact sector line, per `--lidar-sectors` and `--lidar-fov`."""
     from llmnav.perception import summarize_scan
 
     summary = summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
-    return summary.front_m, summary.text()
+    return summary.front_m, compact_lidar_line(summary)
+
+
+def compact_lidar_line(summary: LidarSummary) -> str:
+    """One line per decision: `LiDAR front 2.3 m; closest m@deg per sector, left to right: 2.3@+40 inf ...`.
+
+    This text is new to the model at every decision and is paid for in prompt tokens (digits are read
+    one by one), so it carries only what changes: distances to 0.1 m (decisions move 0.5 m or more; the
+    veto checks the real scan) and whole degrees. What does not change — the sectors' spans, the units,
+    what `inf` means — is explained once in the system prompt. Sectors no ray covers say `n/a`.
+    """
+
+    def metres(value: float | None) -> str:
+        if value is None:
+            return "n/a"
+        return "inf" if math.isinf(value) else f"{value:.1f}"
+
+    cells = []
+    for sector in summary.sectors:
+        if sector.rays == 0:
+            cells.append("n/a")
+        elif sector.min_angle_deg is None:
+            cells.append("inf")
+        else:
+            cells.append(f"{metres(sector.min_m)}@{sector.min_angle_deg:+.0f}")
+    return f"LiDAR front {metres(summary.front_m)} m; closest m@deg per sector, left to right: {' '.join(cells)}"
 
 
 def observe(world: PlannerWorld, options: DriveOptions, log: RunLog, step: int) -> Observation:
@@ -124,10 +151,35 @@ def call_model(ctx: EpisodeContext, request: ChatRequest, purpose: str, step: in
     for message in request.messages:  # store every image the request refers to (cheap when already stored)
         for img in message.images:
             ctx.log.image(img)
+    from llmnav.backends.local import beside_simulation
+
     try:
-        result = ctx.backend.chat(request)
+        with beside_simulation(ctx.options.realtime):
+            result = ctx.backend.chat(request)
     except LlmnavError as err:
         ctx.log.event("llm_call", step=step, purpose=purpose, request=request.to_log(), error=one_line(err))
         raise
-    ctx.log.event("llm_call", step=step, purpose=purpose, request=request.to_log(), reply=result.to_log())
+    ctx.log.event(
+        "llm_call",
+        step=step,
+        purpose=purpose,
+        request=request.to_log(),
+        reply=result.to_log(),
+        new_prompt_tokens=new_prompt_tokens(result),
+    )
     return result
+
+
+def new_prompt_tokens(result: ChatResult) -> int | None:
+    """Prompt tokens the model had to read for this call (not served from its prompt cache), if known.
+
+    The local backend reports them directly; a backend that reports total and cached tokens gives the
+    difference; one that reports only a total (no cache information) gives that total.
+    """
+    direct = result.meta.get("new_prompt_tokens")
+    if isinstance(direct, int):
+        return direct
+    if result.prompt_tokens is None:
+        return None
+    cached = result.meta.get("cached_tokens")
+    return result.prompt_tokens - cached if isinstance(cached, int) else result.prompt_tokens

@@ -11,6 +11,7 @@ load, an oracle that fails) is noted on its `Run` and listed by `problems`, neve
 from __future__ import annotations
 
 import math
+import statistics
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -238,6 +239,10 @@ def _mean_sd(values: Sequence[float], digits: int = 2) -> str:
     return _fmt(d.mean, digits) if d.n < 2 else f"{d.mean:.{digits}f} ± {d.sd:.{digits}f}"
 
 
+def _median(values: Sequence[float]) -> str:
+    return f"{statistics.median(values):.0f}" if values else MISSING
+
+
 def _stats_record(values: Sequence[float]) -> dict[str, Any] | None:
     if not values:
         return None
@@ -257,7 +262,9 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     """Source A, Table 1 style, per task and condition: iterations, latency, #JSON, #Safety, k/N, score."""
     if not runs:
         return None
-    columns = ["Task", "Condition", "N", "Iterations", "Latency (s)", "#JSON", "#Safety", "Success", "Score"]
+    columns = [
+        "Task", "Condition", "N", "Iterations", "Latency (s)", "#JSON", "#Safety", "Success", "Score", "New tok",
+    ]  # fmt: skip
     rows, records = [], []
     for task, cond, group in group_runs(runs, keys):
         successes = sum(1 for r in group if r.summary.get("success"))
@@ -266,6 +273,7 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         fields = {
             "iterations": _values(group, lambda r: r.summary.get("iterations")),
             "latency_s": _values(group, lambda r: r.summary.get("latency_s_mean")),
+            "new_prompt_tokens": _values(group, lambda r: r.summary.get("new_prompt_tokens_median")),
             "json_errors": _values(group, lambda r: r.summary.get("json_errors")),
             "safety_vetoes": _values(group, lambda r: r.summary.get("safety_vetoes")),
         }
@@ -281,6 +289,7 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 _mean_sd(fields["safety_vetoes"], 1) if has_model else MISSING,
                 f"{successes}/{len(group)}",
                 NA if no_target else _mean_sd(scores, 2),
+                _median(fields["new_prompt_tokens"]),
             ]
         )
         records.append(
@@ -295,9 +304,8 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 **{name: _stats_record(vals) for name, vals in fields.items()},
             }
         )
-    return Table(
-        "Episodes (stepwise source, Table 1 style)", columns, rows, records, "mean ± SD per run", name="episodes"
-    )
+    note = "mean ± SD per run; New tok: median over runs of each run's median new prompt tokens per call"
+    return Table("Episodes (stepwise source, Table 1 style)", columns, rows, records, note, name="episodes")
 
 
 def _start_key(run: Run) -> tuple[str, Any]:
@@ -438,7 +446,7 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         return None
     columns = [
         "Task", "Condition", "N", "e_pos (m)", "η", "Loop (ms)", "Model (ms)", "r_acc", "r_use",
-        "Accepted", "Stale", "Bounds", "Parse",
+        "Accepted", "Stale", "Bounds", "Parse", "New tok",
     ]  # fmt: skip
 
     def loop_ms(run: Run) -> Any:
@@ -469,6 +477,7 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     rows, records = [], []
     for task, cond, group in group_runs(fsm, keys):
         vals = {name: _values(group, get) for name, (get, _) in fields.items()}
+        new_tokens = _values(group, lambda r: r.summary.get("new_prompt_tokens_median"))
         # Validation outcomes pooled over the group's suggestions, as shares (the source's figure).
         suggestions = sum(_values(group, _metric("suggestions")))
         shares = {
@@ -478,15 +487,17 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             [task, cond, str(len(group))]
             + [_mean_sd(vals[n], d) for n, (_, d) in fields.items()]
             + [MISSING if share is None else f"{share:.0%}" for share in shares.values()]
+            + [_median(new_tokens)]
         )
         records.append(
             {"task": task, "condition": cond, **condition_fields(group[0], keys), "n": len(group)}
             | {"suggestions": suggestions}
             | {n: _stats_record(v) for n, v in vals.items()}
             | {f"share_{n}": share for n, share in shares.items()}
+            | {"new_prompt_tokens": _stats_record(new_tokens)}
         )
     title = "FSM with LLM assist (FSM source, Tables 5–6 style)"
-    note = "validation outcomes: shares of all suggestions of the group"
+    note = "validation outcomes: shares of all suggestions of the group; New tok: median of run medians"
     return Table(title, columns, rows, records, note, name="fsm")
 
 

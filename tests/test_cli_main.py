@@ -16,7 +16,15 @@ def llmnav(*args: str) -> subprocess.CompletedProcess[str]:
 
 @pytest.mark.parametrize(
     "args",
-    [("drive", "--lidar-sectors", "abc"), ("drive", "--bogus"), ("score",), ("scenarios", "show", "nope")],
+    [
+        ("drive", "--lidar-sectors", "abc"),
+        ("drive", "--bogus"),
+        ("score",),
+        ("scenarios", "show", "nope"),
+        ("drive", "--task-id", "M1", "--planner", "fsm", "--model-latency", "-5"),
+        ("drive", "--task-id", "M1", "--planner", "fsm", "--ttl", "soon"),
+        ("ablate", "--planner", "fsm", "--model-latency", "fast", "--dry-run"),
+    ],
 )
 def test_bad_usage_is_one_line_and_exit_2(args):
     result = llmnav(*args)

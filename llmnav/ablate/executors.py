@@ -50,12 +50,10 @@ _WORKER_THREAD_VARS = (
 
 
 def worker_model_threads(workers: int) -> int:
-    """Threads for an embedded model in each of `workers` processes: the cores but one, shared out."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, (cores - 1) // workers)
+    """Threads for an embedded model in each of `workers` processes (the local backend's measured rule)."""
+    from llmnav.backends.local import pool_threads
+
+    return pool_threads(workers)
 
 
 def _init_worker(model_threads: int, parent_pid: int) -> None:

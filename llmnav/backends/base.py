@@ -68,6 +68,13 @@ class Backend(ABC):
     def chat(self, request: ChatRequest) -> ChatResult:
         """Send one request; raise `ModelError` after the last failed attempt."""
 
+    def check_schema(self, schema: dict[str, Any]) -> None:  # noqa: B027 - most backends compile nothing
+        """Raise `ModelError` now when this backend cannot constrain answers to `schema`.
+
+        Called before an episode that relies on constrained answers; a server-side backend's schema
+        errors surface on the first request instead, and its answers are checked after decoding anyway.
+        """
+
     @classmethod
     def status(cls, arg: str | None = None) -> BackendStatus:
         """Whether this backend could run now (cheap: no generation)."""

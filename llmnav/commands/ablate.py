@@ -44,6 +44,11 @@ def ablate(
     paraphrases: Annotated[
         bool, typer.Option("--paraphrases", help="Wording as a factor: bundled and paraphrases 1-3.")
     ] = False,
+    model_latency: Annotated[
+        str | None,
+        typer.Option("--model-latency", help="FSM: latency charged to sim time: MS | measured | recorded."),
+    ] = None,
+    ttl: Annotated[str | None, typer.Option("--ttl", help="FSM: suggestion TTL in ms, or auto.")] = None,
     grid: Annotated[
         Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")
     ] = None,
@@ -94,6 +99,11 @@ def ablate(
     data.update({k: v for k, v in flags.items() if v is not None})
     if drop_images:
         data["options"] = {**(data.get("options") or {}), "drop_images": True}
+    from llmnav.planners.fsm import timing_options
+
+    timing = timing_options(model_latency, ttl, backend)
+    if timing:
+        data["options"] = {**data.get("options", {}), **timing}
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
     root = path_option(out, "--out") or Path("ablations") / spec.default_name()
     ablation = lib.plan(spec, root)

@@ -120,6 +120,11 @@ def drive(
         bool, typer.Option("--json", help="Print only one JSON summary at the end.")
     ] = False,
     assist: Annotated[str, typer.Option(help="FSM assist: none | ema | llm.")] = "none",
+    model_latency: Annotated[
+        str | None,
+        typer.Option("--model-latency", help="FSM: latency charged to sim time: MS | measured | recorded."),
+    ] = None,
+    ttl: Annotated[str | None, typer.Option("--ttl", help="FSM: suggestion TTL in ms, or auto.")] = None,
     obstacle: Annotated[
         list[str] | None, typer.Option(help="Drop an unexpected box obstacle at X,Y metres (repeatable).")
     ] = None,
@@ -135,6 +140,7 @@ def drive(
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
     from llmnav.planners.base import DriveOptions
+    from llmnav.planners.fsm import timing_options
     from llmnav.runner import EpisodeSpec, exit_code
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario
 
@@ -171,6 +177,7 @@ def drive(
                 "assist": assist,
                 "obstacles": tuple(_parse_obstacle(o) for o in obstacle or []),
                 "drop_images": drop_images,
+                **timing_options(model_latency, ttl, backend),
             }
         )
     except ValidationError as err:

@@ -19,7 +19,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal, Protocol
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -75,6 +75,11 @@ class DriveOptions(BaseModel):
     alpha: float = Field(default=0.5, ge=0, le=1)
     beta: float = Field(default=0.5, ge=0, le=1)
     ttl_ms: float = Field(default=500.0, gt=0)
+    ttl_auto: bool = False  # `--ttl auto`: TTL from the observed model latencies (ttl_ms is the start)
+    # Model latency charged to simulation time: the backend's figure, a replay's record, or fixed [ms].
+    model_latency: Literal["measured", "recorded"] | Annotated[float, Field(ge=0, allow_inf_nan=False)] = (
+        "measured"
+    )
     max_ticks: int = Field(default=15000, ge=1)  # [ticks] 300 s of sim time at 50 Hz
 
     @field_validator("planner")

@@ -2,11 +2,25 @@
 
 A deterministic 50 Hz FSM (SEARCH, APPROACH, ACT_LEFT, ACT_RIGHT, ACT_STOP) drives toward traffic signs
 seen by the detector. Its baseline command is v = sat(k_v (d - d_goal)), w = sat(k_w e_theta) with
-first-order rate limits. With `--assist llm` a model proposes {"linear_x", "angular_z"} from a state JSON
-published only in APPROACH; a proposal is used only if well-formed, fresh (t_recv - t_stamp <= TTL) and
-within the kinematic bounds, then projected onto the admissible box and fused,
+first-order rate limits. With `--assist llm` a model proposes a velocity from a state message published
+only in APPROACH; a proposal is used only if well-formed, fresh (t_recv - t_stamp <= TTL) and within the
+kinematic bounds, then projected onto the admissible box and fused,
 v = (1 - alpha) v_base + alpha * proj(v_llm), and held until a newer one arrives or it expires.
 With `--assist ema` the baseline is smoothed instead: v_t = (1 - beta) v_{t-1} + beta v_base.
+
+The model's side is kept small, because its cost is almost all prompt reading and decoding: the state
+message is one short line (`stop 1.23 -0.10 45 -150`: class, distance [m] and offset to 2 decimals, the
+baseline v [mm/s] and w [mrad/s]; the legend is in the fixed system prompt, served from the prompt
+cache), and the answer is `[v, w]` in whole mm/s and mrad/s, whose JSON Schema carries the kinematic
+box as minimum/maximum, so a grammar-constrained backend cannot produce an out-of-box value.
+The stamp and the deadline stay on the controller's side. A schema the backend cannot compile is
+reported before the first tick.
+
+Model latency charged to simulation time (`--model-latency`): what the backend reports for the call
+(`measured`, the default: the wall time of a live call, the original run's in a replay), the replay's
+recorded latency (`recorded`, a replay backend only), or a fixed number of milliseconds (reproduces,
+say, a Jetson's timing on a laptop). `--ttl auto` sets the TTL from the latencies seen so far
+(p95 x 1.2, within [TTL_AUTO_MIN_MS, TTL_AUTO_MAX_MS]) and logs each change.
 
 The loop never waits for the model. Two timing modes:
 - virtual (default): simulation time is the only clock. The model is called between ticks while the
@@ -20,11 +34,11 @@ detector (a separate perception node at `perception_hz`) are the world, not the 
 
 from __future__ import annotations
 
-import json
 import math
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -37,11 +51,19 @@ from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, P
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from llmnav.guard.parse import GuardResult
     from llmnav.runlog import RunRecord
     from llmnav.sim.sensors import Detection
 
 State = Literal["SEARCH", "APPROACH", "ACT_LEFT", "ACT_RIGHT", "ACT_STOP"]
+ANSWER_MAX_TOKENS = 12  # `[-60,-800]` is 10 tokens with its end token; a margin, no runaway
 Verdict = Literal["accepted", "stale", "bounds", "parse", "error"]
+
+TTL_AUTO_FACTOR = 1.2  # `--ttl auto`: TTL = p95 of the observed model latencies x this
+TTL_AUTO_MIN_MS = 100.0  # [ms] floor: a suggestion older than this is stale whatever the model's speed
+TTL_AUTO_MAX_MS = 2000.0  # [ms] ceiling: 100 ticks; older commands describe a different situation
+TTL_AUTO_MIN_SAMPLES = 5  # latencies seen before the TTL adapts (the start value is `ttl_ms`)
+TTL_AUTO_STEP = 0.1  # a new TTL is adopted (and logged) when it differs from the current one by > 10 %
 
 
 @dataclass(frozen=True)
@@ -114,28 +136,93 @@ def rate_limit(target: float, previous: float, max_rate: float, dt: float) -> fl
 
 
 def check_suggestion(
-    text: str | None, stamp: float, t_recv: float, ttl_s: float, cfg: FsmConfig
+    text: str | None,
+    stamp: float,
+    t_recv: float,
+    ttl_s: float,
+    cfg: FsmConfig,
+    guard: Callable[[str], GuardResult[Any]] | None = None,
 ) -> tuple[Verdict, tuple[float, float] | None, str]:
-    """Judge a model answer: (verdict, (v, w) if usable, detail). Order: parse, freshness, bounds."""
-    from llmnav.guard.parse import GuardResult, parse_answer
-    from llmnav.guard.schemas import VelocitySuggestion
+    """Judge a model answer: (verdict, (v [m/s], w [rad/s]) if usable, detail).
+
+    Order: parse, freshness, bounds. The answer is `[v, w]` in whole mm/s and mrad/s. `guard` turns the
+    text into a value (the episode passes the guarded ask loop, which logs its verdict); default: the
+    guard's parser alone.
+    """
+    from llmnav.guard.parse import parse_answer
+    from llmnav.guard.schemas import VelocityMilli
 
     if text is None:
         return "error", None, "model call failed"
-    try:  # fast path inside the 50 Hz tick: a bare, valid JSON object (what grammar-constrained models send)
-        value: VelocitySuggestion | None = VelocitySuggestion.model_validate_json(text)
-    except ValueError:  # anything else gets the full guard: fences, prose, repair, classified errors
-        result: GuardResult[VelocitySuggestion] = parse_answer(text, VelocitySuggestion)
-        if result.value is None:
-            return "parse", None, result.error or result.outcome
-        value = result.value
-    assert value is not None
+    result = guard(text) if guard is not None else parse_answer(text, VelocityMilli)
+    if result.value is None:
+        return "parse", None, result.error or result.outcome
+    value: VelocityMilli = result.value
     if t_recv - stamp > ttl_s:
         return "stale", None, f"{(t_recv - stamp) * 1000:.0f} ms old > TTL {ttl_s * 1000:.0f} ms"
-    v, w = float(value.linear_x), float(value.angular_z)
+    v, w = value.v / 1000.0, value.w / 1000.0
     if not (math.isfinite(v) and math.isfinite(w)) or abs(v) > cfg.v_max or abs(w) > cfg.w_max:
         return "bounds", None, f"({v:.3g}, {w:.3g}) outside |v| <= {cfg.v_max}, |w| <= {cfg.w_max}"
     return "accepted", (v, w), ""
+
+
+def timing_options(model_latency: str | None, ttl: str | None, backend: str | None = None) -> dict[str, Any]:
+    """DriveOptions fields from `--model-latency MS|measured|recorded` and `--ttl MS|auto` (None: unset).
+
+    Raises `BadInputError` (one line, exit 2) for a negative or unparseable latency, a TTL that is
+    neither a positive number nor `auto`, or `recorded` with a backend that is not a replay.
+    """
+    from llmnav.errors import BadInputError
+
+    fields: dict[str, Any] = {}
+    if model_latency is not None:
+        text = model_latency.strip().lower()
+        if text in ("measured", "recorded"):
+            if text == "recorded" and backend is not None and not backend.lower().startswith("replay:"):
+                raise BadInputError("--model-latency recorded needs a replay backend (--backend replay:RUN_DIR)")
+            fields["model_latency"] = text
+        else:
+            fields["model_latency"] = _number(text, "--model-latency", "MS (>= 0), measured or recorded")
+            if fields["model_latency"] < 0:
+                raise BadInputError(f"--model-latency {model_latency!r}: must be >= 0 ms")
+    if ttl is not None:
+        text = ttl.strip().lower()
+        if text == "auto":
+            fields["ttl_auto"] = True
+        else:
+            fields["ttl_ms"] = _number(text, "--ttl", "MS (> 0) or auto")
+            if fields["ttl_ms"] <= 0:
+                raise BadInputError(f"--ttl {ttl!r}: must be > 0 ms")
+    return fields
+
+
+def _number(text: str, flag: str, expected: str) -> float:
+    from llmnav.errors import BadInputError
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise BadInputError(f"{flag} {text!r}: expected {expected}") from None
+    if not math.isfinite(value):
+        raise BadInputError(f"{flag} {text!r}: expected {expected}")
+    return value
+
+
+def adaptive_ttl_ms(latencies_ms: list[float]) -> float | None:
+    """`--ttl auto`: p95 of the observed latencies x TTL_AUTO_FACTOR, bounded; None while too few."""
+    if len(latencies_ms) < TTL_AUTO_MIN_SAMPLES:
+        return None
+    p95 = float(np.percentile(np.asarray(latencies_ms), 95))
+    return saturate(p95 * TTL_AUTO_FACTOR, TTL_AUTO_MIN_MS, TTL_AUTO_MAX_MS)
+
+
+def state_message(sign: str | None, distance_m: float, offset: float, base_v: float, base_w: float) -> str:
+    """The model's state line: class, distance [m], offset, baseline v [mm/s] and w [mrad/s].
+
+    Two decimals for distance and offset (the detector is not better than that); whole milli-units for
+    the command, the units of the answer, so the model compares like with like.
+    """
+    return f"{sign or 'none'} {distance_m:.2f} {offset:+.2f} {round(base_v * 1000)} {round(base_w * 1000)}"
 
 
 def project(v: float, w: float, cfg: FsmConfig) -> tuple[float, float]:
@@ -181,7 +268,9 @@ class FsmPlanner(Planner):
 
     name = "fsm"
     needs_backend = True
-    options = frozenset({"assist", "alpha", "beta", "ttl_ms", "max_ticks", "temperature", "max_tokens"})
+    options = frozenset(
+        {"assist", "alpha", "beta", "ttl_ms", "ttl_auto", "model_latency", "max_ticks", "temperature", "max_tokens"}
+    )
     paces_itself = True  # its 50 Hz ticks follow the wall clock under --realtime, not the physics steps
 
     def __init__(self, config: FsmConfig | None = None) -> None:
@@ -205,6 +294,9 @@ class FsmPlanner(Planner):
         ttl_s = opts.ttl_ms / 1000.0
         stats = FsmStats()
         system_prompt = self._system_prompt() if use_llm else ""
+        schema = self.answer_schema() if use_llm else None
+        if ctx.backend is not None and schema is not None:
+            ctx.backend.check_schema(schema)  # a grammar that cannot compile ends the episode before tick 0
         worker = _Worker(lambda req: self._call(ctx, req)) if use_llm and opts.realtime else None
 
         state: State = "SEARCH"
@@ -220,6 +312,7 @@ class FsmPlanner(Planner):
         raw_v: float | None = None
         raw_w: float | None = None
         pending: Suggestion | None = None
+        sent: ChatRequest | None = None  # the request in flight (at most one), for the guard's record
         in_flight = False
         last_publish = -math.inf
         next_pose = next_cmd = next_detect = 0.0
@@ -233,7 +326,7 @@ class FsmPlanner(Planner):
             if use_llm:
                 from llmnav.observe import call_model  # noqa: F401 - imported by the worker's first call
 
-                check_suggestion('{"linear_x": 0.0, "angular_z": 0.0}', 0.0, 0.0, ttl_s, cfg)
+                check_suggestion("[0,0]", 0.0, 0.0, ttl_s, cfg)
                 check_suggestion("```json\n{}\n```", 0.0, 0.0, ttl_s, cfg)
         wall_start = time.perf_counter()
 
@@ -263,12 +356,16 @@ class FsmPlanner(Planner):
                 tick_start = time.perf_counter()
                 # --- deliver model answers that are due ------------------------------------------
                 if use_llm:
-                    delivered = self._due(pending, now, worker)
+                    if worker is not None and pending is None:
+                        pending = self._received(worker, now, opts)
+                    delivered = self._due(pending, now)
                     if delivered is not None:
                         pending, in_flight = None, False
                         stats.suggestions += 1
                         stats.model_latency_ms.append(delivered.latency_s * 1000.0)
-                        verdict, value, detail = check_suggestion(delivered.text, delivered.stamp, now, ttl_s, cfg)
+                        verdict, value, detail = check_suggestion(
+                            delivered.text, delivered.stamp, now, ttl_s, cfg, self._guard(ctx, sent)
+                        )
                         if value is not None:
                             stats.accepted += 1
                             held = HeldSuggestion(delivered.stamp, *value)
@@ -284,6 +381,17 @@ class FsmPlanner(Planner):
                             verdict=verdict,
                             detail=detail,
                         )
+                        if opts.ttl_auto:
+                            proposed = adaptive_ttl_ms(stats.model_latency_ms)
+                            if proposed is not None and abs(proposed / 1000.0 - ttl_s) > TTL_AUTO_STEP * ttl_s:
+                                log.event(
+                                    "planner",
+                                    kind="ttl",
+                                    ttl_ms=round(proposed, 1),
+                                    previous_ms=round(ttl_s * 1000.0, 1),
+                                    samples=len(stats.model_latency_ms),
+                                )
+                                ttl_s = proposed / 1000.0
                     if held is not None and now - held.stamp > ttl_s:
                         held = None  # expired: the baseline applies at once
 
@@ -311,7 +419,9 @@ class FsmPlanner(Planner):
                     if previous_state == "APPROACH" and state != "SEARCH":
                         consumed.add(target_id or "")
                     if state != "APPROACH":
-                        held, pending, in_flight = None, None, in_flight and worker is not None
+                        held = None
+                        if worker is None:  # a worker's answer still arrives and is judged (likely stale)
+                            pending, in_flight = None, False
                     log_state(previous_state, state)
 
                 # --- baseline command -------------------------------------------------------------
@@ -361,7 +471,8 @@ class FsmPlanner(Planner):
                     and now - last_publish >= 1.0 / cfg.publish_hz - 1e-9
                 ):
                     seen = visible[target_id]
-                    request = self._request(system_prompt, now, state, seen, base_v, base_w, dt, opts)
+                    assert schema is not None
+                    request = sent = self._request(system_prompt, schema, seen, base_v, base_w, opts)
                     last_publish, in_flight = now, True
                     if worker is not None:
                         worker.submit(now, request)
@@ -402,6 +513,7 @@ class FsmPlanner(Planner):
         final = world.robot.pose()
         log.event("pose", pose=final.as_list())
         outcome.metrics = self._metrics(ctx, stats, final, start_pose)
+        outcome.metrics["ttl_ms"] = round(ttl_s * 1000.0, 1)
         return outcome
 
     # --- helpers ----------------------------------------------------------------------------
@@ -415,53 +527,69 @@ class FsmPlanner(Planner):
             stats.missed_deadlines += 1
 
     @staticmethod
-    def _due(pending: Suggestion | None, now: float, worker: _Worker | None) -> Suggestion | None:
-        if worker is not None:
-            try:
-                stamp, result, error, latency = worker.results.get_nowait()
-            except queue.Empty:
-                return None
-            return Suggestion(stamp, now, result.text if result else None, latency, error)
+    def _received(worker: _Worker, now: float, opts: DriveOptions) -> Suggestion | None:
+        """Realtime: the next answer from the worker; a fixed `--model-latency` holds it until then."""
+        try:
+            stamp, result, error, latency = worker.results.get_nowait()
+        except queue.Empty:
+            return None
+        if isinstance(opts.model_latency, float | int):  # cannot be faster than reality: a floor
+            latency = max(latency, opts.model_latency / 1000.0)
+        return Suggestion(stamp, max(now, stamp + latency), result.text if result else None, latency, error)
+
+    @staticmethod
+    def _due(pending: Suggestion | None, now: float) -> Suggestion | None:
         if pending is not None and now >= pending.ready_at - 1e-9:
             return pending
         return None
+
+    def answer_schema(self) -> dict[str, Any]:
+        """The answer's JSON Schema, with the admissible box as integer bounds in mm/s and mrad/s."""
+        from llmnav.guard.schemas import velocity_schema
+
+        return velocity_schema(self.cfg.v_min, self.cfg.v_max, self.cfg.w_max)
 
     def _system_prompt(self) -> str:
         from llmnav.prompting import render
 
         cfg = self.cfg
-        return render("fsm_velocity", v_min=cfg.v_min, v_max=cfg.v_max, w_max=cfg.w_max, d_goal=cfg.d_goal)
+        return render(
+            "fsm_velocity",
+            v_min=round(cfg.v_min * 1000),
+            v_max=round(cfg.v_max * 1000),
+            w_max=round(cfg.w_max * 1000),
+            d_goal=cfg.d_goal,
+        )
 
     def _request(
         self,
         system_prompt: str,
-        now: float,
-        state: State,
+        schema: dict[str, Any],
         seen: Detection,
         base_v: float,
         base_w: float,
-        dt: float,
         opts: DriveOptions,
     ) -> ChatRequest:
-        from llmnav.guard.schemas import VelocitySuggestion
-
-        state_json = {
-            "stamp": round(now, 3),
-            "phase": state,
-            "class": seen.sign,
-            "distance": round(seen.distance_m, 3),
-            "offset": round(seen.offset, 3),
-            "base_v": round(base_v, 4),
-            "base_w": round(base_w, 4),
-            "deadline_ms": round(dt * 1000.0),
-        }
+        text = state_message(seen.sign, seen.distance_m, seen.offset, base_v, base_w)
         return ChatRequest(
-            messages=(Message("system", system_prompt), Message("user", json.dumps(state_json))),
-            json_schema=VelocitySuggestion.model_json_schema(),
+            messages=(Message("system", system_prompt), Message("user", text)),
+            json_schema=schema,
             temperature=opts.temperature,
-            max_tokens=min(opts.max_tokens, 64),
+            max_tokens=min(opts.max_tokens, ANSWER_MAX_TOKENS),
             seed=opts.seed,
         )
+
+    @staticmethod
+    def _guard(ctx: EpisodeContext, request: ChatRequest | None) -> Callable[[str], GuardResult[Any]]:
+        """The guarded ask loop judging a reply already in hand (no correction turns: the loop cannot wait)."""
+        from llmnav.guard.ask import ask_guarded
+        from llmnav.guard.schemas import VelocityMilli
+
+        def judge(text: str) -> GuardResult[Any]:
+            asked = request or ChatRequest(messages=())
+            return ask_guarded(ctx, asked, VelocityMilli, None, 0, reply=text, purpose="suggestion").result
+
+        return judge
 
     @staticmethod
     def _call(ctx: EpisodeContext, request: ChatRequest) -> ChatResult:
@@ -472,12 +600,16 @@ class FsmPlanner(Planner):
     def _call_virtual(self, ctx: EpisodeContext, request: ChatRequest, now: float) -> Suggestion:
         """Call between ticks with the simulation frozen; charge the latency to simulation time."""
         started = time.perf_counter()
+        fixed = ctx.options.model_latency
+        fixed_s = fixed / 1000.0 if isinstance(fixed, float | int) else None
         try:
             result = self._call(ctx, request)
         except LlmnavError as err:
-            latency = time.perf_counter() - started
+            latency = fixed_s if fixed_s is not None else time.perf_counter() - started
             return Suggestion(now, now + latency, None, latency, str(err))
-        return Suggestion(now, now + result.latency_s, result.text, result.latency_s)
+        # `measured` and `recorded`: the backend's own figure (a live call's wall time; a replay's record).
+        latency = fixed_s if fixed_s is not None else result.latency_s
+        return Suggestion(now, now + latency, result.text, latency)
 
     def _metrics(self, ctx: EpisodeContext, stats: FsmStats, final: Any, start: Any) -> dict[str, Any]:
         from llmnav.geometry import path_length

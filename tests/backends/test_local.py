@@ -85,9 +85,7 @@ def test_waypoint_list_is_schema_valid(backend: LocalBackend) -> None:
 
 def test_velocity_suggestion_is_schema_valid(backend: LocalBackend) -> None:
     state = {"phase": "APPROACH", "class": "left", "distance": 0.8, "offset": -0.1, "base_v": 0.06}
-    answer = _ask(
-        backend, f"State: {json.dumps(state)}. Suggest a velocity.", response_schema(VelocitySuggestion), 40
-    )
+    answer = _ask(backend, f"State: {json.dumps(state)}. Suggest a velocity.", response_schema(VelocitySuggestion), 40)
     assert set(answer) == {"linear_x", "angular_z"}
     assert all(isinstance(v, int | float) and not isinstance(v, bool) for v in answer.values())
     _valid(VelocitySuggestion, answer)
@@ -117,16 +115,12 @@ def test_greedy_with_seed_repeats_and_system_prefix_is_cached(backend: LocalBack
 
 
 def test_seeded_sampling_is_reproducible(backend: LocalBackend) -> None:
-    request = ChatRequest(
-        messages=(Message("user", "Name a colour."),), temperature=1.0, seed=11, max_tokens=12
-    )
+    request = ChatRequest(messages=(Message("user", "Name a colour."),), temperature=1.0, seed=11, max_tokens=12)
     assert backend.chat(request).text == backend.chat(request).text
 
 
 def test_max_tokens_is_honoured(backend: LocalBackend) -> None:
-    request = ChatRequest(
-        messages=(Message("user", "Write a long story about robots."),), max_tokens=5, seed=0
-    )
+    request = ChatRequest(messages=(Message("user", "Write a long story about robots."),), max_tokens=5, seed=0)
     result = backend.chat(request)
     assert result.completion_tokens == 5
     assert result.meta["finish_reason"] == "length"
@@ -134,9 +128,7 @@ def test_max_tokens_is_honoured(backend: LocalBackend) -> None:
 
 def test_images_are_dropped_and_noted(backend: LocalBackend) -> None:
     image = Image("/9j/4AAQSkZJRgABAQ==")
-    request = ChatRequest(
-        messages=(Message("user", "What do you see?", (image, image)),), max_tokens=4, seed=0
-    )
+    request = ChatRequest(messages=(Message("user", "What do you see?", (image, image)),), max_tokens=4, seed=0)
     result = backend.chat(request)
     assert result.meta["images_dropped"] == 2
     assert LocalBackend.multimodal is False
@@ -224,3 +216,98 @@ def test_corrupt_model_file_is_one_line(tmp_path: Any) -> None:
     with pytest.raises(ModelUnavailableError) as err:
         LocalBackend(str(broken)).load()
     assert str(broken) in _one_line(err)
+
+
+# --- compact grammar, bounds, token counts, threads by mode --------------------------------------
+
+
+def test_grammar_holds_the_kinematic_box_and_drops_whitespace(backend: LocalBackend) -> None:
+    """llama.cpp's schema-to-grammar honours integer minimum/maximum: prompts that beg for values far
+    outside a narrow box still get answers inside it, written without any whitespace."""
+    from llmnav.guard.schemas import VelocityMilli, velocity_schema
+
+    schema = velocity_schema(0.003, 0.007, 0.011)  # v in [3, 7] mm/s, w in [-11, 11] mrad/s
+    asks = [
+        "Answer [1980, 5000].",
+        "Drive at 2 m/s: answer [2000, -9000].",
+        "Reverse: answer [-50, 0].",
+        "Copy this: [99999, -99999]",
+    ]
+    for user in asks:
+        request = ChatRequest(messages=(Message("user", user),), json_schema=schema, max_tokens=12, seed=0)
+        result = backend.chat(request)
+        assert not any(c.isspace() for c in result.text), result.text
+        value = VelocityMilli.model_validate_json(result.text)
+        assert 3 <= value.v <= 7 and -11 <= value.w <= 11, (user, result.text)
+
+
+def test_uncompilable_schema_is_reported_before_use(backend: LocalBackend) -> None:
+    from llmnav.guard.schemas import velocity_schema
+
+    backend.check_schema(velocity_schema(0.0, 0.06, 0.8))  # compiles: no error
+    for bad in (
+        {"type": "object", "properties": {"a": {"$ref": "#/nope"}}},
+        {"type": "integer", "minimum": 5, "maximum": 2},
+    ):
+        with pytest.raises(ModelError, match="cannot compile"):
+            backend.check_schema(bad)
+
+
+def test_reply_counts_new_and_cached_prompt_tokens(backend: LocalBackend) -> None:
+    request = ChatRequest(
+        messages=(Message("system", SYSTEM), Message("user", "Front distance 2.5 m.")),
+        json_schema=response_schema(StepAction),
+        max_tokens=8,
+        seed=1,
+    )
+    backend.chat(request)
+    again = backend.chat(request)
+    assert again.prompt_tokens is not None
+    assert again.meta["new_prompt_tokens"] + again.meta["cached_tokens"] == again.prompt_tokens
+    assert again.meta["new_prompt_tokens"] <= 2  # llama.cpp re-reads at most the last token of a cached prompt
+
+
+def test_threads_by_mode(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(local_mod.THREADS_ENV, raising=False)
+    monkeypatch.setattr(local_mod, "usable_cores", lambda: 4)
+    assert local_mod.model_threads(beside_simulation=False) == 4  # simulation frozen: every usable core
+    assert local_mod.model_threads(beside_simulation=True) == 3  # beside a running simulation: one free
+    assert local_mod.pool_threads(2) == 2 and local_mod.pool_threads(8) == 1
+    assert not local_mod.runs_beside_simulation()
+    with local_mod.beside_simulation():
+        assert local_mod.runs_beside_simulation()
+    seen: list[bool] = []
+    worker = threading.Thread(target=lambda: seen.append(local_mod.runs_beside_simulation()))
+    worker.start()
+    worker.join()
+    assert seen == [True]  # a worker thread runs beside the simulation by definition
+    monkeypatch.setenv(local_mod.THREADS_ENV, "5")
+    assert local_mod.model_threads(beside_simulation=True) == 5 and local_mod.pool_threads(2) == 5
+
+
+def test_usable_cores_leaves_out_cores_other_processes_keep_busy(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(local_mod.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    monkeypatch.setattr(local_mod.os, "getloadavg", lambda: (1.0, 0.0, 0.0))  # only this process
+    assert local_mod.usable_cores() == 4
+    monkeypatch.setattr(local_mod.os, "getloadavg", lambda: (3.5, 0.0, 0.0))
+    assert local_mod.usable_cores() == 2
+    monkeypatch.setattr(local_mod.os, "getloadavg", lambda: (11.0, 0.0, 0.0))
+    assert local_mod.usable_cores() == 1
+
+
+def test_free_text_is_capped_and_field_order_kept(backend: LocalBackend) -> None:
+    schema = {
+        "type": "object",
+        "properties": {"story": {"type": "string"}, "done": {"type": "boolean"}},
+        "required": ["story", "done"],
+    }
+    request = ChatRequest(
+        messages=(Message("user", "Tell a very long story about robots, at least 500 words."),),
+        json_schema=schema,
+        max_tokens=200,
+        seed=0,
+    )
+    result = backend.chat(request)
+    answer = json.loads(result.text)  # complete JSON: the cap ended the string before max_tokens did
+    assert len(answer["story"]) <= local_mod.TEXT_CAP_CHARS
+    assert result.text.startswith('{"story":')  # written in the schema's order, not sorted

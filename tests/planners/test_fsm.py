@@ -3,7 +3,7 @@ applied to scripted model answers, fusion arithmetic, determinism, and independe
 
 from __future__ import annotations
 
-import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -56,9 +56,9 @@ def run_fsm(
 
 
 MIXED = [
-    ('{"linear_x": 0.05, "angular_z": 0.1}', 0.1),  # accepted
-    ('{"linear_x": 0.05, "angular_z": 0.0}', 0.8),  # stale: 800 ms > TTL 500 ms
-    ('{"linear_x": 2.0, "angular_z": 0.0}', 0.1),  # bounds: |v| > v_max
+    ("[50,100]", 0.1),  # accepted
+    ("[50,0]", 0.8),  # stale: 800 ms > TTL 500 ms
+    ("[2000,0]", 0.1),  # bounds: |v| > v_max (only a model without the grammar can send it)
     ("I would slow down a little.", 0.1),  # parse
 ] * 150
 
@@ -99,20 +99,15 @@ def test_llm_suggestions_are_judged_fused_and_deterministic(tmp_path):
     assert metrics["accepted"] > 0 and rejected["stale"] > 0 and rejected["bounds"] > 0 and rejected["parse"] > 0
     assert metrics["r_acc"] == pytest.approx(metrics["accepted"] / metrics["suggestions"])
     assert 0 < metrics["r_use"] < 1
-    # The state JSON goes out only in APPROACH, with the source's fields.
+    # The state line goes out only in APPROACH: class, distance and offset (2 decimals), baseline in mm/s
+    # and mrad/s; no stamp or deadline (they stay with the controller). The schema carries the box.
     for call in record.of_type("llm_call"):
-        state = json.loads(call["request"]["messages"][1]["text"])
-        assert state["phase"] == "APPROACH"
-        assert set(state) == {
-            "stamp",
-            "phase",
-            "class",
-            "distance",
-            "offset",
-            "base_v",
-            "base_w",
-            "deadline_ms",
-        }
+        sign, distance, offset, base_v, base_w = call["request"]["messages"][1]["text"].split(" ")
+        assert sign in ("left", "right", "stop")
+        assert re.fullmatch(r"\d+\.\d\d", distance) and re.fullmatch(r"[+-]\d\.\d\d", offset)
+        assert 0 <= int(base_v) <= 60 and -800 <= int(base_w) <= 800
+        v_item, w_item = call["request"]["json_schema"]["prefixItems"]
+        assert (v_item["minimum"], v_item["maximum"], w_item["minimum"], w_item["maximum"]) == (0, 60, -800, 800)
     # Every verdict is explained, and accepted answers arrive no later than the TTL after their stamp.
     verdicts = [e for e in record.of_type("planner") if e.get("kind") == "suggestion"]
     for event in verdicts:
@@ -127,3 +122,37 @@ def test_llm_suggestions_are_judged_fused_and_deterministic(tmp_path):
             assert event["fused"][i] == pytest.approx(0.5 * event["base"][i] + 0.5 * proj[i], abs=2e-4)
     # Same scripted answers and latencies -> the same trajectory (latency is charged to sim time).
     assert record.poses() == again.poses()
+
+
+def test_fixed_model_latency_is_charged_to_sim_time_and_auto_ttl_adapts(tmp_path):
+    """`--model-latency 120` charges 120 ms per suggestion whatever the backend reports (here 800 ms,
+    stale under the default TTL); `--ttl auto` then learns a TTL from the observed latencies and logs it."""
+    slow = [("[50,100]", 0.8)] * 400
+    summary, record = run_fsm(
+        tmp_path,
+        "fixed",
+        assist="llm",
+        backend=ReplayBackend(script(tmp_path / "s1", slow)),
+        max_ticks=1500,
+        model_latency=120.0,
+    )
+    verdicts = [e for e in record.of_type("planner") if e.get("kind") == "suggestion"]
+    assert len(verdicts) > 5
+    for event in verdicts:
+        assert event["t_recv"] - event["stamp"] == pytest.approx(0.12, abs=0.021)  # next tick after 120 ms
+        assert event["verdict"] == "accepted"
+
+    summary, record = run_fsm(
+        tmp_path,
+        "auto",
+        assist="llm",
+        backend=ReplayBackend(script(tmp_path / "s2", slow)),
+        max_ticks=1500,
+        ttl_auto=True,
+    )
+    changes = [e for e in record.of_type("planner") if e.get("kind") == "ttl"]
+    assert changes and changes[0]["previous_ms"] == 500.0
+    assert changes[0]["ttl_ms"] == pytest.approx(800.0 * 1.2, abs=1.0)
+    verdicts = [e["verdict"] for e in record.of_type("planner") if e.get("kind") == "suggestion"]
+    assert verdicts[:5] == ["stale"] * 5 and set(verdicts[5:]) == {"accepted"}
+    assert summary["planner_metrics"]["ttl_ms"] == pytest.approx(960.0, abs=1.0)

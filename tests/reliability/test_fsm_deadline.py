@@ -41,7 +41,7 @@ class SlowModel(Backend):
     def chat(self, request: ChatRequest) -> ChatResult:
         self.calls += 1
         time.sleep(self.delay_s)
-        return ChatResult('{"linear_x": 0.05, "angular_z": 0.0}', self.delay_s, "slow")
+        return ChatResult("[50,0]", self.delay_s, "slow")
 
 
 @pytest.fixture
