@@ -326,7 +326,7 @@ class LlamaCppEngine:
         try:
             reply = self._server.handle_chat_completions(body)
         except ValueError as err:
-            raise ModelError(f"llama.cpp cannot compile the answer schema: {_one_line(str(err))}") from None
+            raise ModelError(f"llama.cpp cannot compile the answer schema: {one_line(str(err))}") from None
         choices = reply.get("choices") or [{}]
         text = str((choices[0].get("message") or {}).get("content") or "")
         if "error" in reply or not text or text[0] not in _JSON_VALUE_STARTS:
