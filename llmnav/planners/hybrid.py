@@ -50,7 +50,6 @@ from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, Ep
 FRONTIER_GOAL_BAND_M = 0.25
 
 if TYPE_CHECKING:
-    from llmnav.guard.parse import GuardResult
     from llmnav.guard.schemas import HybridChoice
     from llmnav.mapping.grid import LidarMap, OccupancyGrid
     from llmnav.observe import Observation
@@ -441,9 +440,8 @@ class HybridPlanner(Planner):
         self, ctx: EpisodeContext, obs: Observation, pose: Pose2D, options: list[Option], memory: Memory, step: int
     ) -> tuple[int | None, int]:
         """The model's option number through the guard (bounded corrections); (None, errors) on failure."""
-        from llmnav.guard.parse import correction_message, parse_answer
+        from llmnav.guard.ask import GuardedAnswer, ask_guarded
         from llmnav.guard.schemas import hybrid_choice_model, response_schema
-        from llmnav.observe import call_model
         from llmnav.prompting import render
 
         model = hybrid_choice_model(tuple(o.number for o in options))
@@ -467,27 +465,18 @@ class HybridPlanner(Planner):
             options=menu,
         )
         images = (obs.image,) if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal else ()
-        messages: list[Message] = [Message("system", system), Message("user", user, images)]
-        errors = 0
-        for attempt in range(ctx.options.max_corrections + 1):
-            request = ChatRequest(
-                tuple(messages),
-                schema,
-                ctx.options.temperature,
-                min(ctx.options.max_tokens, self.cfg.max_tokens),
-                ctx.options.seed,
-            )
-            reply = call_model(ctx, request, purpose="choice" if attempt == 0 else "correction", step=step)
-            result: GuardResult[HybridChoice] = parse_answer(reply.text, model)
-            ctx.log.event("guard", step=step, attempt=attempt, outcome=result.outcome, error=result.error)
-            if result.value is not None:
-                return int(result.value.option), errors
-            errors += 1
-            messages += [
-                Message("assistant", reply.text),
-                Message("user", correction_message(result, schema)),
-            ]
-        return None, errors
+        request = ChatRequest(
+            (Message("system", system), Message("user", user, images)),
+            schema,
+            ctx.options.temperature,
+            min(ctx.options.max_tokens, self.cfg.max_tokens),
+            ctx.options.seed,
+        )
+        answer: GuardedAnswer[HybridChoice] = ask_guarded(
+            ctx, request, model, None, ctx.options.max_corrections, step=step, purpose="choice"
+        )
+        errors = answer.attempts - (1 if answer.ok else 0)
+        return (int(answer.value.option) if answer.value is not None else None), errors
 
     # --- carrying an option out ------------------------------------------------------------------
     def _execute(
@@ -526,7 +515,7 @@ class HybridPlanner(Planner):
             length = self._pose(ctx).distance_to(x, y)
             verdict = self._veto(ctx, lidar_map, length)
             if verdict is not None:
-                ctx.log.event("guard", step=step, attempt=0, outcome="veto", error=verdict)
+                ctx.log.event("guard", step=step, attempt=1, outcome="veto", error=verdict)
                 self._log_action(ctx, step, "GOTO", length, before, None, vetoed=True)
                 return (
                     f"Stopped: the safety check blocked the next leg ({verdict}). What the LiDAR saw there "

@@ -205,7 +205,7 @@ def test_malformed_and_out_of_range_answers_get_corrections(tmp_path: Path) -> N
     calls = record.of_type("llm_call")
     assert [c["purpose"] for c in calls] == ["choice", "correction", "correction", "choice"]
     guards = [(g["step"], g["attempt"], g["outcome"]) for g in record.of_type("guard")]
-    assert guards == [(1, 0, "parse"), (1, 1, "schema"), (1, 2, "ok"), (2, 0, "ok")]
+    assert guards == [(1, 1, "parse"), (1, 2, "schema"), (1, 3, "ok"), (2, 1, "ok")]  # attempts from 1, as everywhere
     count = len(menu_of(calls[0]))
     model = hybrid_choice_model(tuple(range(1, count + 1)))
     schema = calls[0]["request"]["json_schema"]
