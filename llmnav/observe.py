@@ -55,12 +55,35 @@ class Observation:
         return Message("user", text, (self.image,) if self.image is not None else ())
 
 
-def lidar_text(scan: LidarScan, options: DriveOptions) -> tuple[float | None, str]:
-    """Front distance [m] and the compact sector line, per `--lidar-sectors` and `--lidar-fov`."""
+def lidar_summary(scan: LidarScan, options: DriveOptions) -> LidarSummary:
+    """The scan's front distance and sectors, per `--lidar-sectors` and `--lidar-fov`."""
     from llmnav.perception import summarize_scan
 
-    summary = summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
+    return summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
+
+
+def lidar_text(scan: LidarScan, options: DriveOptions) -> tuple[float | None, str]:
+    """Front distance [m] and the compact sector line, per `--lidar-sectors` and `--lidar-fov`."""
+    summary = lidar_summary(scan, options)
     return summary.front_m, compact_lidar_line(summary)
+
+
+def sectors_log(summary: LidarSummary) -> list[dict[str, Any]]:
+    """The sectors as logged: span [deg], rays, closest reading [m] and its angle [deg] (None: none in range)."""
+
+    def number(value: float | None) -> float | None:
+        return None if value is None or not math.isfinite(value) else round(value, 3)
+
+    return [
+        {
+            "start_deg": round(s.start_deg, 2),
+            "end_deg": round(s.end_deg, 2),
+            "rays": s.rays,
+            "closest_m": number(s.min_m),
+            "angle_deg": number(s.min_angle_deg),
+        }
+        for s in summary.sectors
+    ]
 
 
 def compact_lidar_line(summary: LidarSummary) -> str:
@@ -94,7 +117,8 @@ def observe(world: PlannerWorld, options: DriveOptions, log: RunLog, step: int) 
 
     sensing = set(options.sensing)
     scan = world.lidar.scan()
-    front, sectors = lidar_text(scan, options)
+    summary = lidar_summary(scan, options)
+    front, sectors = summary.front_m, compact_lidar_line(summary)
     frame = None
     image = None
     if "image" in sensing:
@@ -123,6 +147,8 @@ def observe(world: PlannerWorld, options: DriveOptions, log: RunLog, step: int) 
         odom=obs.odom.as_list(),
         lidar_front_m=None if front is None else round(front, 4),
         lidar_text=sectors,
+        lidar_sectors=sectors_log(summary),
+        lidar_range_m=scan.range_max,
         detections=[_detection_log(d) for d in detections],
         image=log.image(image) if image is not None else None,
     )

@@ -289,3 +289,29 @@ def listening() -> Callable[[int], list[tuple[str, int]]]:
     if not Path("/proc/net/tcp").exists():
         pytest.skip("needs Linux /proc to see listening sockets")
     return lambda pid: listen_addresses(process_tree(pid))
+
+
+# --- scenarios with ideal sensing (tests of behaviour that sensing errors would blur) ---------------
+
+
+@pytest.fixture
+def ideal_scenario(tmp_path: Path) -> Callable[[str], str]:
+    """`ideal_scenario(name)`: a copy of a bundled scenario with a noise-free detector and exact odometry.
+
+    For tests of a planner's logic; the sensing errors themselves are tested in tests/sim.
+    """
+    import yaml
+
+    from llmnav.scenario import OdometryConfig, resolve_scenario_path
+
+    def make(name: str) -> str:
+        data = yaml.safe_load(resolve_scenario_path(name).read_text(encoding="utf-8"))
+        sensors = dict(data.get("sensors") or {})
+        sensors["detector"] = {}
+        sensors["odometry"] = OdometryConfig.exact().model_dump()
+        data["sensors"] = sensors
+        path = tmp_path / f"{name}_ideal.yaml"
+        path.write_text(yaml.safe_dump(data), encoding="utf-8")
+        return str(path)
+
+    return make

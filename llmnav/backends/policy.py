@@ -150,8 +150,14 @@ def instance(schema: dict[str, Any], policy: str, ctx: _Context, defs: dict[str,
         required = schema.get("required", list(props))
         return {name: instance(sub, policy, ctx, defs) for name, sub in props.items() if name in required}
     if kind == "array":
-        count = max(1, int(schema.get("minItems", 1)))
-        return [instance(schema.get("items", {}), policy, ctx, defs) for _ in range(count)]
+        # A tuple (`prefixItems`, e.g. the FSM's [v, w]) gets one value per position; `items: false`
+        # then forbids anything after them.
+        fixed = [instance(sub, policy, ctx, defs) for sub in schema.get("prefixItems", [])]
+        items = schema.get("items", {})
+        count = max(0 if fixed else 1, int(schema.get("minItems", 1)) - len(fixed))
+        if items is False:
+            return fixed
+        return fixed + [instance(items if isinstance(items, dict) else {}, policy, ctx, defs) for _ in range(count)]
     if kind in ("number", "integer"):
         return _number(schema, policy, ctx, integer=kind == "integer")
     if kind == "boolean":

@@ -341,6 +341,7 @@ class FsmPlanner(Planner):
             )
 
         tick = 0
+        outbox: list[tuple[str, dict[str, Any]]] = []  # events of a tick, written after its command is out
 
         try:
             for tick in range(opts.max_ticks):
@@ -364,22 +365,26 @@ class FsmPlanner(Planner):
                         stats.suggestions += 1
                         stats.model_latency_ms.append(delivered.latency_s * 1000.0)
                         verdict, value, detail = check_suggestion(
-                            delivered.text, delivered.stamp, now, ttl_s, cfg, self._guard(ctx, sent)
+                            delivered.text, delivered.stamp, now, ttl_s, cfg, self._guard(ctx, sent, outbox)
                         )
                         if value is not None:
                             stats.accepted += 1
                             held = HeldSuggestion(delivered.stamp, *value)
                         else:
                             stats.rejected[verdict] += 1
-                        log.event(
-                            "planner",
-                            kind="suggestion",
-                            stamp=round(delivered.stamp, 4),
-                            t_recv=round(now, 4),
-                            latency_ms=round(delivered.latency_s * 1000, 2),
-                            raw=(delivered.text or "")[:300],
-                            verdict=verdict,
-                            detail=detail,
+                        outbox.append(
+                            (
+                                "planner",
+                                {
+                                    "kind": "suggestion",
+                                    "stamp": round(delivered.stamp, 4),
+                                    "t_recv": round(now, 4),
+                                    "latency_ms": round(delivered.latency_s * 1000, 2),
+                                    "raw": (delivered.text or "")[:300],
+                                    "verdict": verdict,
+                                    "detail": detail,
+                                },
+                            )
                         )
                         if opts.ttl_auto:
                             proposed = adaptive_ttl_ms(stats.model_latency_ms)
@@ -461,6 +466,9 @@ class FsmPlanner(Planner):
                     cmd_v, cmd_w = base_v, base_w
                 out_v, out_w = cmd_v, cmd_w
                 stats.tick_latency_ms.append((time.perf_counter() - tick_start) * 1000.0)  # published
+                for kind, fields in outbox:  # the suggestion's guard verdict and its record, after publishing
+                    log.event(kind, **fields)
+                outbox.clear()
 
                 # --- publish the state JSON (APPROACH only, one request in flight) ------------------
                 if (
@@ -505,6 +513,8 @@ class FsmPlanner(Planner):
                 if tick % 25 == 0:
                     ctx.view.on_step(StepInfo(step=tick, action=f"{state} v={cmd_v:.3f} w={cmd_w:.2f}"))
         finally:
+            for kind, fields in outbox:  # a tick that ended the episode before publishing
+                log.event(kind, **fields)
             if worker is not None:
                 worker.close()
 
@@ -580,14 +590,25 @@ class FsmPlanner(Planner):
         )
 
     @staticmethod
-    def _guard(ctx: EpisodeContext, request: ChatRequest | None) -> Callable[[str], GuardResult[Any]]:
-        """The guarded ask loop judging a reply already in hand (no correction turns: the loop cannot wait)."""
-        from llmnav.guard.ask import ask_guarded
+    def _guard(
+        ctx: EpisodeContext, request: ChatRequest | None, outbox: list[tuple[str, dict[str, Any]]]
+    ) -> Callable[[str], GuardResult[Any]]:
+        """The guarded ask loop judging a reply already in hand (no correction turns: the loop cannot wait).
+
+        Its `guard` event goes to `outbox`, written once the tick has published its command: writing the
+        log is bookkeeping, not part of the control loop's latency.
+        """
+        from llmnav.guard.ask import CallContext, ask_guarded
         from llmnav.guard.schemas import VelocityMilli
+
+        deferred = CallContext(
+            lambda asked, purpose: ctx.chat(asked, purpose, None),
+            lambda kind, **fields: outbox.append((kind, fields)),
+        )
 
         def judge(text: str) -> GuardResult[Any]:
             asked = request or ChatRequest(messages=())
-            return ask_guarded(ctx, asked, VelocityMilli, None, 0, reply=text, purpose="suggestion").result
+            return ask_guarded(deferred, asked, VelocityMilli, None, 0, reply=text, purpose="suggestion").result
 
         return judge
 

@@ -269,6 +269,30 @@ def as_pose(value: Any) -> list[float] | None:
     return [float(v) for v in value[:3]]
 
 
+def _number(value: Any) -> float | None:
+    """A logged number as a float; None for anything else (a log may hold odd values)."""
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
+def logged_lidar(sectors: Any, front_m: Any, range_m: Any) -> LidarView | None:
+    """The sectors of an observation event's `lidar_sectors` (see `llmnav.observe.sectors_log`); None if absent."""
+    if not isinstance(sectors, list) or not sectors:
+        return None
+    out: list[Sector] = []
+    for item in sectors:
+        if not isinstance(item, dict):
+            return None
+        start, end, rays = _number(item.get("start_deg")), _number(item.get("end_deg")), _number(item.get("rays"))
+        closest, angle = _number(item.get("closest_m")), _number(item.get("angle_deg"))
+        if start is None or end is None or rays is None:
+            return None
+        value = None if rays == 0 else (closest if closest is not None else math.inf)
+        out.append(Sector(start, end, value, angle))
+    finite = [s.min_m for s in out if s.min_m is not None and math.isfinite(s.min_m)]
+    range_max = float(range_m) if isinstance(range_m, (int, float)) and math.isfinite(range_m) else max([*finite, 1.0])
+    return LidarView(front_m if isinstance(front_m, (int, float)) else None, out, range_max)
+
+
 def parse_lidar(text: Any, front_m: Any) -> LidarView | None:
     """The sectors of an observation's LiDAR text (`llmnav.perception.LidarSummary.text`); None if absent."""
     if not isinstance(text, str) or not text:
@@ -409,7 +433,10 @@ def _stepped(record: RunRecord) -> list[StepView]:
             step.image = step.image or (image if isinstance(image, str) else None)
             text = event.get("lidar_text")
             step.lidar_text = text if isinstance(text, str) else None
-            step.lidar = parse_lidar(event.get("lidar_text"), event.get("lidar_front_m"))
+            front = event.get("lidar_front_m")
+            step.lidar = logged_lidar(event.get("lidar_sectors"), front, event.get("lidar_range_m")) or parse_lidar(
+                event.get("lidar_text"), front
+            )  # logs written before the sectors were logged as data carry them only as text
             step.detections = [d for d in event.get("detections") or [] if isinstance(d, dict)]
         elif kind == "llm_call":
             call = _call_view(event, previous)

@@ -8,14 +8,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.planners.base import DriveOptions
 from llmnav.planners.fsm import FsmConfig, project
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import OdometryConfig, resolve_scenario_path
 
 CFG = FsmConfig()
 
@@ -23,15 +21,6 @@ CFG = FsmConfig()
 def script(path: Path, replies: list[tuple[str, float]]) -> str:
     """Scripted (answer, latency) pairs the replay backend returns in order, whatever the prompt."""
     return write_script(path, replies, purpose="suggestion")
-
-
-def ideal_maze(tmp_path: Path) -> str:
-    """maze_arena with a noise-free detector and exact odometry (its sensing errors are tested elsewhere)."""
-    data = yaml.safe_load(resolve_scenario_path("maze_arena").read_text(encoding="utf-8"))
-    data["sensors"] = {"detector": {}, "odometry": OdometryConfig.exact().model_dump()}
-    path = tmp_path / "maze_ideal.yaml"
-    path.write_text(yaml.safe_dump(data), encoding="utf-8")
-    return str(path)
 
 
 def run_fsm(
@@ -63,10 +52,10 @@ MIXED = [
 ] * 150
 
 
-def test_baseline_fsm_follows_the_signs_to_the_stop_sign(tmp_path):
+def test_baseline_fsm_follows_the_signs_to_the_stop_sign(tmp_path, ideal_scenario):
     # Perfect sensing: the controller alone stops within centimetres (the calibrated, noisy maze is
     # checked against the source's stop error in test_fsm_calibration.py).
-    summary, record = run_fsm(tmp_path, "none", assist="none", scenario=ideal_maze(tmp_path))
+    summary, record = run_fsm(tmp_path, "none", assist="none", scenario=ideal_scenario("maze_arena"))
     metrics = summary["planner_metrics"]
     assert summary["outcome"] == "completed", summary["reason"]
     assert metrics["e_pos_m"] < 0.15

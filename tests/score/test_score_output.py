@@ -154,7 +154,7 @@ def test_what_cannot_be_computed_is_named_with_its_run(tmp_path: Path, monkeypat
     lost = config_for("T1", backend="local", scenario="gone", scenario_file=tmp_path / "gone.yaml")
     write_run(root / "lost", lost, [[0.0, 0.0, 0.0], [4.5, 0.0, 0.0]], outcome=None)
 
-    import llmnav.baselines.oracle as oracle
+    import llmnav.mapping.targets as oracle
 
     def broken(*args: Any, **kwargs: Any) -> float:
         raise RuntimeError("grid exploded")

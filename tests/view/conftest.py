@@ -71,10 +71,10 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         task_text="Go to room 101",
         options=DriveOptions(planner="hybrid", sensing=("lidar",)),
     )
-    mixed = [
-        json.dumps({"linear_x": 0.05, "angular_z": 0.1}),
+    mixed = [  # the FSM's answer: [v mm/s, w mrad/s]
+        "[50,100]",
         "I would slow down a little.",
-        json.dumps({"linear_x": 2.0, "angular_z": 0.0}),
+        "[2000,0]",
     ] * 4
     out["fsm"] = _drive(
         root,
