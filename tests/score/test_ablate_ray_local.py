@@ -207,7 +207,6 @@ def test_task_environment_forwards_settings_and_caps_threads():
     assert cpus_http == 1 and env_http["LLMNAV_LOCAL_THREADS"] == "1"
 
 
-@pytest.mark.slow
 def test_failing_backend_is_an_error_and_retried_on_resume(key_server, tmp_path):
     grid = _grid(tmp_path, key_server.url, poses="[1]")
     out = tmp_path / "ray"
