@@ -14,19 +14,12 @@ from typing import Any
 import pytest
 
 from llmnav.view.api import write_view
-from llmnav.view.shot import find_browser
+from llmnav.view.shot import BROWSER_FLAGS, find_browser
 
 from .logs import decisions, last_reply
 
-CHROMIUM_FLAGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
+# The flags `llmnav view --screenshot` starts Chromium with (no network, no first-run work).
+CHROMIUM_FLAGS = list(BROWSER_FLAGS)
 
 
 @pytest.fixture(scope="module")
