@@ -62,6 +62,23 @@ def test_header_and_camera_images_and_sectors(runs, tmp_path):
     assert 'alt="Camera image sent to the model at step 1' in page
 
 
+def test_an_image_a_text_only_backend_never_got_is_not_called_sent(runs, tmp_path):
+    import json
+    import shutil
+
+    run = tmp_path / "text-only"
+    shutil.copytree(runs["stepwise"], run)
+    log = run / "run.jsonl"
+    lines = log.read_text(encoding="utf-8").splitlines()
+    config = json.loads(lines[0])
+    assert config.get("modality") == "multimodal"  # the fixture's replay backend took the images
+    config["modality"] = "text"
+    log.write_text("\n".join([json.dumps(config), *lines[1:]]) + "\n", encoding="utf-8")
+    page = write_view(run, tmp_path / "t.html").page.read_text(encoding="utf-8")
+    assert "Camera image sent" not in page and "camera image sent" not in page
+    assert page.count("not sent: the model reads text only") >= 2  # caption and alt text of each image
+
+
 def test_killed_run_says_what_is_missing(runs, tmp_path):
     page = write_view(runs["killed"], tmp_path / "k.html").page.read_text(encoding="utf-8")
     assert "no end event" in page and "summary.json is missing" in page
