@@ -3,13 +3,18 @@
 Beyond the three sources. A small local model writes absurd free-form actions but can choose among a few
 well-described options under a grammar (docs/sources.md, M), so each decision offers:
 - go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
-  the waypoint source), otherwise only objects the detector has seen, each with distance, bearing and
-  (with `--menu-order relevance`) whether its name matches the task;
-- explore a frontier cluster of the robot's own LiDAR map (distance, bearing; not offered when
-  the map is published);
-- rotate 360° to scan;
+  the waypoint source), otherwise only objects the detector has seen (the nearest `max_landmarks`),
+  each with distance, direction and (with `--menu-order relevance`) whether its name matches the task;
+- explore a frontier cluster of the robot's own LiDAR map (the nearest `max_frontiers`; not offered
+  when the map is published);
+- rotate 360° to look around;
 - finish.
 The answer's schema restricts `option` to the listed numbers, and it still passes the guard.
+
+Each option is one short line (`3. Go to oil barrel, 8 m front-right, visited`): whole metres and one of
+eight directions, because the navigation stack does the driving and every digit is a token; what the
+words mean is said once in the system prompt, which the prompt cache keeps. A decision after the first
+then reads about 90–120 new prompt tokens (docs/fast-decisions.md).
 
 What the planner knows follows the episode's information mode (llmnav.knowledge):
 - `map` (corridor worlds): the published map's walls and objects; landmarks are its labelled objects.
@@ -67,8 +72,10 @@ class HybridConfig:
     approach_min_m: float = 0.8  # [m] closest stand-off to an object without a goal point
     approach_max_m: float = 1.8  # [m] farthest stand-off (inside the score's 2.5 m full-credit radius)
     leg_max_m: float = 1.5  # [m] longest straight leg between veto checks and detector looks
-    max_landmarks: int = 5  # options offered per decision
-    max_frontiers: int = 3
+    # Options offered per decision: a short menu keeps every decision within ~120 new prompt tokens and
+    # is an easier choice; farther landmarks come back into the menu as the robot moves.
+    max_landmarks: int = 4
+    max_frontiers: int = 2
     frontier_min_cells: int = 12  # smaller frontier clusters are noise
     veto_margin_m: float = 0.05  # [m] lateral margin of the veto's swept corridor
     # [m] the veto's stop margin: below the grid's 0.10 m clearance, so a leg ending at a free cell that
@@ -95,6 +102,12 @@ class Option:
     goal: tuple[float, float] | None = None  # [m] where to drive
     face: tuple[float, float] | None = None  # [m] what to face on arrival
     landmark_id: str | None = None
+    name: str = ""  # the landmark's name, for the result line
+
+    @property
+    def goal_name(self) -> str:
+        """What the option drives to, in a few words."""
+        return self.name or ("the explored edge" if self.kind == "frontier" else "the goal")
 
 
 @dataclass
@@ -108,7 +121,7 @@ class Memory:
     wanted: set[str] = field(default_factory=set)  # objects the task names
     scans: int = 0  # full turns made so far
     scanned_at: tuple[float, float] | None = None  # [m] where the last full turn was made
-    last_result: str = "nothing yet (first decision)"
+    last_result: str = "nothing yet"
 
 
 class HybridPlanner(Planner):
@@ -273,21 +286,21 @@ class HybridPlanner(Planner):
             if goal is None:
                 continue
             notes = []
-            if object_id in wanted:
-                notes.append("its name matches the task")
-            if object_id in memory.visited:
-                notes.append("already visited")
             # Near its stand point the bearing to the point says nothing: say where the robot is instead.
-            where = "you are there" if pose.distance_to(*goal) <= self.cfg.arrived_m else _where(pose, position)
+            notes.append("you are there" if pose.distance_to(*goal) <= self.cfg.arrived_m else _where(pose, goal))
+            if object_id in wanted:
+                notes.append("name matches task")
+            if object_id in memory.visited:
+                notes.append("visited")
             options.append(
                 Option(
                     0,
                     "landmark",
-                    f"Go to {_named(self._label(ctx, memory, object_id))} ({where})"
-                    + (f" — {'; '.join(notes)}" if notes else ""),
+                    f"Go to {self._label(ctx, memory, object_id)}, {', '.join(notes)}",
                     goal=goal,
                     face=position if sensed else ctx.scenario.object(object_id).center,
                     landmark_id=object_id,
+                    name=self._label(ctx, memory, object_id),
                 )
             )
         # With a published map every landmark is listed already: exploring would only distract the model.
@@ -297,11 +310,11 @@ class HybridPlanner(Planner):
                 Option(
                     0,
                     "frontier",
-                    f"Explore unmapped space ({_where(pose, centre)})",
+                    f"Explore, {_where(pose, centre)}",
                     goal=centre,
                 )
             )
-        scan = Option(0, "scan", "Turn a full circle in place to look around")
+        scan = Option(0, "scan", "Look around")
         scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < self.cfg.rescan_m
         # A second full turn on the same spot shows nothing new (the world is static): not offered.
         turn = [] if scanned_here else [scan]
@@ -322,8 +335,8 @@ class HybridPlanner(Planner):
                     o.text,
                 ),
             )
-            at = "; ".join(_named(self._label(ctx, memory, o.landmark_id or "")) for o in here)
-            finish = Option(0, "complete", "Finish: the task is done" + (f" (you are at {at})" if at else ""))
+            at = ", ".join(self._label(ctx, memory, o.landmark_id or "") for o in here)
+            finish = Option(0, "complete", "Finish" + (f" (at {at})" if at else ""))
             options = [*moves, *turn, finish]
             for number, option in enumerate(options, start=1):
                 option.number = number
@@ -340,12 +353,12 @@ class HybridPlanner(Planner):
         # A task that names nothing (turn around, look around) is served by the scan, then by finishing.
         turning_task = not wanted and ctx.task.kind in ("rotate", "explore")
         if arrived:
-            done = f" — you are at {_named(self._label(ctx, memory, arrived[0].landmark_id or ''))}"
+            done = f" (at {self._label(ctx, memory, arrived[0].landmark_id or '')})"
         elif turning_task and memory.scans:
-            done = " — you have turned a full circle and looked around"
+            done = " (you have looked around)"
         else:
             done = ""
-        finish = Option(0, "complete", "Finish: the task is done" + done)
+        finish = Option(0, "complete", "Finish" + done)
         # Most relevant first: small models lean heavily toward option 1. While nothing the task names is
         # known, looking around (once per spot) and exploring come before unrelated landmarks.
         useful = [o for o in options if o.kind == "landmark" and o.landmark_id in wanted and o not in arrived]
@@ -461,7 +474,7 @@ class HybridPlanner(Planner):
             "hybrid_user",
             task=ctx.task.text,
             last_result=memory.last_result,
-            observation=obs.detections_text or "",
+            observation=f"{obs.detections_text}\n" if obs.detections_text else "",
             options=menu,
         )
         images = (obs.image,) if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal else ()
@@ -501,12 +514,11 @@ class HybridPlanner(Planner):
             memory.scans += 1
             memory.scanned_at = (before.x, before.y)
             self._log_action(ctx, step, "SCAN", 360.0, before, result)
-            seen = "; new objects came into view" if new else "; nothing new came into view"
-            return "Turned a full circle" + seen + ".", 0, result.collided
+            return "looked around, " + ("new objects in view" if new else "nothing new"), 0, result.collided
         assert option.goal is not None
         legs = next((p for p in (self._plan(g, before, option.goal) for g in grids) if p is not None), None)
         if legs is None:
-            return f"No collision-free path to: {option.text}.", 0, False
+            return f"no collision-free path ({option.goal_name})", 0, False
         for x, y in legs:
             pose = self._pose(ctx)
             turn = math.remainder(math.atan2(y - pose.y, x - pose.x) - pose.yaw, math.tau)
@@ -517,22 +529,18 @@ class HybridPlanner(Planner):
             if verdict is not None:
                 ctx.log.event("guard", step=step, attempt=1, outcome="veto", error=verdict)
                 self._log_action(ctx, step, "GOTO", length, before, None, vetoed=True)
-                return (
-                    f"Stopped: the safety check blocked the next leg ({verdict}). What the LiDAR saw there "
-                    "is on the map now, so choosing the same option again plans a way around it.",
-                    1,
-                    False,
-                )
+                # The model is told that retrying is meaningful: the next plan avoids what blocked this one.
+                return f"safety stop ({verdict}); obstacle mapped, same choice detours", 1, False
             result = world.motion.go_to(x, y, obstacle_stop_m=self.cfg.obstacle_stop_m)
             if result.collided:
                 self._log_action(ctx, step, "GOTO", length, before, result)
-                return f"Collided with {result.collision_with or 'an obstacle'}.", 0, True
+                return f"collided with {result.collision_with or 'an obstacle'}", 0, True
             came = self._look(ctx, memory)
-            # Exploring stops for what the task names (or for anything, when it names nothing): stopping
-            # for every unrelated object costs a decision each time and the search crawls.
+            # Exploring stops for what the task names (relevance order), or for anything new (neutral order,
+            # where nothing is matched against the task): the model then decides with the new information.
             if option.kind == "frontier" and (came & memory.wanted or (came and not memory.wanted)):
                 self._log_action(ctx, step, "GOTO", length, before, result)
-                return "Stopped exploring early: something the task may be about came into view.", 0, False
+                return "stopped exploring: new objects in view", 0, False
         if option.face is not None:
             pose = self._pose(ctx)
             turn = math.remainder(math.atan2(option.face[1] - pose.y, option.face[0] - pose.x) - pose.yaw, math.tau)
@@ -552,8 +560,8 @@ class HybridPlanner(Planner):
         )
         if option.goal is not None and after.distance_to(*option.goal) > self.cfg.arrived_m:
             short = after.distance_to(*option.goal)
-            return f"Stopped {short:.1f} m short of the goal: {option.text.split(' (')[0]}.", 0, False
-        return f"Done: {option.text.split(' (')[0]}.", 0, False
+            return f"stopped {short:.1f} m short ({option.goal_name})", 0, False
+        return f"reached {option.goal_name}", 0, False
 
     def _plan(self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]) -> list[tuple[float, float]] | None:
         """A* legs from the robot to the goal, no longer than `leg_max_m` each.
@@ -674,19 +682,23 @@ def _sensed_grid(lidar_map: LidarMap, scenario: Scenario, inflation_m: float) ->
     return OccupancyGrid(geometry, lidar_map.occupied, blocked, inflation_m)
 
 
-def _named(label: str) -> str:
-    """'the window', but 'room 101': a numbered name takes no article."""
-    return label if label[-1:].isdigit() else f"the {label}"
-
-
 def _estimate(pose: Pose2D, bearing_deg: float, distance_m: float) -> tuple[float, float]:
     """World position [m] of something seen at a bearing and distance from a pose."""
     heading = pose.yaw + math.radians(bearing_deg)
     return (pose.x + distance_m * math.cos(heading), pose.y + distance_m * math.sin(heading))
 
 
+# Eight 45° sectors of bearing, counter-clockwise from straight ahead.
+_SECTORS = ("ahead", "front-left", "left", "back-left", "behind", "back-right", "right", "front-right")
+
+
 def _where(pose: Pose2D, point: tuple[float, float]) -> str:
-    """'3.2 m, 40° left' from the robot's point of view."""
+    """'3 m front-left' from the robot's point of view.
+
+    Coarse on purpose: the navigation stack does the driving, so the model only needs to tell options
+    apart, and every digit is a token of its own (whole metres; one decimal below 1 m).
+    """
     bearing = math.degrees(pose.bearing_to(*point))
-    side = "ahead" if abs(bearing) < 10 else f"{abs(bearing):.0f}° {'left' if bearing > 0 else 'right'}"
-    return f"{pose.distance_to(*point):.1f} m, {side}"
+    sector = _SECTORS[round(bearing / 45.0) % 8]
+    distance = pose.distance_to(*point)
+    return f"{distance:.1f} m {sector}" if distance < 0.95 else f"{distance:.0f} m {sector}"

@@ -23,11 +23,11 @@ from llmnav.guard.schemas import (
 from llmnav.prompting import render
 
 MENU = [
-    "Turn a full circle in place to look around",
-    "Go to room 103 (2.0 m away, ahead)",
-    "Go to the window (9.5 m away, ahead)",
-    "Go to room 105 (4.1 m away, 30° to your left)",
-    "Finish: the task is done",
+    "Look around",
+    "Go to room 103, 2 m ahead",
+    "Go to window, 10 m ahead",
+    "Go to room 105, 4 m front-left",
+    "Finish",
 ]
 
 

@@ -34,9 +34,8 @@ def script(path: Path, replies: list[str]) -> str:
 
 
 def options_in(user_turn: str) -> dict[int, str]:
-    """The numbered options of a decision's user turn (the LiDAR sectors above are numbered too)."""
-    listing = user_turn.split("\nOptions:\n", 1)[1]
-    return {int(n): text for n, text in re.findall(r"^(\d+)\. (.+)$", listing, re.MULTILINE)}
+    """The numbered options of a decision's user turn (its only numbered lines)."""
+    return {int(n): text for n, text in re.findall(r"^(\d+)\. (.+)$", user_turn, re.MULTILINE)}
 
 
 def menu(request: ChatRequest) -> dict[int, str]:
@@ -106,12 +105,12 @@ def test_corridor_room_by_option_number_then_finish(tmp_path: Path) -> None:
     summary, record = drive(tmp_path, replay, task_text="Go to room 101")
     assert summary["outcome"] == "completed" and summary["success"] and exit_code(summary) == 0
     turns = user_turns(record)
-    assert "1. Go to room 101 (" in turns[0] and "matches the task" in turns[0]
+    assert "1. Go to room 101, " in turns[0] and "name matches task" in turns[0]
     assert "Explore" not in turns[0]  # the corridor map is published: no frontier options
     # at the room the menu shrinks to what still makes sense: finish, or take another look
     assert options_in(turns[1]) == {
-        1: "Finish: the task is done — you are at room 101",
-        2: "Turn a full circle in place to look around",
+        1: "Finish (at room 101)",
+        2: "Look around",
     }
     scenario = load_scenario("corridor_a")
     plate = scenario.object("R101")
@@ -131,21 +130,21 @@ def wanting(target: str, *, scan_first: bool) -> Callable[[dict[int, str], int],
     scanned: list[bool] = []
 
     def policy(options: dict[int, str], index: int) -> int:
-        for prefix in ("Finish: the task is done — you are at", f"Go to {target}"):
+        for prefix in ("Finish (at", f"Go to {target}"):
             number = first(options, prefix)
             if number is not None:
                 return number
         if scan_first and not scanned:
             scanned.append(True)
-            return first(options, "Turn a full circle") or 0
-        return first(options, "Explore") or first(options, "Turn a full circle") or 0
+            return first(options, "Look around") or 0
+        return first(options, "Explore") or first(options, "Look around") or 0
 
     return policy
 
 
 @pytest.mark.parametrize(("pose", "scan_first"), [(4, True), (3, False)])
 def test_factory_target_appears_only_after_scanning_or_exploring(tmp_path: Path, pose: int, scan_first: bool) -> None:
-    target = "the dark brown wooden boxes"
+    target = "dark brown wooden boxes"
     reader = MenuReader(wanting(target, scan_first=scan_first))
     summary, record = drive(
         tmp_path,
@@ -163,12 +162,12 @@ def test_factory_target_appears_only_after_scanning_or_exploring(tmp_path: Path,
     revealing = reader.menus[listed.index(True) - 1]
     chosen = [json.loads(c["reply"]["text"])["option"] for c in record.of_type("llm_call")]
     kind = revealing[chosen[listed.index(True) - 1]]
-    assert kind.startswith("Turn a full circle" if scan_first else "Explore")
+    assert kind.startswith("Look around" if scan_first else "Explore")
     commands = [a["command"] for a in record.of_type("action")]
     assert commands[-1] == "COMPLETE" and commands[-2] == "GOTO"
     assert ("SCAN" in commands) == scan_first
     # with detections sensed, the model's perception text names the boxes once they are in view
-    perceived = [turn.split("\nOptions:\n")[0] for turn in user_turns(record)]
+    perceived = [turn.split("\n1. ")[0] for turn in user_turns(record)]
     assert "dark brown wooden boxes" not in perceived[0]
     assert any("dark brown wooden boxes" in text for text in perceived[1:])
 
@@ -188,16 +187,13 @@ def test_always_answering_one_still_succeeds(
     summary, record = drive(tmp_path, reader, scenario=factory, task_id=task_id, pose=1, max_iterations=6)
     assert summary["outcome"] == "completed" and summary["success"], summary["reason"]
     assert [a["command"] for a in record.of_type("action")] == commands
-    assert reader.menus[0][1] == "Turn a full circle in place to look around"
-    assert reader.menus[-1][1].startswith("Finish: the task is done — you ")
+    assert reader.menus[0][1] == "Look around"
+    assert reader.menus[-1][1].startswith("Finish (")
     # once done, nothing but finishing is offered (a second turn on the same spot would show nothing new)
     assert list(reader.menus[-1].values()) in (
-        ["Finish: the task is done — you are at the dark brown wooden boxes"],
-        [
-            "Finish: the task is done — you are at the dark brown wooden boxes",
-            "Turn a full circle in place to look around",
-        ],
-        ["Finish: the task is done — you have turned a full circle and looked around"],
+        ["Finish (at dark brown wooden boxes)"],
+        ["Finish (at dark brown wooden boxes)", "Look around"],
+        ["Finish (you have looked around)"],
     )
 
 
@@ -248,7 +244,7 @@ def test_an_obstacle_the_map_lacks_is_vetoed_then_avoided(tmp_path: Path) -> Non
     vetoed = [a for a in record.of_type("action") if a.get("vetoed")]
     assert len(vetoed) == 1 and vetoed[0]["pose_after"][0] < 10.75 - 0.105
     second = user_turns(record)[1]
-    assert "Last: Stopped: the safety check blocked the next leg" in second
+    assert "Last: safety stop (" in second
     assert veto["error"] in second
     assert summary["outcome"] == "completed" and summary["success"]
     assert summary["collisions"] == 0 and summary["safety_vetoes"] == 1
@@ -272,7 +268,7 @@ def test_a_start_inside_the_wall_clearance_steps_out_first(tmp_path: Path) -> No
 
 
 def test_replaying_a_hybrid_run_reproduces_its_poses_exactly(tmp_path: Path) -> None:
-    reader = MenuReader(wanting("the dark brown wooden boxes", scan_first=True))
+    reader = MenuReader(wanting("dark brown wooden boxes", scan_first=True))
     opts: dict[str, Any] = {"scenario": "factory", "task_id": "T8", "pose": 4, "sensing": ("lidar", "detections")}
     first_summary, original = drive(tmp_path, reader, name="original", **opts)
     replay = ReplayBackend(str(tmp_path / "original"))  # strict: every request must match the recorded one

@@ -92,9 +92,9 @@ def test_the_sensed_view_holds_no_positions() -> None:
 
 def _t8_policy(options: dict[int, str], index: int) -> int:
     """Finish at the boxes, else go to them when listed, else look around once, else explore."""
-    at_boxes = first(options, "Finish: the task is done (you are at the dark brown wooden boxes")
-    going = first(options, "Go to the dark brown wooden boxes")
-    return at_boxes or going or first(options, "Turn a full circle") or first(options, "Explore") or 1
+    at_boxes = first(options, "Finish (at dark brown wooden boxes")
+    going = first(options, "Go to dark brown wooden boxes")
+    return at_boxes or going or first(options, "Look around") or first(options, "Explore") or 1
 
 
 def test_hybrid_sensed_finds_the_boxes_without_reading_ground_truth(
