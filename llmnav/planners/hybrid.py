@@ -279,15 +279,22 @@ class HybridPlanner(Planner):
             key=lambda item: (item[0] not in wanted, pose.distance_to(*item[1])),
         )
         sensed = ctx.information == "sensed"
-        for object_id, position in ranked[: self.cfg.max_landmarks]:
+        # The cap counts places to drive to: the landmark the robot stands at is listed besides them (as
+        # Finish's "at", or as "you are there"), and one without a reachable stand point is not listed.
+        places = 0
+        for object_id, position in ranked:
+            if places >= self.cfg.max_landmarks:
+                break
             # Sensed: the detector measures to the object's goal point, so the estimate is that point.
             true_goal = None if sensed else ctx.scenario.object(object_id).goal
             goal = self._approach(grids, position if sensed else true_goal, position, pose)
             if goal is None:
                 continue
+            here = pose.distance_to(*goal) <= self.cfg.arrived_m
+            places += not here
             notes = []
             # Near its stand point the bearing to the point says nothing: say where the robot is instead.
-            notes.append("you are there" if pose.distance_to(*goal) <= self.cfg.arrived_m else _where(pose, goal))
+            notes.append("you are there" if here else _where(pose, goal))
             if object_id in wanted:
                 notes.append("name matches task")
             if object_id in memory.visited:
@@ -314,7 +321,8 @@ class HybridPlanner(Planner):
                     goal=centre,
                 )
             )
-        scan = Option(0, "scan", "Look around")
+        # The words say what the robot does (a task may ask for the turn itself, in any wording).
+        scan = Option(0, "scan", "Turn a full circle to look around")
         scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < self.cfg.rescan_m
         # A second full turn on the same spot shows nothing new (the world is static): not offered.
         turn = [] if scanned_here else [scan]

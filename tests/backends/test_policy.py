@@ -23,7 +23,7 @@ from llmnav.guard.schemas import (
 from llmnav.prompting import render
 
 MENU = [
-    "Look around",
+    "Turn a full circle to look around",
     "Go to room 103, 2 m ahead",
     "Go to window, 10 m ahead",
     "Go to room 105, 4 m front-left",

@@ -18,6 +18,7 @@ from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import hybrid_choice_model
 from llmnav.planners.base import DriveOptions
+from llmnav.planners.hybrid import HybridConfig
 from llmnav.resources import resource_dir
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
@@ -110,7 +111,7 @@ def test_corridor_room_by_option_number_then_finish(tmp_path: Path) -> None:
     # at the room the menu shrinks to what still makes sense: finish, or take another look
     assert options_in(turns[1]) == {
         1: "Finish (at room 101)",
-        2: "Look around",
+        2: "Turn a full circle to look around",
     }
     scenario = load_scenario("corridor_a")
     plate = scenario.object("R101")
@@ -136,8 +137,8 @@ def wanting(target: str, *, scan_first: bool) -> Callable[[dict[int, str], int],
                 return number
         if scan_first and not scanned:
             scanned.append(True)
-            return first(options, "Look around") or 0
-        return first(options, "Explore") or first(options, "Look around") or 0
+            return first(options, "Turn a full circle") or 0
+        return first(options, "Explore") or first(options, "Turn a full circle") or 0
 
     return policy
 
@@ -162,7 +163,7 @@ def test_factory_target_appears_only_after_scanning_or_exploring(tmp_path: Path,
     revealing = reader.menus[listed.index(True) - 1]
     chosen = [json.loads(c["reply"]["text"])["option"] for c in record.of_type("llm_call")]
     kind = revealing[chosen[listed.index(True) - 1]]
-    assert kind.startswith("Look around" if scan_first else "Explore")
+    assert kind.startswith("Turn a full circle" if scan_first else "Explore")
     commands = [a["command"] for a in record.of_type("action")]
     assert commands[-1] == "COMPLETE" and commands[-2] == "GOTO"
     assert ("SCAN" in commands) == scan_first
@@ -187,12 +188,12 @@ def test_always_answering_one_still_succeeds(
     summary, record = drive(tmp_path, reader, scenario=factory, task_id=task_id, pose=1, max_iterations=6)
     assert summary["outcome"] == "completed" and summary["success"], summary["reason"]
     assert [a["command"] for a in record.of_type("action")] == commands
-    assert reader.menus[0][1] == "Look around"
+    assert reader.menus[0][1] == "Turn a full circle to look around"
     assert reader.menus[-1][1].startswith("Finish (")
     # once done, nothing but finishing is offered (a second turn on the same spot would show nothing new)
     assert list(reader.menus[-1].values()) in (
         ["Finish (at dark brown wooden boxes)"],
-        ["Finish (at dark brown wooden boxes)", "Look around"],
+        ["Finish (at dark brown wooden boxes)", "Turn a full circle to look around"],
         ["Finish (you have looked around)"],
     )
 
@@ -277,3 +278,19 @@ def test_replaying_a_hybrid_run_reproduces_its_poses_exactly(tmp_path: Path) -> 
     assert original.poses() == replayed.poses() and len(original.poses()) > 20
     requests = [c["request"] for c in original.of_type("llm_call")]
     assert requests == [c["request"] for c in replayed.of_type("llm_call")] and len(requests) >= 3
+
+
+def test_the_neutral_menu_is_short_lines_and_the_spot_the_robot_stands_on_takes_no_place(tmp_path: Path) -> None:
+    reader = MenuReader(lambda options, index: 1)
+    drive(tmp_path, reader, task_text="Go to room 101", menu_order="distance", max_iterations=2)
+    at_room = reader.menus[1]
+    places = [text for text in at_room.values() if text.startswith("Go to ")]
+    # four places to go besides the room the robot is at, which only Finish names
+    assert len(places) == HybridConfig().max_landmarks == 4
+    assert list(at_room.values())[-1] == "Finish (at room 101)"
+    assert not any("room 101" in text for text in places)
+    # one line each: a name, whole metres and one of eight directions
+    line = re.compile(
+        r"Go to room \d+, \d+ m (ahead|front-left|left|back-left|behind|back-right|right|front-right)(, visited)?"
+    )
+    assert all(line.fullmatch(text) for text in places), places

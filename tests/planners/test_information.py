@@ -94,7 +94,7 @@ def _t8_policy(options: dict[int, str], index: int) -> int:
     """Finish at the boxes, else go to them when listed, else look around once, else explore."""
     at_boxes = first(options, "Finish (at dark brown wooden boxes")
     going = first(options, "Go to dark brown wooden boxes")
-    return at_boxes or going or first(options, "Look around") or first(options, "Explore") or 1
+    return at_boxes or going or first(options, "Turn a full circle") or first(options, "Explore") or 1
 
 
 def test_hybrid_sensed_finds_the_boxes_without_reading_ground_truth(
