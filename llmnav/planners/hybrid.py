@@ -290,24 +290,25 @@ class HybridPlanner(Planner):
             goal = self._approach(grids, position if sensed else true_goal, position, pose)
             if goal is None:
                 continue
-            here = pose.distance_to(*goal) <= self.cfg.arrived_m
-            places += not here
+            standing = pose.distance_to(*goal) <= self.cfg.arrived_m
+            places += not standing
             notes = []
             # Near its stand point the bearing to the point says nothing: say where the robot is instead.
-            notes.append("you are there" if here else _where(pose, goal))
+            notes.append("you are there" if standing else _where(pose, goal))
             if object_id in wanted:
                 notes.append("name matches task")
             if object_id in memory.visited:
                 notes.append("visited")
+            name = self._label(ctx, memory, object_id)
             options.append(
                 Option(
                     0,
                     "landmark",
-                    f"Go to {self._label(ctx, memory, object_id)}, {', '.join(notes)}",
+                    f"Go to {name}, {', '.join(notes)}",
                     goal=goal,
                     face=position if sensed else ctx.scenario.object(object_id).center,
                     landmark_id=object_id,
-                    name=self._label(ctx, memory, object_id),
+                    name=name,
                 )
             )
         # With a published map every landmark is listed already: exploring would only distract the model.
@@ -343,7 +344,7 @@ class HybridPlanner(Planner):
                     o.text,
                 ),
             )
-            at = ", ".join(self._label(ctx, memory, o.landmark_id or "") for o in here)
+            at = ", ".join(o.name for o in here)
             finish = Option(0, "complete", "Finish" + (f" (at {at})" if at else ""))
             options = [*moves, *turn, finish]
             for number, option in enumerate(options, start=1):
@@ -361,7 +362,7 @@ class HybridPlanner(Planner):
         # A task that names nothing (turn around, look around) is served by the scan, then by finishing.
         turning_task = not wanted and ctx.task.kind in ("rotate", "explore")
         if arrived:
-            done = f" (at {self._label(ctx, memory, arrived[0].landmark_id or '')})"
+            done = f" (at {arrived[0].name})"
         elif turning_task and memory.scans:
             done = " (you have looked around)"
         else:
