@@ -79,11 +79,16 @@ class ChatResult:
     completion_tokens: int | None = None
     meta: dict[str, Any] = field(default_factory=dict)  # provider details (finish reason, attempts, ...)
 
+    @property
+    def logged_latency_s(self) -> float:
+        """The latency as the log keeps it (0.1 ms), which is what a replay of the run will report."""
+        return round(self.latency_s, 4)
+
     def to_log(self) -> dict[str, Any]:
         """Log form of the reply."""
         return {
             "text": self.text,
-            "latency_s": round(self.latency_s, 4),
+            "latency_s": self.logged_latency_s,
             "model": self.model,
             "prompt_tokens": self.prompt_tokens,
             "completion_tokens": self.completion_tokens,

@@ -628,8 +628,9 @@ class FsmPlanner(Planner):
         except LlmnavError as err:
             latency = fixed_s if fixed_s is not None else time.perf_counter() - started
             return Suggestion(now, now + latency, None, latency, str(err))
-        # `measured` and `recorded`: the backend's own figure (a live call's wall time; a replay's record).
-        latency = fixed_s if fixed_s is not None else result.latency_s
+        # `measured` and `recorded`: the backend's own figure (a live call's wall time; a replay's record),
+        # as the log keeps it, so that a strict replay charges exactly what the original run charged.
+        latency = fixed_s if fixed_s is not None else result.logged_latency_s
         return Suggestion(now, now + latency, result.text, latency)
 
     def _metrics(self, ctx: EpisodeContext, stats: FsmStats, final: Any, start: Any) -> dict[str, Any]:

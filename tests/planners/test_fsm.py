@@ -145,3 +145,17 @@ def test_fixed_model_latency_is_charged_to_sim_time_and_auto_ttl_adapts(tmp_path
     verdicts = [e["verdict"] for e in record.of_type("planner") if e.get("kind") == "suggestion"]
     assert verdicts[:5] == ["stale"] * 5 and set(verdicts[5:]) == {"accepted"}
     assert summary["planner_metrics"]["ttl_ms"] == pytest.approx(960.0, abs=1.0)
+
+
+def test_a_strict_replay_charges_the_latency_its_log_recorded(tmp_path):
+    # The log keeps latencies to 0.1 ms. The live run must charge that same figure to simulation time:
+    # a latency of 0.10003 s charged in full but replayed as 0.1000 s makes the answer usable one 20 ms
+    # tick later in the original than in its replay, and the two trajectories part.
+    near_ticks = [("[40,100]", 0.10003), ("[30,-100]", 0.09996), ("[50,0]", 0.14004), ("[20,200]", 0.05998)] * 150
+    original = ReplayBackend(script(tmp_path / "s", near_ticks))
+    summary, record = run_fsm(tmp_path, "original", assist="llm", backend=original, max_ticks=1500)
+    replay = ReplayBackend(str(tmp_path / "original"))  # strict: every request must match
+    again, replayed = run_fsm(tmp_path, "replayed", assist="llm", backend=replay, max_ticks=1500)
+    assert summary["planner_metrics"]["accepted"] > 10
+    assert again["planner_metrics"]["accepted"] == summary["planner_metrics"]["accepted"]
+    assert replayed.poses() == record.poses()
