@@ -164,10 +164,10 @@ class WaypointPlanner(Planner):
                 self._count(metrics, plan)
                 waypoints = plan.waypoints
                 if waypoints is None:
-                    metrics["legs"].append({"target": target.id, "reached": False, "replans": replans})
-                    return self._end(
+                    return self._leg_failed(
                         metrics,
-                        "failed",
+                        target.id,
+                        replans,
                         f"no valid waypoints for {target.label} after {len(plan.attempts)} generations",
                         step,
                     )
@@ -183,8 +183,7 @@ class WaypointPlanner(Planner):
                 if stop is None:
                     break
                 if stop == "collision":
-                    metrics["legs"].append({"target": target.id, "reached": False, "replans": replans})
-                    return self._end(metrics, "failed", "collided while following waypoints", step)
+                    return self._leg_failed(metrics, target.id, replans, "collided while following waypoints", step)
                 obstacle: Point | None = None
                 if stop in ("obstacle", "emergency"):  # a LiDAR reading below the stop distance
                     metrics["collision_events"] += 1
@@ -195,10 +194,10 @@ class WaypointPlanner(Planner):
                 if obstacle is not None:
                     seen.append(obstacle)
                 if replans >= opts.max_replans:
-                    metrics["legs"].append({"target": target.id, "reached": False, "replans": replans})
-                    return self._end(
+                    return self._leg_failed(
                         metrics,
-                        "failed",
+                        target.id,
+                        replans,
                         f"path to {target.label} still blocked ({stop}) after {replans} replans",
                         step,
                     )
@@ -308,6 +307,12 @@ class WaypointPlanner(Planner):
         metrics["planning_time_s"] += plan.planning_time_s
         metrics["generations"] += len(plan.attempts)
         metrics["valid_generations"] += sum(a.valid for a in plan.attempts)
+
+    @staticmethod
+    def _leg_failed(metrics: dict[str, Any], target_id: str, replans: int, reason: str, step: int) -> EpisodeOutcome:
+        """Record the unreached leg, then end the episode as failed."""
+        metrics["legs"].append({"target": target_id, "reached": False, "replans": replans})
+        return WaypointPlanner._end(metrics, "failed", reason, step)
 
     @staticmethod
     def _end(metrics: dict[str, Any], outcome: str, reason: str, step: int) -> EpisodeOutcome:
