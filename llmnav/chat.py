@@ -1,7 +1,7 @@
 """Chat types shared by planners, backends, the run log and the simulator: a leaf module (imports nothing of llmnav).
 
 `Message` (a role, text and images), `Image` (a base64 JPEG), `ChatRequest` (what a planner asks) and
-`ChatResult` (a model's reply and its cost).
+`ChatResult` (a model's reply and its cost); `ScoreRequest` and `ScoreResult` (log-probabilities of given continuations).
 """
 
 from __future__ import annotations
@@ -92,5 +92,59 @@ class ChatResult:
             "model": self.model,
             "prompt_tokens": self.prompt_tokens,
             "completion_tokens": self.completion_tokens,
+            "meta": self.meta,
+        }
+
+
+@dataclass(frozen=True)
+class ScoreRequest:
+    """Ask how likely each continuation is after a plain-text prefix (no chat template).
+
+    Planners use it to score option texts instead of asking a small model to write an option number
+    (SayCan scores skills this way). Each continuation should begin with the space that separates it
+    from the prefix (" fire extinguisher"), so it tokenises as it would in running text.
+    """
+
+    prefix: str
+    continuations: tuple[str, ...]
+
+    def to_log(self) -> dict[str, Any]:
+        """Log form: a run log keeps it like a chat request (one user message), so replay compares it alike."""
+        return {"messages": [{"role": "user", "text": self.prefix}], "continuations": list(self.continuations)}
+
+
+@dataclass(frozen=True)
+class ContinuationScore:
+    """One continuation's summed log-probability [nats] and the number of tokens it took."""
+
+    logprob: float
+    tokens: int
+
+
+@dataclass
+class ScoreResult:
+    """The scores of a `ScoreRequest`, in the order of its continuations, and what they cost."""
+
+    scores: tuple[ContinuationScore, ...]
+    latency_s: float  # [s] wall time of the call
+    model: str
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # Decisions use the scores exactly as the log keeps them, so a strict replay decides the same.
+        self.scores = tuple(ContinuationScore(round(float(s.logprob), 6), int(s.tokens)) for s in self.scores)
+
+    @property
+    def logged_latency_s(self) -> float:
+        """The latency as the log keeps it (0.1 ms)."""
+        return round(self.latency_s, 4)
+
+    def to_log(self) -> dict[str, Any]:
+        """Log form (`text` stays empty: a scoring call writes nothing)."""
+        return {
+            "text": "",
+            "scores": [[s.logprob, s.tokens] for s in self.scores],
+            "latency_s": self.logged_latency_s,
+            "model": self.model,
             "meta": self.meta,
         }

@@ -6,7 +6,9 @@ whose `message` is the user turn for the model. The LiDAR is always scanned, eve
 shown it: the safety veto works on the scan, never on what the model was told.
 
 `call_model` is the one road to a backend: it logs an `llm_call` event with the request and the reply (or
-the error) so that every planner's calls look the same in logs and replay identically.
+the error) so that every planner's calls look the same in logs and replay identically. `call_scorer` is
+its twin for scoring requests (log-probabilities of given continuations): the same event, with the
+purpose `score`, the continuations in the request and the scores in the reply.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from llmnav.chat import ChatRequest, ChatResult, Image, Message
+from llmnav.chat import ChatRequest, ChatResult, Image, Message, ScoreRequest, ScoreResult
 from llmnav.errors import LlmnavError, one_line
 
 if TYPE_CHECKING:
@@ -193,6 +195,31 @@ def call_model(ctx: EpisodeContext, request: ChatRequest, purpose: str, step: in
         reply=result.to_log(),
         new_prompt_tokens=new_prompt_tokens(result),
     )
+    return result
+
+
+def call_scorer(ctx: EpisodeContext, request: ScoreRequest, step: int | None) -> ScoreResult:
+    """Score continuations through `ctx.backend`, logged as an `llm_call` event with purpose `score`.
+
+    Failures are logged and re-raised like `call_model`'s; a reply with a different number of scores
+    than continuations is a `ModelError` (never a silent misalignment of options and scores).
+    """
+    from llmnav.backends.local import beside_simulation
+    from llmnav.errors import ModelError
+
+    if ctx.backend is None:
+        raise LlmnavError(f"planner '{ctx.options.planner}' asked for scores but no backend is configured")
+    try:
+        with beside_simulation(ctx.options.realtime):
+            result = ctx.backend.score(request)
+        if len(result.scores) != len(request.continuations):
+            raise ModelError(
+                f"{ctx.backend.spec} returned {len(result.scores)} scores for {len(request.continuations)} continuations"
+            )
+    except LlmnavError as err:
+        ctx.log.event("llm_call", step=step, purpose="score", request=request.to_log(), error=one_line(err))
+        raise
+    ctx.log.event("llm_call", step=step, purpose="score", request=request.to_log(), reply=result.to_log())
     return result
 
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, ClassVar
 
-from llmnav.chat import ChatRequest, ChatResult, Image, Message, Role
-from llmnav.errors import BackendSpecError
+from llmnav.chat import ChatRequest, ChatResult, ContinuationScore, Image, Message, Role, ScoreRequest, ScoreResult
+from llmnav.errors import BackendSpecError, ModelError
 
 __all__ = [
     "Backend",
@@ -23,6 +23,9 @@ __all__ = [
     "Image",
     "Message",
     "Role",
+    "ContinuationScore",
+    "ScoreRequest",
+    "ScoreResult",
     "get_backend",
     "parse_spec",
     "registry",
@@ -67,6 +70,18 @@ class Backend(ABC):
     @abstractmethod
     def chat(self, request: ChatRequest) -> ChatResult:
         """Send one request; raise `ModelError` after the last failed attempt."""
+
+    @property
+    def can_score(self) -> bool:
+        """Whether `score` works: the backend returns log-probabilities of given continuations.
+
+        Per instance: a replay scores when its recording did, an HTTP backend when its server does.
+        """
+        return False
+
+    def score(self, request: ScoreRequest) -> ScoreResult:
+        """Each continuation's summed log-probability after `request.prefix`; `ModelError` when unsupported."""
+        raise ModelError(f"{self.spec} cannot score continuations (it only generates text)")
 
     def check_schema(self, schema: dict[str, Any]) -> None:  # noqa: B027 - most backends compile nothing
         """Raise `ModelError` now when this backend cannot constrain answers to `schema`.

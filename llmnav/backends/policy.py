@@ -17,6 +17,11 @@ How an answer is built from the schema, node by node:
 
 `random` is seeded per request: the same seed and request always give the same answer, whatever ran before,
 so episodes replay and ablations in any order agree.
+
+Scoring requests (a prefix and continuations, see `ScoreRequest`) get the same policies as scores, so a
+planner that decides by scores has the same null baselines: `first` scores by position (the first
+continuation highest), `random` draws a seeded score per continuation, `keyword` counts the words each
+continuation shares with the prefix's task line.
 """
 
 from __future__ import annotations
@@ -29,7 +34,16 @@ import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult, Message
+from llmnav.backends.base import (
+    Backend,
+    BackendStatus,
+    ChatRequest,
+    ChatResult,
+    ContinuationScore,
+    Message,
+    ScoreRequest,
+    ScoreResult,
+)
 from llmnav.errors import BackendSpecError, ModelError
 
 POLICIES = ("first", "random", "keyword")
@@ -209,11 +223,34 @@ class PolicyBackend(Backend):
             return BackendStatus(False, str(err))
         return BackendStatus(True, "no model: answers from the request's JSON Schema")
 
+    @property
+    def can_score(self) -> bool:
+        """Every policy scores (see the module docstring)."""
+        return True
+
+    def _rng(self, logged: dict[str, Any]) -> random.Random:
+        # Seeded by the request itself: a correction turn (new messages) draws afresh, a rerun draws the same.
+        digest = hashlib.sha256(json.dumps(logged, sort_keys=True).encode("utf-8")).digest()
+        return random.Random(self.seed * 2**64 + int.from_bytes(digest[:8], "big"))
+
+    def score(self, request: ScoreRequest) -> ScoreResult:
+        """Scores by the policy: position (`first`), a seeded draw (`random`) or shared words (`keyword`)."""
+        ctx = _Context((Message("user", request.prefix),), self._rng(request.to_log()))
+        task = words(ctx.task())
+        values: list[float] = []
+        for index, text in enumerate(request.continuations):
+            if self.policy == "first":
+                values.append(-float(index))
+            elif self.policy == "random":
+                values.append(round(ctx.rng.uniform(-10.0, 0.0), 6))
+            else:
+                values.append(float(len(task & words(text))))
+        scores = tuple(ContinuationScore(v, max(1, len(words(t)))) for v, t in zip(values, request.continuations))
+        return ScoreResult(scores, 0.0, self.spec, {"policy": self.policy, "mode": "score"})
+
     def chat(self, request: ChatRequest) -> ChatResult:
         """One answer built from `request.json_schema` (free text when the request has no schema)."""
-        # Seeded by the request itself: a correction turn (new messages) draws afresh, a rerun draws the same.
-        digest = hashlib.sha256(json.dumps(request.to_log(), sort_keys=True).encode("utf-8")).digest()
-        rng = random.Random(self.seed * 2**64 + int.from_bytes(digest[:8], "big"))
+        rng = self._rng(request.to_log())
         ctx = _Context(request.messages, rng)
         schema = request.json_schema
         try:

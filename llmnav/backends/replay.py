@@ -18,7 +18,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict
 
-from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult
+from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult, ContinuationScore, ScoreRequest, ScoreResult
 from llmnav.backends.http import parse_options
 from llmnav.errors import BackendSpecError, BadInputError, ModelError, ReplayDivergenceError
 from llmnav.runlog import RUN_FILE, dumps
@@ -218,9 +218,35 @@ class ReplayBackend(Backend):
         self.multimodal = recording.modality(loose=self.loose) == "multimodal"
         self.position = 0  # calls answered so far
         self.divergences = 0  # requests that differed (loose mode)
+        # A recording that scored continuations replays them; one that only generated cannot score.
+        self._scores = any("continuations" in call.request for call in self.calls)
 
-    def chat(self, request: ChatRequest) -> ChatResult:
-        """The next recorded reply; strict mode checks the request first."""
+    @property
+    def can_score(self) -> bool:
+        """Whether the recording holds scoring calls (then a planner deciding `auto` scores again)."""
+        return self._scores
+
+    def score(self, request: ScoreRequest) -> ScoreResult:
+        """The next recorded scores; strict mode checks the request first."""
+        call, diverged = self._next(request.to_log())
+        reply = call.reply or {}
+        raw = reply.get("scores")
+        try:
+            scores = tuple(ContinuationScore(float(lp), int(n)) for lp, n in raw)  # type: ignore[union-attr]
+        except (TypeError, ValueError):
+            raise ModelError(f"replay: call {call.number} at {self.file}:{call.line} holds no scores") from None
+        if len(scores) != len(request.continuations):
+            raise ModelError(
+                f"replay: call {call.number} at {self.file}:{call.line} holds {len(scores)} scores, "
+                f"asked for {len(request.continuations)}"
+            )
+        meta = dict(reply.get("meta") or {})
+        if diverged:
+            meta["replay_diverged"] = True
+        return ScoreResult(scores, float(reply.get("latency_s") or 0.0), str(reply.get("model") or "replay"), meta)
+
+    def _next(self, asked_log: dict[str, Any]) -> tuple[RecordedCall, bool]:
+        """The next recorded call, checked against the request in strict mode; raises a recorded failure."""
         if self.position >= len(self.calls):
             raise ModelError(
                 f"replay: {self.file} holds {len(self.calls)} model calls and call {self.position + 1} "
@@ -228,7 +254,7 @@ class ReplayBackend(Backend):
             )
         call = self.calls[self.position]
         self.position += 1
-        asked = json.loads(dumps(request.to_log()))  # the same JSON round trip the log went through
+        asked = json.loads(dumps(asked_log))  # the same JSON round trip the log went through
         diverged = asked != call.request
         if diverged:
             self.divergences += 1
@@ -240,7 +266,13 @@ class ReplayBackend(Backend):
                 )
         if call.reply is None:
             raise ModelError(f"replay: recorded failure of call {call.number}: {call.error}")
+        return call, diverged
+
+    def chat(self, request: ChatRequest) -> ChatResult:
+        """The next recorded reply; strict mode checks the request first."""
+        call, diverged = self._next(request.to_log())
         reply = call.reply
+        assert reply is not None
         meta = dict(reply.get("meta") or {})
         if diverged:
             meta["replay_diverged"] = True
