@@ -173,6 +173,13 @@ def run_episode(
         owns_backend = True
     if backend is not None and spec.options.drop_images:
         backend.drop_images = True
+    if backend is not None:
+        try:
+            planner.check_backend(backend, spec.options)
+        except BaseException:
+            if owns_backend:
+                backend.close()
+            raise
     try:
         # Imported only now: pybullet prints a banner on stderr, which bad input above must not precede.
         from llmnav.sim.world import World

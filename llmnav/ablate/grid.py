@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 # The factors an ablation may vary, in the order they appear in keys and tables.
 FACTORS: tuple[str, ...] = (
-    "planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording",
+    "planner", "backend", "decide", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording",
 )  # fmt: skip
 DEFAULT_BACKEND = "local"
 _SEED_SPACE = 2**31 - 1  # seeds stay positive 32-bit ints (PyBullet, numpy, model servers)
@@ -42,6 +42,7 @@ class GridSpec(BaseModel):
     # ablated factors (None = not ablated: the default of DriveOptions, or `backend` below)
     planner: list[str] | None = None
     backend: list[str] | None = None
+    decide: list[str] | None = None  # hybrid: "score", "generate", "auto"
     sensing: list[str] | None = None  # each "lidar+image", "image", ...
     lidar_sectors: list[int] | None = None
     prompt: list[str] | None = None
@@ -65,7 +66,9 @@ class GridSpec(BaseModel):
             raise ValueError("start poses are 1-based and at least one is needed")
         return poses
 
-    @field_validator("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording")
+    @field_validator(
+        "planner", "backend", "decide", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording"
+    )
     @classmethod
     def _non_empty(cls, values: list[Any] | None) -> list[Any] | None:
         if values is not None and not values:

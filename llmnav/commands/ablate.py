@@ -37,6 +37,9 @@ def ablate(
     ] = None,
     backend: Annotated[str | None, typer.Option("--backend", help=f"Backend specs ({_LIST}).")] = None,
     assist: Annotated[str | None, typer.Option("--assist", help=f"none, ema, llm ({_LIST}).")] = None,
+    decide: Annotated[
+        str | None, typer.Option("--decide", help=f"Hybrid: score, generate, auto ({_LIST}).")
+    ] = None,
     planner: Annotated[str | None, typer.Option("--planner", help=f"Planners ({_LIST}).")] = None,
     wording: Annotated[
         str | None, typer.Option("--wording", help=f"Task wordings: bundled, paraphrase:K ({_LIST}).")
@@ -89,6 +92,7 @@ def ablate(
     for key, value in (
         ("lidar_sectors", lidar_sectors), ("prompt", prompt), ("history", history), ("sensing", sensing),
         ("backend", backend), ("assist", assist), ("planner", planner), ("wording", wording),
+        ("decide", decide),
     ):  # fmt: skip
         if value is not None:
             flags[key] = lib.split_list(value)

@@ -93,6 +93,10 @@ def drive(
     menu_order: Annotated[
         str, typer.Option("--menu-order", help="Hybrid menu order: distance (neutral) | relevance.")
     ] = "distance",
+    decide: Annotated[
+        str,
+        typer.Option(help="Hybrid: score option texts | generate an option number | auto (score if the backend can)."),
+    ] = "auto",
     sensing: Annotated[str, typer.Option(help="Comma list of lidar, image, detections.")] = "lidar,image",
     lidar_sectors: Annotated[int, typer.Option("--lidar-sectors", help="LiDAR sectors in the summary.")] = 8,
     lidar_fov: Annotated[
@@ -165,6 +169,7 @@ def drive(
                 "planner": planner,
                 "information": information,
                 "menu_order": menu_order,
+                "decide": decide,
                 "sensing": _parse_sensing(sensing),
                 "lidar_sectors": lidar_sectors,
                 "lidar_fov_deg": lidar_fov,

@@ -27,7 +27,7 @@ from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.chat import ChatRequest, ChatResult
+    from llmnav.chat import ChatRequest, ChatResult, ScoreRequest, ScoreResult
     from llmnav.guard.view import PlannerWorld
     from llmnav.runlog import RunLog, RunRecord
     from llmnav.scenario import Scenario, Task
@@ -37,6 +37,8 @@ Outcome = Literal["completed", "failed", "aborted"]
 # What a planner may know (see llmnav.knowledge): a published map, only its own sensors, or ground truth.
 Information = Literal["map", "sensed", "oracle"]
 MenuOrder = Literal["distance", "relevance"]
+# How a model-driven choice is made: scored option texts, generated answers, or scores where the backend can.
+Decide = Literal["auto", "score", "generate"]
 
 
 class DriveOptions(BaseModel):
@@ -47,6 +49,7 @@ class DriveOptions(BaseModel):
     planner: str = "hybrid"  # a name registered under the `llmnav.planners` entry-point group
     information: Information | None = None  # None: the planner's default for the scenario (llmnav.knowledge)
     menu_order: MenuOrder = "distance"  # hybrid: neutral by distance, or "relevance" (task-name matching first)
+    decide: Decide = "auto"  # hybrid: score option texts | generate an option number | auto: score if the backend can
     sensing: tuple[Literal["lidar", "image", "detections"], ...] = ("lidar", "image")
     lidar_sectors: int = Field(default=8, ge=1, le=72)
     lidar_fov_deg: float = Field(default=90.0, gt=0, le=360)
@@ -149,6 +152,12 @@ class EpisodeContext:
 
         return call_model(self, request, purpose, step)
 
+    def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
+        """Score continuations with the backend, logged as an `llm_call` event (`llmnav.observe.call_scorer`)."""
+        from llmnav.observe import call_scorer
+
+        return call_scorer(self, request, step)
+
     def event(self, kind: str, **fields: Any) -> None:
         """Log one event at the current simulated time."""
         self.log.sim_time = self.world.sim_time
@@ -180,6 +189,9 @@ class Planner(ABC):
     def templates(self, options: DriveOptions) -> list[str]:
         """Prompt templates this planner renders (their hashes go into the config line)."""
         return []
+
+    def check_backend(self, backend: Backend, options: DriveOptions) -> None:  # noqa: B027 - most need nothing
+        """Raise `BadInputError` when this episode cannot run on `backend` (before any run folder exists)."""
 
     @abstractmethod
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:

@@ -1,5 +1,10 @@
 """Hybrid planner: the model picks one numbered option; A* and the motion layer carry it out.
 
+How the model picks (`--decide`): `score` ranks the options by the likelihood of their texts
+(`llmnav.planners.hybrid.scoring`: SayCan-style, the decision rule is written there); `generate` asks for
+an option number under a JSON Schema; `auto` (the default) scores where the backend can. The run's
+`planner` event and summary record which mode ran.
+
 Beyond the three sources. A small local model writes absurd free-form actions but can choose among a few
 well-described options under a grammar (docs/sources.md, M), so each decision offers:
 - go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
@@ -48,6 +53,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from llmnav.chat import ChatRequest, Message
 from llmnav.geometry import Pose2D
+from llmnav.errors import BadInputError
 from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 
 # [m] goals for a frontier lie within the grid's inflation plus this of one of its cells (sensed mode:
@@ -55,6 +61,7 @@ from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, Ep
 FRONTIER_GOAL_BAND_M = 0.25
 
 if TYPE_CHECKING:
+    from llmnav.backends.base import Backend
     from llmnav.guard.schemas import HybridChoice
     from llmnav.mapping.grid import LidarMap, OccupancyGrid
     from llmnav.observe import Observation
@@ -103,6 +110,8 @@ class Option:
     face: tuple[float, float] | None = None  # [m] what to face on arrival
     landmark_id: str | None = None
     name: str = ""  # the landmark's name, for the result line
+    at: tuple[str, ...] = ()  # Finish: the names of the landmarks the robot stands at
+    distance_m: float = 0.0  # [m] from the robot to `goal`
 
     @property
     def goal_name(self) -> str:
@@ -136,6 +145,7 @@ class HybridPlanner(Planner):
         "max_iterations",
         "image_width",
         "image_height",
+        "decide",
     }
 
     def __init__(self, config: HybridConfig | None = None) -> None:
@@ -146,10 +156,26 @@ class HybridPlanner(Planner):
         """Prompt templates this planner renders (their hashes go into the run config)."""
         return ["hybrid_system", "hybrid_user"]
 
+    def check_backend(self, backend: Backend, options: DriveOptions) -> None:
+        """`--decide score` needs a backend that scores continuations."""
+        if options.decide == "score" and not backend.can_score:
+            raise BadInputError(
+                f"--decide score: backend '{backend.spec}' cannot score option texts "
+                "(use --decide generate, or a backend that scores: local, policy:*, a llama.cpp server)"
+            )
+
+    @staticmethod
+    def decision_mode(ctx: EpisodeContext) -> str:
+        """`score` or `generate`: what `--decide` means with this episode's backend."""
+        if ctx.options.decide == "generate" or ctx.backend is None:
+            return "generate"
+        return "score" if ctx.options.decide == "score" or ctx.backend.can_score else "generate"
+
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
         from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate
         from llmnav.observe import observe
+        from llmnav.planners.hybrid.scoring import ScoredChooser
         from llmnav.tasks import named_objects
 
         world, scenario = ctx.world, ctx.scenario
@@ -174,6 +200,10 @@ class HybridPlanner(Planner):
                 memory.landmarks = {o.id: o.goal_point for o in scenario.objects}
         # (The runner logs the start pose and every trajectory sample; nothing to hook here.)
         json_errors = vetoes = 0
+        mode = self.decision_mode(ctx)
+        ctx.event("planner", decide=mode, requested=ctx.options.decide)
+        chooser = ScoredChooser(ctx, ctx.task.text, mapped=bool(scenario.corridors)) if mode == "score" else None
+        done = {"json_errors": 0, "vetoes": 0, "decide": mode}
 
         for step in range(1, ctx.options.max_iterations + 1):
             ctx.log.sim_time = world.sim_time
@@ -188,18 +218,26 @@ class HybridPlanner(Planner):
                 grids = [_sensed_grid(lidar_map, scenario, radius + m) for m in margins]
             else:
                 grids = [_with_seen_obstacles(g, lidar_map, near_known, self.cfg.unseen_depth_m) for g in static]
-            options = self._options(ctx, grids, lidar_map, memory, pose)
-            choice, errors = self._choose(ctx, obs, pose, options, memory, step)
+            options = self._options(ctx, grids, lidar_map, memory, pose, scored=chooser is not None)
+            reasoning = ""
+            if chooser is not None:
+                decision = self._scored(ctx, chooser, options, memory, step)
+                choice, errors, reasoning = decision.number, 0, decision.rule
+            else:
+                choice, errors = self._choose(ctx, obs, pose, options, memory, step)
             json_errors += errors
+            done.update(json_errors=json_errors, vetoes=vetoes)
             if choice is None:
                 return EpisodeOutcome(
                     "aborted",
                     f"no valid choice after {ctx.options.max_corrections} correction turns",
                     step,
-                    {"json_errors": json_errors, "vetoes": vetoes},
+                    dict(done),
                 )
             option = options[choice - 1]
-            ctx.view.on_step(StepInfo(step, option.text, front_m=obs.front_m, json_retries=errors, vetoes=vetoes))
+            ctx.view.on_step(
+                StepInfo(step, option.text, reasoning, front_m=obs.front_m, json_retries=errors, vetoes=vetoes)
+            )
             if option.kind == "complete":
                 ctx.log.event(
                     "action",
@@ -211,23 +249,37 @@ class HybridPlanner(Planner):
                     pose_after=pose.as_list(),
                     collided=False,
                 )
-                return EpisodeOutcome(
-                    "completed",
-                    "the model chose to finish",
-                    step,
-                    {"json_errors": json_errors, "vetoes": vetoes},
-                )
+                return EpisodeOutcome("completed", "the model chose to finish", step, dict(done))
             result_text, vetoed, collided = self._execute(ctx, grids, lidar_map, option, memory, step)
             vetoes += vetoed
+            done.update(vetoes=vetoes)
             memory.last_result = result_text
             if collided:
-                return EpisodeOutcome("failed", result_text, step, {"json_errors": json_errors, "vetoes": vetoes})
+                return EpisodeOutcome("failed", result_text, step, dict(done))
         return EpisodeOutcome(
             "failed",
             f"no finish within {ctx.options.max_iterations} decisions",
             ctx.options.max_iterations,
-            {"json_errors": json_errors, "vetoes": vetoes},
+            dict(done),
         )
+
+    @staticmethod
+    def _scored(ctx: EpisodeContext, chooser: Any, options: list[Option], memory: Memory, step: int) -> Any:
+        """The scored decision on this menu (`llmnav.planners.hybrid.scoring`), logged as a `decision` event."""
+        from llmnav.planners.hybrid.scoring import Candidate
+
+        candidates = [
+            Candidate(
+                o.number,
+                o.kind,
+                (o.name,) if o.kind == "landmark" and o.name else o.at,
+                o.distance_m,
+            )
+            for o in options
+        ]
+        decision = chooser.choose(candidates, turned=memory.scans > 0, step=step)
+        ctx.event("decision", step=step, **decision.to_log())
+        return decision
 
     # --- perception memory ----------------------------------------------------------------------
     def _remember(self, ctx: EpisodeContext, memory: Memory, pose: Pose2D, detections: list[Detection]) -> set[str]:
@@ -270,8 +322,9 @@ class HybridPlanner(Planner):
         lidar_map: LidarMap,
         memory: Memory,
         pose: Pose2D,
+        scored: bool = False,
     ) -> list[Option]:
-        """The numbered menu; `grids` are the planning grids, roomiest first."""
+        """The numbered menu; `grids` are the planning grids, roomiest first (`scored`: no cap on landmarks)."""
         wanted = memory.wanted
         options: list[Option] = []
         ranked = sorted(
@@ -283,7 +336,8 @@ class HybridPlanner(Planner):
         # Finish's "at", or as "you are there"), and one without a reachable stand point is not listed.
         places = 0
         for object_id, position in ranked:
-            if places >= self.cfg.max_landmarks:
+            # Scored decisions read no prompt: every known landmark stays on the menu.
+            if places >= self.cfg.max_landmarks and not scored:
                 break
             # Sensed: the detector measures to the object's goal point, so the estimate is that point.
             true_goal = None if sensed else ctx.scenario.object(object_id).goal
@@ -309,6 +363,7 @@ class HybridPlanner(Planner):
                     face=position if sensed else ctx.scenario.object(object_id).center,
                     landmark_id=object_id,
                     name=name,
+                    distance_m=pose.distance_to(*goal),
                 )
             )
         # With a published map every landmark is listed already: exploring would only distract the model.
@@ -320,6 +375,7 @@ class HybridPlanner(Planner):
                     "frontier",
                     f"Explore, {_where(pose, centre)}",
                     goal=centre,
+                    distance_m=pose.distance_to(*centre),
                 )
             )
         # The words say what the robot does (a task may ask for the turn itself, in any wording).
@@ -345,7 +401,7 @@ class HybridPlanner(Planner):
                 ),
             )
             at = ", ".join(o.name for o in here)
-            finish = Option(0, "complete", "Finish" + (f" (at {at})" if at else ""))
+            finish = Option(0, "complete", "Finish" + (f" (at {at})" if at else ""), at=tuple(o.name for o in here))
             options = [*moves, *turn, finish]
             for number, option in enumerate(options, start=1):
                 option.number = number
@@ -367,7 +423,7 @@ class HybridPlanner(Planner):
             done = " (you have looked around)"
         else:
             done = ""
-        finish = Option(0, "complete", "Finish" + done)
+        finish = Option(0, "complete", "Finish" + done, at=tuple(o.name for o in arrived))
         # Most relevant first: small models lean heavily toward option 1. While nothing the task names is
         # known, looking around (once per spot) and exploring come before unrelated landmarks.
         useful = [o for o in options if o.kind == "landmark" and o.landmark_id in wanted and o not in arrived]
