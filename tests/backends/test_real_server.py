@@ -125,12 +125,48 @@ def test_check_sees_a_text_only_server_that_honours_schemas(served):
     for name in ("reachable", "models listed", "model present", "accepts a JSON Schema"):
         assert lines[name].startswith("ok"), result.output
     assert lines["accepts images"].startswith("no") and "text-only" in lines["accepts images"]
+    assert lines["scores continuations"].startswith("ok"), result.output
+
+
+def test_the_server_scores_like_the_in_process_engine(served):
+    """The same model, scored over HTTP (`/tokenize`, `/completions`) and in process: the same numbers."""
+    from llmnav.backends.base import get_backend
+    from llmnav.backends.local import LocalBackend
+    from llmnav.chat import ScoreRequest
+
+    request = ScoreRequest("Task: Go to the window\nThe robot drives to the", (" window", " room 104", " stairs"))
+    remote = get_backend(served.backend)
+    try:
+        assert remote.can_score
+        over_http = remote.score(request).scores
+    finally:
+        remote.close()
+    in_process = LocalBackend().score(request).scores
+    assert [s.tokens for s in over_http] == [s.tokens for s in in_process]
+    for a, b in zip(over_http, in_process):
+        assert a.logprob == pytest.approx(b.logprob, abs=0.05)
+    assert max(range(3), key=lambda i: over_http[i].logprob) == 0  # " window" after a task naming it
+
+
+def test_hybrid_scores_over_http_reaches_the_room_and_replays(served, tmp_path):
+    out = tmp_path / "scored"
+    code, stdout, stderr = _drive(out, served.backend, "--max-iterations", "5")
+    assert code == 0, stdout + stderr
+    record = read_run(out)
+    assert [e["decide"] for e in record.of_type("planner")] == ["score"]
+    assert all(c["purpose"] == "score" for c in record.of_type("llm_call"))
+    again = tmp_path / "again"
+    code_again, _, _ = _drive(again, f"replay:{out}", "--max-iterations", "5")
+    first, second = (json.loads((d / "summary.json").read_text()) for d in (out, again))
+    assert code_again == 0 and second["final_pose"] == first["final_pose"]
 
 
 @pytest.mark.parametrize("planner", ["hybrid", "stepwise"])
 def test_default_sensing_stops_at_once_with_the_hint(served, tmp_path, planner):
     out = tmp_path / planner
-    code, stdout, stderr = _drive(out, served.backend, "--planner", planner)
+    # The hybrid asks for a generated choice here: scored decisions send no image (see the scoring test).
+    extra = ("--decide", "generate") if planner == "hybrid" else ()
+    code, stdout, stderr = _drive(out, served.backend, "--planner", planner, *extra)
     assert code == 2
     line = stderr.strip()
     assert "\n" not in line and "takes no images" in line and "--sensing lidar" in line, stderr
@@ -144,7 +180,9 @@ def test_default_sensing_stops_at_once_with_the_hint(served, tmp_path, planner):
 def test_hybrid_drop_images_goes_on_and_replays_strictly(served, tmp_path, caplog):
     out = tmp_path / "hybrid"
     with caplog.at_level("WARNING"):  # the one line on screen (stderr outside pytest's log capture)
-        code, stdout, stderr = _drive(out, served.backend, "--drop-images", "--max-iterations", "1")
+        code, stdout, stderr = _drive(
+            out, served.backend, "--drop-images", "--max-iterations", "1", "--decide", "generate"
+        )
     record = read_run(out)
     calls = record.of_type("llm_call")
     assert code in (0, 1), stderr
@@ -158,7 +196,7 @@ def test_hybrid_drop_images_goes_on_and_replays_strictly(served, tmp_path, caplo
 
     replay = tmp_path / "replay"
     code_again, _, stderr_again = _drive(
-        replay, f"replay:{out / 'run.jsonl'}", "--drop-images", "--max-iterations", "1"
+        replay, f"replay:{out / 'run.jsonl'}", "--drop-images", "--max-iterations", "1", "--decide", "generate"
     )
     assert code_again == code, stderr_again
     first, again = (json.loads((d / "summary.json").read_text()) for d in (out, replay))

@@ -8,9 +8,9 @@ from typing import Any
 
 import pytest
 
-from llmnav.backends import local as local_mod
 from llmnav.backends.base import get_backend
-from llmnav.backends.local import LocalBackend, continuation_tokens, forced_tokens_grammar
+from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_tokens_grammar
+from llmnav.backends.local import LocalBackend
 from llmnav.backends.policy import PolicyBackend
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.chat import ScoreRequest
@@ -74,11 +74,11 @@ def test_forced_tokens_come_back_as_sent(backend: LocalBackend) -> None:
 
 def test_a_reply_with_other_tokens_is_a_model_error() -> None:
     reply = {"choices": [{"logprobs": {"content": [{"id": 5, "logprob": -0.1}, {"id": 6, "logprob": -1.0}]}}]}
-    assert local_mod._forced_logprob(reply, [5, 6], " x") == pytest.approx(-1.1)
+    assert forced_logprob(reply, [5, 6], " x") == pytest.approx(-1.1)
     with pytest.raises(ModelError, match="not the forced"):
-        local_mod._forced_logprob(reply, [5, 7], " x")
+        forced_logprob(reply, [5, 7], " x")
     with pytest.raises(ModelError, match="no token log-probabilities"):
-        local_mod._forced_logprob({"choices": [{}]}, [5], " x")
+        forced_logprob({"choices": [{}]}, [5], " x")
 
 
 def test_scores_follow_the_chain_rule(backend: LocalBackend) -> None:
