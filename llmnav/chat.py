@@ -1,7 +1,8 @@
 """Chat types shared by planners, backends, the run log and the simulator: a leaf module (imports nothing of llmnav).
 
 `Message` (a role, text and images), `Image` (a base64 JPEG), `ChatRequest` (what a planner asks) and
-`ChatResult` (a model's reply and its cost); `ScoreRequest` and `ScoreResult` (log-probabilities of given continuations).
+`ChatResult` (a model's reply and its cost); `ScoreRequest` and `ScoreResult` (log-probabilities of
+given continuations).
 """
 
 from __future__ import annotations

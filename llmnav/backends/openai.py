@@ -18,7 +18,15 @@ from typing import Any, ClassVar, Literal
 
 from pydantic import Field
 
-from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult, Check, ContinuationScore, ScoreRequest, ScoreResult
+from llmnav.backends.base import (
+    BackendStatus,
+    ChatRequest,
+    ChatResult,
+    Check,
+    ContinuationScore,
+    ScoreRequest,
+    ScoreResult,
+)
 from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request
 from llmnav.backends.http import (
     HttpBackend,
@@ -123,7 +131,8 @@ class OpenAIBackend(HttpBackend):
     def score(self, request: ScoreRequest) -> ScoreResult:
         """Each continuation's log-probability, forced as its canonical tokens (see the module docstring)."""
         if not self.can_score:
-            raise ModelError(f"{self.spec.split('@')[0]} at {self.client.redact(self.base_url)} cannot score continuations")
+            where = self.client.redact(self.base_url)
+            raise ModelError(f"{self.spec.split('@')[0]} at {where} cannot score continuations")
         prefix = self._tokenize(request.prefix)
         scores: list[ContinuationScore] = []
         elapsed = 0.0

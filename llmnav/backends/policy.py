@@ -245,7 +245,8 @@ class PolicyBackend(Backend):
                 values.append(round(ctx.rng.uniform(-10.0, 0.0), 6))
             else:
                 values.append(float(len(task & words(text))))
-        scores = tuple(ContinuationScore(v, max(1, len(words(t)))) for v, t in zip(values, request.continuations))
+        pairs = zip(values, request.continuations, strict=True)
+        scores = tuple(ContinuationScore(v, max(1, len(words(t)))) for v, t in pairs)
         return ScoreResult(scores, 0.0, self.spec, {"policy": self.policy, "mode": "score"})
 
     def chat(self, request: ChatRequest) -> ChatResult:

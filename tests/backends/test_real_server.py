@@ -143,7 +143,7 @@ def test_the_server_scores_like_the_in_process_engine(served):
         remote.close()
     in_process = LocalBackend().score(request).scores
     assert [s.tokens for s in over_http] == [s.tokens for s in in_process]
-    for a, b in zip(over_http, in_process):
+    for a, b in zip(over_http, in_process, strict=True):
         assert a.logprob == pytest.approx(b.logprob, abs=0.05)
     assert max(range(3), key=lambda i: over_http[i].logprob) == 0  # " window" after a task naming it
 

@@ -28,6 +28,13 @@ from llmnav.runner import EpisodeSpec, run_episode
 # One short episode per planner, under its default options: only the length is cut.
 EPISODES: dict[str, dict[str, Any]] = {
     "hybrid": {"scenario": "corridor_a", "task_text": "Go to room 101", "options": {"max_iterations": 3}},
+    # The hybrid scores options where the backend can (policy, local); this cell asks it to generate.
+    "hybrid-generate": {
+        "planner": "hybrid",
+        "scenario": "corridor_a",
+        "task_text": "Go to room 101",
+        "options": {"max_iterations": 3, "decide": "generate"},
+    },
     "stepwise": {"scenario": "corridor_a", "task_text": "Go to room 101", "options": {"max_iterations": 2}},
     "waypoints": {"scenario": "corridor_a", "task_text": "Go to room 101", "options": {}},
     # The FSM talks to a model only with --assist llm; without it there would be nothing to replay.
@@ -35,7 +42,7 @@ EPISODES: dict[str, dict[str, Any]] = {
 }
 # Cells the local model makes too slow for the default suite (long stepwise prompts, several waypoint
 # generations); hybrid × local runs in the default suite as the README run below.
-SLOW_LOCAL = {"stepwise", "waypoints", "hybrid"}
+SLOW_LOCAL = {"stepwise", "waypoints", "hybrid", "hybrid-generate"}
 
 
 def _answer_with_policy(server: Any) -> None:
@@ -69,7 +76,7 @@ def _episode(planner: str, backend: str, out: Path) -> dict[str, Any]:
         scenario=setup["scenario"],
         task_id=setup.get("task_id"),
         task_text=setup.get("task_text"),
-        options=DriveOptions(planner=planner, **setup["options"]),  # type: ignore[arg-type]
+        options=DriveOptions(planner=setup.get("planner", planner), **setup["options"]),  # type: ignore[arg-type]
         backend=backend,
         out_dir=out,
         plots=False,
@@ -114,7 +121,7 @@ def test_record_then_strict_replay(planner: str, kind: str, tmp_path: Path, requ
         backend = {"policy": "policy:keyword", "local": "local"}[kind]
     config = _record_and_replay(planner, backend, tmp_path)
     assert config["modality"] == ("multimodal" if kind == "http" else "text")
-    if kind == "http" and planner in ("hybrid", "stepwise"):  # the camera frame went to the model
+    if kind == "http" and planner in ("hybrid", "hybrid-generate", "stepwise"):  # the camera frame went to the model
         assert config["attachments"] == ["camera image 640x480 JPEG"]
         assert any(m.get("images") for r in _requests(tmp_path / "rec") for m in r["messages"])
 
@@ -139,11 +146,11 @@ def test_the_readme_run_replays_strictly(tmp_path: Path, monkeypatch: pytest.Mon
 def test_the_recorded_modality_decides_what_replay_attaches(tmp_path: Path) -> None:
     # A text-only recording claimed as multimodal: the replayed hybrid now attaches the camera frame,
     # and strict replay must notice (this is how the README run used to fail).
-    _episode("hybrid", "policy:first", tmp_path / "rec")
+    _episode("hybrid-generate", "policy:first", tmp_path / "rec")
     log = tmp_path / "rec" / "run.jsonl"
     lines = log.read_text().splitlines()
     config = json.loads(lines[0])
     assert config["modality"] == "text"
     log.write_text("\n".join([json.dumps(config | {"modality": "multimodal"}), *lines[1:]]) + "\n")
-    again = _episode("hybrid", f"replay:{log}", tmp_path / "rep")
+    again = _episode("hybrid-generate", f"replay:{log}", tmp_path / "rep")
     assert again["outcome"] == "aborted" and "message 2 (user) differs" in again["reason"]

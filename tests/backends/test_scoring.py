@@ -53,7 +53,7 @@ def test_canonical_tail_spells_the_continuation_in_whole_words(backend: LocalBac
     ids = engine.tokenize(prefix)
     tail = continuation_tokens(ids, engine.tokenize(prefix + " fire extinguisher"), " fire extinguisher")
     reply = engine._server.handle_completions(
-        {"prompt": ids, "max_tokens": len(tail), "logprobs": 1, "temperature": 0.0, "grammar": forced_tokens_grammar(tail)}
+        {"prompt": ids, "max_tokens": len(tail), "logprobs": 1, "grammar": forced_tokens_grammar(tail)}
     )
     pieces = [item["token"] for item in reply["choices"][0]["logprobs"]["content"]]
     assert "".join(pieces) == " fire extinguisher"
@@ -67,7 +67,7 @@ def test_forced_tokens_come_back_as_sent(backend: LocalBackend) -> None:
     ids = engine.tokenize(prefix)
     tail = continuation_tokens(ids, engine.tokenize(prefix + " stairs"), " stairs")
     reply = engine._server.handle_completions(
-        {"prompt": ids, "max_tokens": len(tail), "logprobs": 1, "temperature": 0.0, "grammar": forced_tokens_grammar(tail)}
+        {"prompt": ids, "max_tokens": len(tail), "logprobs": 1, "grammar": forced_tokens_grammar(tail)}
     )
     assert [item["id"] for item in reply["choices"][0]["logprobs"]["content"]] == tail
 
@@ -98,7 +98,7 @@ def test_pmi_picks_the_named_object_with_the_real_model(backend: LocalBackend) -
     conts = tuple(" " + label for label in LABELS)
     with_task = backend.score(ScoreRequest(template.format(task="Find the fire extinguisher"), conts)).scores
     free = backend.score(ScoreRequest(template.format(task="N/A"), conts)).scores
-    pmi = {label: a.logprob - b.logprob for label, a, b in zip(LABELS, with_task, free)}
+    pmi = {label: a.logprob - b.logprob for label, a, b in zip(LABELS, with_task, free, strict=True)}
     assert max(pmi, key=pmi.__getitem__) == "fire extinguisher", pmi
     assert pmi["fire extinguisher"] > 5.0 + max(v for k, v in pmi.items() if k != "fire extinguisher"), pmi
 

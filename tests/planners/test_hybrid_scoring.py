@@ -34,7 +34,9 @@ class FakeContext:
     def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
         self.requests.append(request)
         content_free = f"Task: {CONTENT_FREE_TASK}\n" in request.prefix
-        values = [self.free if content_free else self.task_scores.get(c.strip(), self.free) for c in request.continuations]
+        values = [
+            self.free if content_free else self.task_scores.get(c.strip(), self.free) for c in request.continuations
+        ]
         return ScoreResult(tuple(ContinuationScore(v, 1) for v in values), 0.0, "fake")
 
 
@@ -148,7 +150,8 @@ def test_decide_score_with_a_backend_that_cannot_score_is_bad_input(tmp_path: Pa
     spec = write_script(tmp_path / "script", ['{"option": 1}'], purpose="choice")
     out = tmp_path / "never"
     result = CliRunner().invoke(
-        app, ["drive", "--task", "Go to room 101", "--decide", "score", "--backend", f"replay:{spec}", "--out", str(out)]
+        app,
+        ["drive", "--task", "Go to room 101", "--decide", "score", "--backend", f"replay:{spec}", "--out", str(out)],
     )
     assert result.exit_code == 2, result.output
     lines = result.output.strip().splitlines()

@@ -52,8 +52,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
 from llmnav.chat import ChatRequest, Message
-from llmnav.geometry import Pose2D
 from llmnav.errors import BadInputError
+from llmnav.geometry import Pose2D
 from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 
 # [m] goals for a frontier lie within the grid's inflation plus this of one of its cells (sensed mode:

@@ -4,11 +4,11 @@ A 135M model cannot write the number of the right option (its answer digit follo
 the menu), but it can tell how likely a text is as the continuation of the task. Each decision therefore
 asks the backend for log-probabilities, never for an answer (Ahn et al. 2022, SayCan; docs/sources.md):
 
-- **Relevance of a landmark** is the domain-conditional pointwise mutual information of its name with the
-  task (Holtzman et al. 2021): log P(" <name>" | TARGET_PROMPT with the task) minus log P(" <name>" |
-  the same prompt with the content-free task "N/A"). Subtracting the content-free term removes the
-  model's prior for short, frequent names. Both terms depend only on the task and the name, so each name
-  is scored once per episode, when it first appears on the menu.
+- **Relevance of a landmark** is the domain-conditional pointwise mutual information of its name
+  with the task (`llmnav.relevance`; Holtzman et al. 2021): log P(" <name>" | TARGET_PROMPT with the
+  task) minus log P(" <name>" | the same prompt with the content-free task "N/A"). Subtracting the
+  content-free term removes the model's prior for short, frequent names. Both terms depend only on the
+  task and the name, so each name is scored once per episode, when it first appears on the menu.
 - **Intent** (once per episode): whether the task is done by turning on the spot or by going somewhere,
   the PMI of the two phrases in `INTENTS` after INTENT_PROMPT. A task that names no place ("look
   around", "spin") is served by one full turn, then Finish.
@@ -39,16 +39,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
-from llmnav.chat import ScoreRequest
+from llmnav.relevance import CONTENT_FREE_TASK, TARGET_PROMPT, TextRelevance
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeContext
 
-# The prompts are plain text (no chat template): the model continues them. No example, no alias, no
-# answer: the task's own words are all the model gets.
-TARGET_PROMPT = "A mobile robot carries out the user's task.\nTask: {task}\nThe robot drives to the"
 INTENT_PROMPT = "A mobile robot carries out the user's task.\nTask: {task}\nTo do this, the robot will"
-CONTENT_FREE_TASK = "N/A"
+__all__ = ["CONTENT_FREE_TASK", "INTENT_PROMPT", "TARGET_PROMPT", "Candidate", "Decision", "ScoredChooser"]
 INTENTS: tuple[tuple[str, str], ...] = (("go", " drive to something"), ("turn", " turn around on the spot"))
 
 CandidateKind = Literal["landmark", "frontier", "scan", "complete"]
@@ -94,43 +91,26 @@ class Decision:
         }
 
 
-class TextScorer:
-    """PMI of continuations with one task, each text scored once per episode (content-free term too)."""
-
-    def __init__(self, ctx: EpisodeContext, task: str) -> None:
-        self._ctx = ctx
-        self._task = task
-        self._pmi: dict[tuple[str, str], float] = {}
-
-    def pmi(self, template: str, texts: list[str], step: int | None) -> dict[str, float]:
-        """PMI [nats] of each text (a leading space is added) after `template` with the task vs "N/A"."""
-        new = [t for t in dict.fromkeys(texts) if (template, t) not in self._pmi]
-        if new:
-            continuations = tuple(" " + t.strip() for t in new)
-            with_task = self._ctx.score(ScoreRequest(template.format(task=self._task), continuations), step)
-            free = self._ctx.score(ScoreRequest(template.format(task=CONTENT_FREE_TASK), continuations), step)
-            for text, a, b in zip(new, with_task.scores, free.scores):
-                self._pmi[(template, text)] = a.logprob - b.logprob
-        return {t: self._pmi[(template, t)] for t in texts}
-
-
 class ScoredChooser:
     """Chooses menu entries by scores (see the module docstring)."""
 
     def __init__(self, ctx: EpisodeContext, task: str, *, mapped: bool, config: ScoringConfig | None = None) -> None:
         self.cfg = config or ScoringConfig()
-        self.scorer = TextScorer(ctx, task)
+        self.step: int | None = None  # the decision the scores are logged with
+        self.scorer = TextRelevance(lambda request: ctx.score(request, self.step), task)
         self.mapped = mapped  # a published map lists every landmark: no need to look before choosing
         self.intent: Intent | None = None
         self.explored = 0  # decisions that chose to explore
 
     def relevance(self, names: list[str], step: int | None) -> dict[str, float]:
         """PMI [nats] of landmark names with the task."""
-        return self.scorer.pmi(TARGET_PROMPT, names, step)
+        self.step = step
+        return self.scorer.pmi(TARGET_PROMPT, names)
 
     def _intent(self, step: int | None) -> Intent:
         if self.intent is None:
-            scores = self.scorer.pmi(INTENT_PROMPT, [text.strip() for _, text in INTENTS], step)
+            self.step = step
+            scores = self.scorer.pmi(INTENT_PROMPT, [text.strip() for _, text in INTENTS])
             best = max(INTENTS, key=lambda item: scores[item[1].strip()])  # ties: the first (go)
             self.intent = "turn" if best[0] == "turn" else "go"
         return self.intent
@@ -169,7 +149,8 @@ class ScoredChooser:
             self.explored += 1
             return self._frontier(by_kind, intent, scores, f"{name} {scores[name]:+.1f} is unsure")
         if scores[name] < self.cfg.min_pmi and scan is not None:
-            return Decision(scan.number, f"no known place fits ({name} {scores[name]:+.1f}): look around", intent, scores)
+            why = f"no known place fits ({name} {scores[name]:+.1f}): look around"
+            return Decision(scan.number, why, intent, scores)
         if best is None:
             if not sure and scan is not None and not self.mapped:
                 return Decision(scan.number, f"at {name}: look around once more", intent, scores)

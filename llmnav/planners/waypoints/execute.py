@@ -55,7 +55,9 @@ class WaypointPlanner(Planner):
 
     name = "waypoints"
     needs_backend = True
-    options = frozenset({"temperature", "max_generations", "max_replans", "replan_cooldown_s", "preset_waypoints"})
+    options = frozenset(
+        {"temperature", "max_generations", "max_replans", "replan_cooldown_s", "preset_waypoints", "decide"}
+    )
 
     def __init__(self, config: WaypointConfig | None = None) -> None:
         self.cfg = config or WaypointConfig()
@@ -104,6 +106,11 @@ class WaypointPlanner(Planner):
         def call(request: ChatRequest, purpose: str) -> ChatResult:
             return call_model(ctx, request, purpose=purpose, step=step)
 
+        # Free text that names no object is grounded by scores where the backend can (`--decide`).
+        backend = ctx.backend
+        scores = backend is not None and opts.decide != "generate" and (opts.decide == "score" or backend.can_score)
+        score = (lambda request: ctx.score(request, step)) if scores else None
+
         def note(kind: str, **fields: Any) -> None:
             ctx.log.sim_time = world.sim_time
             ctx.log.event("planner", kind=kind, step=step, **fields)
@@ -125,7 +132,14 @@ class WaypointPlanner(Planner):
             clock = PlanningClock(call)
             near = preset[-1] if preset else None
             target = ground_target(
-                scenario, leg, clock, near=near, tolerance_m=rules.target_tolerance_m, step=step, on_event=ctx.event
+                scenario,
+                leg,
+                clock,
+                near=near,
+                tolerance_m=rules.target_tolerance_m,
+                step=step,
+                on_event=ctx.event,
+                score=score,
             )
             grounding_s = clock.elapsed_s()  # [s] counted in this leg's first planning time
             note("grounding", command=leg.text, target=target.id)

@@ -1,4 +1,4 @@
-"""Grounding a command in the scenario's object list: exact name first, else the model picks from the list."""
+"""Grounding a command in the scenario's object list: exact name first, else the model's scores or its pick."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ if TYPE_CHECKING:
 
     from llmnav.guard.schemas import TargetChoice
     from llmnav.planners.waypoints.plan import ModelCall, Point
+    from llmnav.relevance import Scorer
     from llmnav.scenario import LabelledObject, Scenario, Task
 
 
@@ -27,9 +28,13 @@ def ground_target(
     tolerance_m: float = 0.05,
     step: int | None = None,
     on_event: Callable[..., None] | None = None,
+    score: Scorer | None = None,
 ) -> LabelledObject:
-    """The object a command refers to: exact-name match first, else the model picks from the list.
+    """The object a command refers to: exact-name match first, else the model's scores or its pick.
 
+    With `score` (a backend that scores continuations), the candidate whose label the command makes
+    likeliest (`llmnav.relevance`, PMI) is the target, logged as a `grounding` event with every label's
+    PMI; without it, the model picks an id from the listed objects.
     `near` (the final waypoint of a plan made already) settles an ambiguous command without a model call
     when exactly one candidate's goal point lies within `tolerance_m` [m] of it. The model's pick goes
     through `ask_guarded` (`max_tries` replies at most); `on_event` receives its `guard` events.
@@ -48,6 +53,16 @@ def ground_target(
         close = [o for o in candidates if math.dist(o.goal_point, near) <= tolerance_m]
         if len(close) == 1:
             return close[0]
+    if score is not None:
+        from llmnav.relevance import most_relevant
+
+        labels = list(dict.fromkeys(o.label for o in candidates))
+        best, pmi = most_relevant(score, task.text, labels)
+        chosen = next(o for o in candidates if o.label == best)
+        if on_event is not None:
+            rounded = {k: round(v, 3) for k, v in pmi.items()}
+            on_event("grounding", step=step, command=task.text, target=chosen.id, pmi=rounded)
+        return chosen
     model = target_choice_model(tuple(o.id for o in candidates))
     listing = "\n".join(
         f"- {o.id}: {o.label} at ({o.goal_point[0]:.1f}, {o.goal_point[1]:.1f})" for o in candidates
