@@ -102,6 +102,8 @@ class StepView:
     missing: list[str] = field(default_factory=list)
     verdict: str | None = None  # FSM suggestion outcome
     t_sim: float | None = None
+    scores: dict[str, float] = field(default_factory=dict)  # a scored decision: each landmark's PMI [nats]
+    rule: str | None = None  # a scored decision: which rule chose
 
     @property
     def vetoes(self) -> list[dict[str, Any]]:
@@ -417,7 +419,7 @@ def _stepped(record: RunRecord) -> list[StepView]:
     previous: list[MessageView] = []
     for event in record.events:
         kind = event.get("type")
-        if kind not in ("observation", "llm_call", "guard", "action", "planner") or "step" not in event:
+        if kind not in ("observation", "llm_call", "guard", "action", "planner", "decision") or "step" not in event:
             continue
         key = event.get("step")
         if key is None or isinstance(key, (dict, list)):
@@ -444,6 +446,14 @@ def _stepped(record: RunRecord) -> list[StepView]:
             step.calls.append(call)
             if step.image is None:  # a planner that logs no observation still sends images
                 step.image = next((h for m in call.new_messages for h in m.images), None)
+        elif kind == "decision":
+            pmi = event.get("pmi")
+            step.scores = {
+                str(k): float(v)
+                for k, v in (pmi.items() if isinstance(pmi, dict) else [])
+                if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            }
+            step.rule = event.get("rule") if isinstance(event.get("rule"), str) else None
         elif kind == "guard":
             step.guards.append(event)
         elif kind == "action":

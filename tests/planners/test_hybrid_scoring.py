@@ -157,3 +157,23 @@ def test_decide_score_with_a_backend_that_cannot_score_is_bad_input(tmp_path: Pa
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and "cannot score" in lines[0] and "replay:" in lines[0], result.output
     assert not out.exists()
+
+
+def test_the_page_shows_each_decisions_scores_as_bars(tmp_path: Path) -> None:
+    import html as html_lib
+    import re
+
+    from llmnav.view.api import write_view
+
+    _drive(tmp_path, "scored", "policy:keyword")
+    page = write_view(tmp_path / "scored").page.read_text(encoding="utf-8")
+    decisions = read_run(tmp_path / "scored").of_type("decision")
+    captions = re.findall(r"<caption>Scored decision: ([^<]*) —", page)
+    assert [html_lib.unescape(c) for c in captions] == [d["rule"] for d in decisions]
+    first = decisions[0]["pmi"]
+    bars = re.findall(r'aria-label="([^"]+) ([+-]\d+\.\d)"><rect', page)
+    assert len(bars) == sum(len(d["pmi"]) for d in decisions)
+    assert {name: float(value) for name, value in bars[: len(first)]} == pytest.approx(
+        {name: round(value, 1) for name, value in first.items()}
+    )
+    assert bars[0][0] == max(first, key=first.__getitem__)  # the best first, drawn in the highlight colour
