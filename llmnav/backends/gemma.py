@@ -15,6 +15,7 @@ import os
 import tempfile
 from pathlib import Path
 
+from llmnav.backends.base import BackendStatus
 from llmnav.errors import ModelUnavailableError
 
 ALIAS = "gemma3-270m"
@@ -37,6 +38,16 @@ def installed() -> bool:
     from importlib.util import find_spec
 
     return find_spec(PACKAGE.replace("-", "_")) is not None
+
+
+def status() -> BackendStatus:
+    """Whether the model can be used now, without assembling it."""
+    target = cache_dir() / FILE_NAME
+    if target.is_file() and target.stat().st_size == SIZE_BYTES:
+        return BackendStatus(True, f"{target} ({SIZE_BYTES / 1e6:.0f} MB), engine xllamacpp")
+    if installed():
+        return BackendStatus(True, f"installed; assembled into {target} on first use")
+    return BackendStatus(False, f"not installed: {INSTALL_HINT}")
 
 
 def gemma_path() -> Path:

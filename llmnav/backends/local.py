@@ -549,6 +549,10 @@ class LocalBackend(Backend):
                 from llmnav.backends.hf import hf_status
 
                 return hf_status(arg[len(HF_PREFIX) :])
+            from llmnav.backends import gemma
+
+            if arg == gemma.ALIAS:  # cheap: the ~250 MB file is assembled on first use, not here
+                return gemma.status()
             path = _gguf_path(arg)
             _import_xllamacpp()
         except (ModelUnavailableError, BackendSpecError) as err:

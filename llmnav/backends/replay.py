@@ -18,7 +18,15 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict
 
-from llmnav.backends.base import Backend, BackendStatus, ChatRequest, ChatResult, ContinuationScore, ScoreRequest, ScoreResult
+from llmnav.backends.base import (
+    Backend,
+    BackendStatus,
+    ChatRequest,
+    ChatResult,
+    ContinuationScore,
+    ScoreRequest,
+    ScoreResult,
+)
 from llmnav.backends.http import parse_options
 from llmnav.errors import BackendSpecError, BadInputError, ModelError, ReplayDivergenceError
 from llmnav.runlog import RUN_FILE, dumps

@@ -74,7 +74,7 @@ def backends(
     if check is not None:
         raise typer.Exit(_check(check))
     table = Table(title="llmnav backends", title_justify="left")
-    table.add_column("name", style="bold")
+    table.add_column("name", style="bold", no_wrap=True)
     table.add_column("ready")
     table.add_column("spec example", style="cyan", no_wrap=True)
     table.add_column("detail")
