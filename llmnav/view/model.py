@@ -493,9 +493,11 @@ def _mark_missing(steps: list[StepView], planner: str | None) -> None:
     for step in steps:
         if step.verdict is not None:
             continue
-        if model_planner and not step.calls:
+        # A scored decision writes no answer to guard, and names scored before cost no call at all.
+        scored = step.rule is not None
+        if model_planner and not scored and not step.calls:
             step.missing.append("no model call logged for this decision")
-        if model_planner and step.calls and not step.guards:
+        if model_planner and not scored and step.calls and not step.guards:
             step.missing.append("no guard verdict logged")
         if not step.actions:
             step.missing.append("no action logged (the run ended before one was executed)")
