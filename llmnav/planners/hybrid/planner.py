@@ -78,6 +78,9 @@ class HybridConfig:
 
     approach_min_m: float = 0.8  # [m] closest stand-off to an object without a goal point
     approach_max_m: float = 1.8  # [m] farthest stand-off (inside the score's 2.5 m full-credit radius)
+    # [m] a landmark the motion layer will not let the robot approach further counts as reached within
+    # this: the stepwise source's instruction to stop 1.5-2.5 m from the target
+    stop_within_m: float = 2.5
     leg_max_m: float = 1.5  # [m] longest straight leg between veto checks and detector looks
     # Options offered per decision: a short menu keeps every decision within ~120 new prompt tokens and
     # is an easier choice; farther landmarks come back into the menu as the robot moves.
@@ -112,6 +115,7 @@ class Option:
     name: str = ""  # the landmark's name, for the result line
     at: tuple[str, ...] = ()  # Finish: the names of the landmarks the robot stands at
     distance_m: float = 0.0  # [m] from the robot to `goal`
+    standing: bool = False  # landmark: the robot is there (at its stand point, or as close as is safe)
 
     @property
     def goal_name(self) -> str:
@@ -130,6 +134,11 @@ class Memory:
     wanted: set[str] = field(default_factory=set)  # objects the task names
     scans: int = 0  # full turns made so far
     scanned_at: tuple[float, float] | None = None  # [m] where the last full turn was made
+    explored: list[tuple[float, float]] = field(default_factory=list)  # [m] frontier goals reached
+    # id -> [m] the closest spot to a landmark the motion layer let the robot reach (it refused the rest)
+    closest: dict[str, tuple[float, float]] = field(default_factory=dict)
+    refused: dict[str, tuple[float, float]] = field(default_factory=dict)  # id -> [m] where a trip was refused
+    unreachable: set[str] = field(default_factory=set)  # refused twice from the same spot, far from it
     last_result: str = "nothing yet"
 
 
@@ -336,6 +345,8 @@ class HybridPlanner(Planner):
         # Finish's "at", or as "you are there"), and one without a reachable stand point is not listed.
         places = 0
         for object_id, position in ranked:
+            if object_id in memory.unreachable:
+                continue
             # Scored decisions read no prompt: every known landmark stays on the menu.
             if places >= self.cfg.max_landmarks and not scored:
                 break
@@ -344,7 +355,11 @@ class HybridPlanner(Planner):
             goal = self._approach(grids, position if sensed else true_goal, position, pose)
             if goal is None:
                 continue
-            standing = pose.distance_to(*goal) <= self.cfg.arrived_m
+            # Where the motion layer refused to go closer, the spot it allowed counts as arrival.
+            allowed = memory.closest.get(object_id)
+            standing = pose.distance_to(*goal) <= self.cfg.arrived_m or (
+                allowed is not None and pose.distance_to(*allowed) <= self.cfg.arrived_m
+            )
             places += not standing
             notes = []
             # Near its stand point the bearing to the point says nothing: say where the robot is instead.
@@ -364,10 +379,19 @@ class HybridPlanner(Planner):
                     landmark_id=object_id,
                     name=name,
                     distance_m=pose.distance_to(*goal),
+                    standing=standing,
                 )
             )
         # With a published map every landmark is listed already: exploring would only distract the model.
         frontiers = [] if ctx.scenario.corridors else self._frontiers(grids[0], lidar_map, pose, sensed)
+        # A frontier the robot stands at, or one it has reached before, shows nothing new from there (its
+        # unknown side cannot be seen from the free cells): offering it again only wastes decisions.
+        frontiers = [
+            (centre, size)
+            for centre, size in frontiers
+            if pose.distance_to(*centre) > self.cfg.arrived_m
+            and all(math.dist(centre, seen) > self.cfg.rescan_m for seen in memory.explored)
+        ]
         for centre, _size in frontiers[: self.cfg.max_frontiers]:
             options.append(
                 Option(
@@ -387,11 +411,7 @@ class HybridPlanner(Planner):
             # Neutral: every place by distance (ties: landmarks first, then by name), a look, then Finish.
             # Going to where the robot already stands does nothing, so that entry becomes a fact in the
             # Finish line instead (whatever the task is).
-            here = [
-                o
-                for o in options
-                if o.kind == "landmark" and o.goal and pose.distance_to(*o.goal) <= self.cfg.arrived_m
-            ]
+            here = [o for o in options if o.kind == "landmark" and o.standing]
             moves = sorted(
                 (o for o in options if o not in here),
                 key=lambda o: (
@@ -412,8 +432,7 @@ class HybridPlanner(Planner):
             for o in options
             if o.landmark_id in wanted
             and o.landmark_id in memory.visited
-            and o.goal is not None
-            and pose.distance_to(*o.goal) <= self.cfg.arrived_m
+            and o.standing
         ]
         # A task that names nothing (turn around, look around) is served by the scan, then by finishing.
         turning_task = not wanted and ctx.task.kind in ("rotate", "explore")
@@ -594,12 +613,18 @@ class HybridPlanner(Planner):
             if verdict is not None:
                 ctx.log.event("guard", step=step, attempt=1, outcome="veto", error=verdict)
                 self._log_action(ctx, step, "GOTO", length, before, None, vetoed=True)
-                # The model is told that retrying is meaningful: the next plan avoids what blocked this one.
-                return f"safety stop ({verdict}); obstacle mapped, same choice detours", 1, False
+                return self._refused(ctx, option, memory, verdict), 1, False
             result = world.motion.go_to(x, y, obstacle_stop_m=self.cfg.obstacle_stop_m)
             if result.collided:
                 self._log_action(ctx, step, "GOTO", length, before, result)
                 return f"collided with {result.collision_with or 'an obstacle'}", 0, True
+            if result.veto is not None:
+                # The guarded layer refused this leg: the robot did not move. Near the landmark that is as
+                # close as it may safely get (the goal point hugs the object); elsewhere the map learns
+                # what blocked it and the same choice plans around it.
+                lidar_map.integrate(self._pose(ctx), ctx.world.lidar.scan())
+                self._log_action(ctx, step, "GOTO", length, before, result, vetoed=True)
+                return self._refused(ctx, option, memory, result.veto), 1, False
             came = self._look(ctx, memory)
             # Exploring stops for what the task names (relevance order), or for anything new (neutral order,
             # where nothing is matched against the task): the model then decides with the new information.
@@ -612,6 +637,8 @@ class HybridPlanner(Planner):
             world.motion.rotate(turn)
         if option.landmark_id is not None:
             memory.visited.add(option.landmark_id)
+        if option.kind == "frontier" and option.goal is not None:
+            memory.explored.append(option.goal)
         after = self._pose(ctx)
         ctx.log.event(
             "action",
@@ -627,6 +654,28 @@ class HybridPlanner(Planner):
             short = after.distance_to(*option.goal)
             return f"stopped {short:.1f} m short ({option.goal_name})", 0, False
         return f"reached {option.goal_name}", 0, False
+
+    def _refused(self, ctx: EpisodeContext, option: Option, memory: Memory, reason: str) -> str:
+        """What a vetoed leg means for the menu, as the result line says it.
+
+        Near the landmark the refused spot is as close as the robot may safely get (its goal point hugs
+        the object): it counts as arrival. Elsewhere the next plan avoids what the LiDAR saw; a landmark
+        refused twice from the same spot is dropped from the menu, since the detour did not help.
+        """
+        here = self._pose(ctx)
+        landmark = option.landmark_id
+        near = option.face is not None and here.distance_to(*option.face) <= self.cfg.stop_within_m
+        if landmark is not None and near:
+            memory.closest[landmark] = (here.x, here.y)
+            memory.visited.add(landmark)
+            return f"as close to {option.goal_name} as is safe"
+        if landmark is not None:
+            again = memory.refused.get(landmark)
+            if again is not None and here.distance_to(*again) <= 0.1:
+                memory.unreachable.add(landmark)
+            memory.refused[landmark] = (here.x, here.y)
+        # The model is told that retrying is meaningful: the next plan avoids what blocked this one.
+        return f"safety stop ({reason}); obstacle mapped, same choice detours"
 
     def _plan(self, grid: OccupancyGrid, start: Pose2D, goal: tuple[float, float]) -> list[tuple[float, float]] | None:
         """A* legs from the robot to the goal, no longer than `leg_max_m` each.
