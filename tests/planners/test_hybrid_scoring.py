@@ -177,3 +177,27 @@ def test_the_page_shows_each_decisions_scores_as_bars(tmp_path: Path) -> None:
         {name: round(value, 1) for name, value in first.items()}
     )
     assert bars[0][0] == max(first, key=first.__getitem__)  # the best first, drawn in the highlight colour
+
+
+def test_a_leg_the_motion_layer_refuses_is_a_veto_and_near_the_target_counts_as_arrival(tmp_path: Path) -> None:
+    """Factory T8 from pose 3: the boxes' goal point hugs them and the guarded layer refuses the last legs.
+
+    Before, the planner passed over the refusal ("stopped 0.4 m short"), chose the same trip again and
+    ran out of decisions next to the boxes. Now each refusal is a counted veto, and a spot the layer
+    allows within the source's 2.5 m stopping distance counts as arrival.
+    """
+    spec = EpisodeSpec(
+        scenario="factory",
+        task_id="T8",
+        start_pose=3,
+        options=DriveOptions(max_iterations=30),
+        backend="policy:keyword",
+        out_dir=tmp_path / "t8",
+        plots=False,
+    )
+    summary = run_episode(spec)
+    record = read_run(tmp_path / "t8")
+    refused = [a for a in record.of_type("action") if a.get("vetoed")]
+    assert refused, "the layer refused no leg: the episode no longer exercises the fix"
+    assert summary["safety_vetoes"] >= len(refused)
+    assert summary["success"] and summary["iterations"] < 30, summary
