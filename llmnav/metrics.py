@@ -38,6 +38,7 @@ GUARD_VETO_OUTCOME = "veto"
 CONDITION_KEYS: tuple[str, ...] = (
     "planner",
     "backend",
+    "decide",  # hybrid: scored or generated decisions (null policies pair with the model in the same mode)
     "sensing",
     "lidar_sectors",
     "prompt",
