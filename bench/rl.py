@@ -60,5 +60,6 @@ def main() -> None:
     print(f"  {'id':<20} {'raw':>8} {'raw lidar':>10} {'PPO':>8} {'PPO lidar':>10}")
     for env_id in llmnav.gym.ENV_IDS:
         cells = [raw_rate(env_id), raw_rate(env_id, **lidar), ppo_rate(env_id), ppo_rate(env_id, **lidar)]
-        print(f"  {env_id.split('/')[1]:<20} " + " ".join(f"{c:>{w}.0f}" for c, w in zip(cells, (8, 10, 8, 10))))
+        widths = (8, 10, 8, 10)
+        print(f"  {env_id.split('/')[1]:<20} " + " ".join(f"{c:>{w}.0f}" for c, w in zip(cells, widths, strict=True)))
     print(f"  load {os.getloadavg()[0]:.1f} at the end")
