@@ -18,6 +18,7 @@ import http.client
 import json
 import re
 import socket
+import sys
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
@@ -63,7 +64,8 @@ class _Server(ThreadingHTTPServer):
         super().process_request(request, client_address)
 
     def handle_error(self, request: Any, client_address: Any) -> None:
-        if not self.front.stopping.is_set():  # a connection dropped while stopping is expected
+        # A client that hangs up (Ctrl-C in `llm chat`), or any connection cut while stopping, is expected.
+        if not (self.front.stopping.is_set() or isinstance(sys.exc_info()[1], ConnectionError)):
             super().handle_error(request, client_address)
 
     def shutdown_request(self, request: Any) -> None:

@@ -1,26 +1,21 @@
 """`llmnav serve` stops within 2 s on SIGINT or SIGTERM, even mid-stream, and answers `models.retrieve`.
 
-Each test starts its own `llmnav serve --port 0` (the bundled SmolLM2 on 127.0.0.1) as a subprocess.
+Each test starts its own `llmnav serve --port 0` (the bundled SmolLM2 on 127.0.0.1) as a subprocess
+(the `serve_process` fixture).
 """
 
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
-import sys
 import threading
 import time
-from collections.abc import Iterator
-from pathlib import Path
 
 import httpx
 import openai
 import pytest
 
-LLMNAV = str(Path(sys.executable).parent / "llmnav")
-KEY = "stop-test-key-81c3"
 STOP_WITHIN_S = 2.0
 LONG = {
     "model": "local",
@@ -29,29 +24,8 @@ LONG = {
 }
 
 
-@pytest.fixture
-def server() -> Iterator[tuple[subprocess.Popen[str], str]]:
-    process = subprocess.Popen(
-        [LLMNAV, "serve", "--port", "0"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "LLMNAV_API_KEY": KEY},
-    )
-    assert process.stdout is not None
-    url = process.stdout.readline().strip()
-    process.stdout.readline()
-    assert url.startswith("http://127.0.0.1:"), (url, process.stderr.read() if process.poll() is not None else "")
-    try:
-        yield process, url
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait(timeout=30)
-
-
-def _auth() -> dict[str, str]:
-    return {"Authorization": f"Bearer {KEY}"}
+def _auth(key: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {key}"}
 
 
 def _stop_and_time(process: subprocess.Popen[str], sig: signal.Signals) -> float:
@@ -66,8 +40,8 @@ def _stop_and_time(process: subprocess.Popen[str], sig: signal.Signals) -> float
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_stops_within_two_seconds_mid_stream_and_ends_the_stream_cleanly(server, sig) -> None:
-    process, url = server
+def test_stops_within_two_seconds_mid_stream_and_ends_the_stream_cleanly(serve_process, sig) -> None:
+    process, url, key = serve_process
     lines: list[str] = []
     outcome: list[str] = []
     first_token = threading.Event()
@@ -75,7 +49,7 @@ def test_stops_within_two_seconds_mid_stream_and_ends_the_stream_cleanly(server,
     def stream() -> None:
         try:
             with httpx.stream(
-                "POST", f"{url}/chat/completions", json={**LONG, "stream": True}, headers=_auth(), timeout=120
+                "POST", f"{url}/chat/completions", json={**LONG, "stream": True}, headers=_auth(key), timeout=120
             ) as reply:
                 for line in reply.iter_lines():
                     lines.append(line)
@@ -102,11 +76,11 @@ def test_stops_within_two_seconds_mid_stream_and_ends_the_stream_cleanly(server,
     assert events[-1] == {"error": {"message": "the server is stopping", "type": "server_stopping"}}
 
 
-def test_an_unstreamed_request_in_flight_gets_503(server) -> None:
-    process, url = server
+def test_an_unstreamed_request_in_flight_gets_503(serve_process) -> None:
+    process, url, key = serve_process
     replies: list[httpx.Response] = []
     client = threading.Thread(
-        target=lambda: replies.append(httpx.post(f"{url}/chat/completions", json=LONG, headers=_auth(), timeout=120))
+        target=lambda: replies.append(httpx.post(f"{url}/chat/completions", json=LONG, headers=_auth(key), timeout=120))
     )
     client.start()
     time.sleep(2.0)  # the request is being generated
@@ -117,9 +91,9 @@ def test_an_unstreamed_request_in_flight_gets_503(server) -> None:
     assert replies[0].json()["error"]["message"] == "the server is stopping"
 
 
-def test_models_retrieve_through_the_openai_sdk(server) -> None:
-    process, url = server
-    sdk = openai.OpenAI(base_url=url, api_key=KEY, max_retries=0)
+def test_models_retrieve_through_the_openai_sdk(serve_process) -> None:
+    process, url, key = serve_process
+    sdk = openai.OpenAI(base_url=url, api_key=key, max_retries=0)
     model = sdk.models.retrieve("local")
     assert model.id == "local" and model.object == "model"
     assert [m.id for m in sdk.models.list()] == ["local"]
