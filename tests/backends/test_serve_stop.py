@@ -17,9 +17,10 @@ import openai
 import pytest
 
 STOP_WITHIN_S = 2.0
-LONG = {
+LONG = {  # an answer that cannot end early: llama.cpp's `ignore_eos` generates all 3000 tokens
     "model": "local",
     "max_tokens": 3000,
+    "ignore_eos": True,
     "messages": [{"role": "user", "content": "Write a very long story about a robot in a factory."}],
 }
 
