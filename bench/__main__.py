@@ -13,6 +13,7 @@ MODULES = [
     "bench.ablate",
     "bench.calibrate",
     "bench.information",
+    "bench.rl",
 ]
 
 

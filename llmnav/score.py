@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from llmnav.scenario import Scenario
 
 NA = "N.A."  # the task has no target to score against
-MISSING = "—"  # no data (no model calls, baseline unavailable, ...)
+MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
 ITERATIVE_PLANNERS = frozenset({"stepwise", "hybrid"})
 
 
@@ -277,7 +277,6 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
             "json_errors": _values(group, lambda r: r.summary.get("json_errors")),
             "safety_vetoes": _values(group, lambda r: r.summary.get("safety_vetoes")),
         }
-        has_model = any(r.summary.get("llm_calls", 1) for r in group)
         rows.append(
             [
                 task,
@@ -285,8 +284,9 @@ def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 str(len(group)),
                 _mean_sd(fields["iterations"], 1),
                 _mean_sd(fields["latency_s"], 2),
-                _mean_sd(fields["json_errors"], 1) if has_model else MISSING,
-                _mean_sd(fields["safety_vetoes"], 1) if has_model else MISSING,
+                # counted for every planner (a baseline's vetoes too): shown whenever a summary has them
+                _mean_sd(fields["json_errors"], 1),
+                _mean_sd(fields["safety_vetoes"], 1),
                 f"{successes}/{len(group)}",
                 NA if no_target else _mean_sd(scores, 2),
                 _median(fields["new_prompt_tokens"]),

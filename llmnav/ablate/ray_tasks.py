@@ -7,8 +7,17 @@ address and on every interface (checked on Ray 2.60, where `_node_ip_address="12
 that). Setting it to 0 before Ray is imported (it is read at import) keeps a Linux instance on loopback
 too; `start_local` does that and then checks the node address Ray chose.
 
-`--ray ADDRESS` (`host:6379`, `ray://host:10001`) or `auto` connects to a running cluster. No shared
-filesystem is assumed:
+`--ray local` also brings its own token for Ray's token authentication (`RAY_AUTH_MODE=token` and
+`RAY_AUTH_TOKEN`, in this process and the Ray processes it starts): left to itself a new local Ray
+writes one to `~/.ray/auth_token` and leaves it there (and a `ray start` on this machine then turns
+token authentication on, because the file exists), and it prints a banner saying so.
+
+`--ray ADDRESS` (`host:6379`, `ray://host:10001`) or `auto` connects to a running cluster, with what the
+driver needs and nobody should have to set by hand: for a loopback address the loopback switch (else
+Ray replaces 127.0.0.1 with the machine's address and retries that for minutes), and, when a token is
+at hand (`RAY_AUTH_TOKEN`, `RAY_AUTH_TOKEN_PATH` or `~/.ray/auth_token`, as `ray start` uses it), token
+authentication. Joining is given `JOIN_TIMEOUT_S`; a cluster that cannot be joined by then is one line
+and exit 2, not a hang. No shared filesystem is assumed:
 - a task gets everything as values: the episode spec, and a custom scenario file's content;
 - backend settings (`OLLAMA_HOST`, `OPENAI_BASE_URL`, `LLMNAV_*`) and the thread caps travel in the
   task's `runtime_env={"env_vars": ...}`; keys (`*_API_KEY`) travel as a task argument the task puts in
@@ -24,10 +33,12 @@ episode, never an exception out of the sweep.
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import shutil
 import socket
+import sys
 import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -45,6 +56,10 @@ if TYPE_CHECKING:
 
 LOCAL = "local"
 LOOPBACK_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+AUTH_MODE = "RAY_AUTH_MODE"
+AUTH_TOKEN = "RAY_AUTH_TOKEN"
+AUTH_TOKEN_PATH = "RAY_AUTH_TOKEN_PATH"
+JOIN_TIMEOUT_S = 15.0  # [s] joining a cluster that answers; Ray itself would retry for minutes
 # Environment variables a task needs from the driver: keys and server settings of the backends.
 _FORWARDED = re.compile(r"^(?:[A-Z0-9_]+_API_KEY|OLLAMA_HOST|OPENAI_BASE_URL|LLMNAV_[A-Z0-9_]+)$")
 _SECRET = re.compile(r"^[A-Z0-9_]+_API_KEY$")
@@ -178,21 +193,58 @@ def _write_summary(task: TaskResult, target: Path) -> None:
 
 def _reachable(address: str) -> None:
     """Refuse at once a `host:port` (or `ray://host:port`) nothing answers on (Ray would retry for a minute)."""
-    hostport = address.removeprefix("ray://")
-    host, sep, port = hostport.rpartition(":")
-    if not sep or not port.isdigit() or not host:
+    parts = _split(address)
+    if parts is None:
         raise BadInputError(f"--ray {address}: expected 'local', 'auto', HOST:PORT or ray://HOST:PORT")
     try:
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=_CONNECT_TIMEOUT_S):
+        with socket.create_connection(parts, timeout=_CONNECT_TIMEOUT_S):
             pass
     except OSError as err:
         reason = err.strerror or type(err).__name__
         raise BadInputError(f"--ray {address}: cannot reach the Ray cluster ({reason})") from None
 
 
+def _split(address: str) -> tuple[str, int] | None:
+    """(host, port) of `host:port` or `ray://host:port`; None when it is not of that form."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit() or not host:
+        return None
+    return host.strip("[]"), int(port)
+
+
+def is_loopback(address: str) -> bool:
+    """Whether a cluster address names this machine's loopback interface."""
+    import ipaddress
+
+    parts = _split(address)
+    if parts is None:
+        return False
+    if parts[0] == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(parts[0]).is_loopback
+    except ValueError:
+        return False
+
+
+def _token_at_hand(environ: dict[str, str] | None = None) -> bool:
+    """Whether a Ray token is available the way Ray looks for one (variable, path variable, home file)."""
+    source = os.environ if environ is None else environ
+    if source.get(AUTH_TOKEN, "").strip():
+        return True
+    path = source.get(AUTH_TOKEN_PATH) or str(Path.home() / ".ray" / "auth_token")
+    return Path(path).is_file()
+
+
 def _import_ray(address: str) -> Any:
+    # Ray reads these when it is imported (its config is fixed then), so they are set first.
+    if address == LOCAL or is_loopback(address):
+        os.environ[LOOPBACK_SWITCH] = "0"  # keep the driver on loopback
     if address == LOCAL:
-        os.environ[LOOPBACK_SWITCH] = "0"  # read when Ray is imported: keep a private instance on loopback
+        _private_token()
+    else:
+        if AUTH_MODE not in os.environ and _token_at_hand():
+            os.environ[AUTH_MODE] = "token"  # what `ray start` does when it finds the token
     try:
         import ray
     except ImportError:
@@ -210,23 +262,128 @@ def _private_dir() -> str:
     return path
 
 
+_saved_auth: dict[str, str | None] = {}
+
+
+def _private_token() -> None:
+    """Token authentication for a private Ray with a token of its own, in the environment only."""
+    import secrets
+
+    for name in (AUTH_MODE, AUTH_TOKEN, AUTH_TOKEN_PATH):
+        _saved_auth.setdefault(name, os.environ.get(name))
+    os.environ.pop(AUTH_TOKEN_PATH, None)
+    os.environ[AUTH_MODE] = "token"
+    os.environ[AUTH_TOKEN] = secrets.token_hex(32)
+
+
+def _restore_auth() -> None:
+    for name, value in _saved_auth.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
+    _saved_auth.clear()
+
+
 def disconnect(ray: Any, address: str) -> None:
     """Shut down a Ray this sweep started; for `local`, delete its folder (sessions, logs) too."""
     ray.shutdown()
     if address == LOCAL:
         while _private_dirs:
             shutil.rmtree(_private_dirs.pop(), ignore_errors=True)
+        _restore_auth()
+
+
+def _mute_fd2() -> int | None:
+    """Point file descriptor 2 at /dev/null; the saved descriptor, or None when there is no fd 2."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):
+        return None
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 2)
+    os.close(null)
+    return saved
+
+
+def _unmute_fd2(saved: int, *, keep_muted: bool) -> None:
+    """Give fd 2 back; a join still running would go on logging there, so then only `sys.stderr` gets it."""
+    if keep_muted:
+        try:
+            real = sys.stderr.fileno() == 2
+        except (AttributeError, OSError, ValueError):
+            real = False  # a captured stream (tests): it never reaches fd 2 anyway
+        if real:
+            sys.stderr = os.fdopen(saved, "w", buffering=1, encoding="utf-8", errors="replace")
+        else:
+            os.close(saved)
+        return
+    os.dup2(saved, 2)
+    os.close(saved)
+
+
+class _DropMessage(logging.Filter):
+    """Drops log records whose message starts with a given text."""
+
+    def __init__(self, start: str) -> None:
+        super().__init__()
+        self.start = start
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith(self.start)
+
+
+def _join(ray: Any, address: str, timeout_s: float = JOIN_TIMEOUT_S) -> None:
+    """`ray.init(address)` within `timeout_s`, else one-line BadInputError (Ray's own retries take minutes)."""
+    import threading
+
+    failure: list[BaseException] = []
+
+    def init() -> None:
+        try:
+            ray.init(address=address, log_to_driver=False, configure_logging=False)
+        except BaseException as err:  # noqa: BLE001 - handed to the caller's thread
+            failure.append(err)
+
+    # Ray warns that a thread other than the main one cannot set its SIGTERM handler: llmnav keeps its own.
+    quiet = _DropMessage("SIGTERM handler is not set")
+    worker_log = logging.getLogger("ray._private.worker")
+    worker_log.addFilter(quiet)
+    joiner = threading.Thread(target=init, name="llmnav-ray-join", daemon=True)
+    # Ray's core logs each failed attempt to join straight to file descriptor 2, before any of its
+    # logging can be configured: the one line that matters is ours, so fd 2 is muted while joining.
+    muted = _mute_fd2()
+    joiner.start()
+    try:
+        joiner.join(timeout_s)
+    finally:
+        worker_log.removeFilter(quiet)
+        if muted is not None:
+            _unmute_fd2(muted, keep_muted=joiner.is_alive())
+    if joiner.is_alive():
+        hint = "" if _token_at_hand() else "; if it uses token authentication, set RAY_AUTH_TOKEN"
+        raise BadInputError(
+            f"--ray {address}: the port answers but no Ray cluster could be joined within {timeout_s:g} s{hint}"
+        )
+    if failure:
+        err = failure[0]
+        if isinstance(err, ConnectionError | RuntimeError | ValueError) or "auth" in type(err).__name__.lower():
+            raise BadInputError(f"--ray {address}: cannot connect: {one_line(err)}") from None
+        raise err
 
 
 def connect(address: str) -> tuple[Any, bool]:
     """Start (`local`) or join a Ray cluster; (the ray module, whether this call started it)."""
     ray = _import_ray(address)
     if ray.is_initialized():  # a caller (or a test) connected already
+        _restore_auth()
         return ray, False
     if address == LOCAL:
         from ray._private import ray_constants
 
         if ray_constants.ENABLE_RAY_CLUSTER:
+            _restore_auth()
             raise BadInputError(
                 f"--ray local: Ray was imported before {LOOPBACK_SWITCH}=0 could keep it on loopback; "
                 f"set {LOOPBACK_SWITCH}=0 in the environment"
@@ -234,18 +391,24 @@ def connect(address: str) -> tuple[Any, bool]:
         try:
             ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, _temp_dir=_private_dir())
         except (ConnectionError, RuntimeError, ValueError) as err:
+            _restore_auth()
             raise BadInputError(f"--ray local: Ray did not start: {one_line(err)}") from None
         node_ip = ray.util.get_node_ip_address()
         if node_ip != "127.0.0.1":
             disconnect(ray, LOCAL)
             raise BadInputError(f"--ray local: Ray chose {node_ip}, not loopback; not running the sweep")
         return ray, True
+    if is_loopback(address):
+        from ray._private import ray_constants
+
+        if ray_constants.ENABLE_RAY_CLUSTER:
+            raise BadInputError(
+                f"--ray {address}: Ray was imported before {LOOPBACK_SWITCH}=0 could keep it on loopback; "
+                f"set {LOOPBACK_SWITCH}=0 in the environment"
+            )
     if address != "auto":
         _reachable(address)
-    try:
-        ray.init(address=address, log_to_driver=False, configure_logging=False)
-    except (ConnectionError, RuntimeError, ValueError) as err:
-        raise BadInputError(f"--ray {address}: cannot connect: {one_line(err)}") from None
+    _join(ray, address)
     return ray, True
 
 

@@ -66,6 +66,8 @@ _IMAGES_REJECTED = re.compile(
     re.IGNORECASE,
 )
 
+IMAGES_CHECK = "accepts images"  # the probe a run needs only when its sensing includes the image
+
 
 class HttpOptions(BaseModel):
     """Options every HTTP backend accepts (unknown names are an error, not silently ignored)."""
@@ -585,10 +587,10 @@ class HttpBackend(Backend):
         try:
             self.chat(request)
         except ImagesRejectedError:
-            return Check("accepts images", False, "text-only server (use --sensing lidar, or --drop-images)")
+            return Check(IMAGES_CHECK, False, "text-only server (use --sensing lidar, or --drop-images)")
         except ModelError as err:
-            return Check("accepts images", False, f"request failed: {short_reason(err)}")
-        return Check("accepts images", True, "answered a request with an image")
+            return Check(IMAGES_CHECK, False, f"request failed: {short_reason(err)}")
+        return Check(IMAGES_CHECK, True, "answered a request with an image")
 
     def _check_schema(self) -> Check:
         schema = {

@@ -9,9 +9,11 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console
+from llmnav.commands.common import cli_errors, console, parse_sensing
+from llmnav.errors import BadInputError
 
 GROUP = "llmnav.backends"
+SENSES = ("lidar", "image", "detections")
 
 
 @dataclass(frozen=True)
@@ -69,10 +71,20 @@ def backends(
             help="Probe exactly this backend spec: server reachable, model present, images, JSON Schema.",
         ),
     ] = None,
+    sensing: Annotated[
+        str | None,
+        typer.Option(
+            "--sensing",
+            help="With --check: judge only what a run with this sensing needs (lidar alone needs no images).",
+        ),
+    ] = None,
 ) -> None:
     """List the model backends, a spec example for each, and whether each is ready to use now."""
+    senses = _senses(sensing) if sensing is not None else None
     if check is not None:
-        raise typer.Exit(_check(check))
+        raise typer.Exit(_check(check, senses))
+    if senses is not None:
+        raise BadInputError("--sensing goes with --check SPEC")
     table = Table(title="llmnav backends", title_justify="left")
     table.add_column("name", style="bold", no_wrap=True)
     table.add_column("ready")
@@ -85,12 +97,32 @@ def backends(
     console.print(table)
 
 
-def _check(spec: str) -> int:
-    """Print one line per check of `spec`; 0 when all passed, 1 otherwise (unknown spec: exit 2)."""
-    from llmnav.backends.base import backend_class
+def _senses(text: str) -> tuple[str, ...]:
+    senses = parse_sensing(text)
+    unknown = [s for s in senses if s not in SENSES]
+    if unknown or not senses:
+        raise BadInputError(f"--sensing {text!r}: a comma list of {', '.join(SENSES)}")
+    return senses
+
+
+def _check(spec: str, senses: tuple[str, ...] | None = None) -> int:
+    """Print one line per check of `spec`; 0 when all passed, 1 otherwise (unknown spec: exit 2).
+
+    With `senses`, a check the run does not need (images, when the sensing has no image) is shown with
+    its result but marked "not needed" and does not fail.
+    """
+    from llmnav.backends.base import Check, backend_class
+    from llmnav.backends.http import IMAGES_CHECK
 
     cls, arg = backend_class(spec)
     checks = cls.check(arg)
+    if senses is not None and "image" not in senses:
+        checks = [
+            Check(c.name, None, f"{c.detail} — not needed with --sensing {','.join(senses)}")
+            if c.name == IMAGES_CHECK and c.ok is False
+            else c
+            for c in checks
+        ]
     for item in checks:
         mark = {True: "[green]ok[/]  ", False: "[red]no[/]  ", None: "[dim]–[/]   "}[item.ok]
         console.print(f"{mark}{escape(item.name)}: {escape(item.detail)}", highlight=False, soft_wrap=True)

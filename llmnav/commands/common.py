@@ -213,3 +213,12 @@ def cli_errors(func: Callable[P, R]) -> Callable[P, R]:
             raise fail("interrupted; everything written so far is kept", 130) from None
 
     return wrapper
+
+
+def parse_sensing(text: str) -> tuple[str, ...]:
+    """`--sensing lidar,image`: the comma list as a tuple (each at most once; the names are checked by the caller)."""
+    parts = tuple(s.strip() for s in text.split(",") if s.strip())
+    repeated = sorted({s for s in parts if parts.count(s) > 1})
+    if repeated:
+        raise BadInputError(f"--sensing {text!r}: lists {', '.join(repeated)} more than once")
+    return parts

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from pydantic import ValidationError
 
-from llmnav.commands.common import cli_errors, console, err_console, esc, fail, path_option, print_data
+from llmnav.commands.common import cli_errors, console, err_console, esc, fail, parse_sensing, path_option, print_data
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -39,14 +39,6 @@ def _parse_obstacle(text: str) -> tuple[float, float]:
     if not (math.isfinite(x) and math.isfinite(y)):
         raise BadInputError(f"--obstacle {text!r}: coordinates must be finite numbers")
     return (x, y)
-
-
-def _parse_sensing(text: str) -> tuple[str, ...]:
-    parts = tuple(s.strip() for s in text.split(",") if s.strip())
-    repeated = sorted({s for s in parts if parts.count(s) > 1})
-    if repeated:
-        raise BadInputError(f"--sensing {text!r}: lists {', '.join(repeated)} more than once")
-    return parts
 
 
 def _slug(text: str, limit: int = 32) -> str:
@@ -170,7 +162,7 @@ def drive(
                 "information": information,
                 "menu_order": menu_order,
                 "decide": decide,
-                "sensing": _parse_sensing(sensing),
+                "sensing": parse_sensing(sensing),
                 "lidar_sectors": lidar_sectors,
                 "lidar_fov_deg": lidar_fov,
                 "prompt": prompt,

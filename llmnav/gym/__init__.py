@@ -14,6 +14,10 @@
 Every keyword of `llmnav.gym.env.EnvOptions` may be passed to `make` (scenario, task_id or task_text,
 start_pose, information, lidar_sectors, max_steps, reward, ...). `make` wraps the environment in
 `SafetyVeto`; `safety_veto=False` removes it deliberately.
+
+`llmnav.gym.make_sb3(id, **options)` gives the same environment with array-only spaces, as
+Stable-Baselines3 takes them (`llmnav.gym.flat`). `gymnasium.make_vec` works for every id in both
+vector modes.
 """
 
 from __future__ import annotations
@@ -23,16 +27,20 @@ from typing import Any, Literal
 import gymnasium
 
 from llmnav.gym.env import FactoryEnv, NavEnv, VelocityEnv
+from llmnav.gym.flat import DiscreteFactoryActions, NumericObservation, make_sb3
 from llmnav.gym.wrappers import RunLog, SafetyVeto, TextObservation, observation_text
 
 __all__ = [
+    "DiscreteFactoryActions",
     "FactoryEnv",
     "NavEnv",
+    "NumericObservation",
     "RunLog",
     "SafetyVeto",
     "TextObservation",
     "VelocityEnv",
     "make_env",
+    "make_sb3",
     "observation_text",
 ]
 

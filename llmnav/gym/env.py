@@ -24,7 +24,7 @@ Observation (a `Dict`; `odom` and `task` always, the rest as `sensing` asks, by 
 - `detection_class`: `MultiDiscrete`, per row 0 for padding, else 1 + the index of the detected label in
   `env.unwrapped.labels` (sorted labels of the scenario's objects; sign classes in the maze).
 - `detection_mask`: `MultiBinary(MAX_DETECTIONS)`, 1 where a row holds a detection.
-- `task`: `Text`, the task as given (characters outside printable ASCII shown as `?`).
+- `task`: `Text` (`TaskText`), the task as given (characters outside printable ASCII shown as `?`).
 
 Reward (`reward="score_delta"`, default): the change of the stepwise source's score S = distance_score ×
 heading_score of the true pose against the task's best target (rotate tasks: S = 1 once the net rotation
@@ -54,10 +54,12 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from llmnav.errors import BadInputError
 from llmnav.geometry import Pose2D, wrap_angle
+from llmnav.gym.text_space import TaskText
 from llmnav.metrics import SUCCESS_RADIUS_M, best_target, rotation_done
 from llmnav.perception import lidar_sectors
 from llmnav.robot_specs import ROBOT_SPECS
 from llmnav.scenario import load_scenario
+from llmnav.sim.sensors import DETECTOR_SIZE
 from llmnav.tasks import resolve_task
 
 if TYPE_CHECKING:
@@ -193,7 +195,7 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
             fields["detections"] = spaces.Box(det_low, det_high, dtype=np.float32)
             fields["detection_class"] = spaces.MultiDiscrete([len(self.labels) + 1] * MAX_DETECTIONS)
             fields["detection_mask"] = spaces.MultiBinary(MAX_DETECTIONS)
-        fields["task"] = spaces.Text(MAX_TASK_CHARS, min_length=1, charset=TASK_CHARSET)
+        fields["task"] = TaskText(MAX_TASK_CHARS, min_length=1, charset=TASK_CHARSET)
         return spaces.Dict(fields)
 
     # --- the Gymnasium API --------------------------------------------------------------------------
@@ -355,10 +357,16 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         world, sensing = self.world, self.options.sensing
         scan = world.lidar.scan()
         self.last_scan = scan
-        self.last_detections = world.detector.detect() if "detections" in sensing else []
-        obs: dict[str, Any] = {}
+        frame = None
         if "image" in sensing:
-            obs["image"] = np.ascontiguousarray(world.camera.capture().rgb, dtype=np.uint8).copy()
+            # At the detector's own resolution one render with the mask serves both: the same pixels and
+            # detections as two renders, in little more than half the time (rendering is most of a step).
+            shared = "detections" in sensing and (self.options.image_width, self.options.image_height) == DETECTOR_SIZE
+            frame = world.camera.capture(segmentation=shared)
+        self.last_detections = world.detector.detect(frame) if "detections" in sensing else []
+        obs: dict[str, Any] = {}
+        if frame is not None:
+            obs["image"] = np.ascontiguousarray(frame.rgb, dtype=np.uint8).copy()
         if "lidar" in sensing:
             ranges = np.where(np.isfinite(scan.ranges), scan.ranges, self.range_m)
             obs["lidar"] = np.clip(ranges, 0.0, self.range_m).astype(np.float32)

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import printable
-from llmnav.scenario import LabelledObject, Scenario, Shape, Task
+from llmnav.scenario import Scenario, Shape, Task
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -85,58 +85,113 @@ def draw_scenario(ax: Axes, scenario: Scenario, *, labels: bool = True) -> None:
         ax.add_patch(_patch(wall, color=_WALL_RGBA, edge=_WALL_RGBA)).set_zorder(3)
     for obstacle in scenario.obstacles:
         ax.add_patch(_patch(obstacle, color=obstacle.color, edge=(0.1, 0.1, 0.1, 1.0))).set_zorder(3)
-    # Small labels for dense worlds (corridor_c has ~40 objects); big worlds get a smaller font.
-    extent = max(bx[1] - bx[0], by[1] - by[0])
-    fontsize = 6.5 if extent > 12 else 7.5
-    placed: list[tuple[float, float, str]] = []  # labels so far (anchor, text), to keep neighbours apart
     for obj in scenario.objects:
         face = obj.color if obj.solid else (*obj.color[:3], _NON_SOLID_ALPHA)
         patch = ax.add_patch(_patch(obj, color=face, edge=(0.1, 0.1, 0.1, 1.0), dashed=not obj.solid))
         patch.set_zorder(4)
         if obj.goal is not None:
             ax.plot(*obj.goal, marker="x", markersize=3, color=(0.3, 0.3, 0.3), zorder=5)
-        if labels:
-            _label(ax, obj, placed, extent=extent, fontsize=fontsize)
     ax.set_xlim(bx[0] - 0.3, bx[1] + 0.3)
     ax.set_ylim(by[0] - 0.3, by[1] + 0.3)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.grid(True, linewidth=0.3, alpha=0.4)
+    if labels:
+        # Dense worlds (corridor_c has ~40 objects) and big ones get the smaller size.
+        extent = max(bx[1] - bx[0], by[1] - by[0])
+        place_labels(ax, scenario, fontsize=7.5 if extent > 12 else 8.5)
 
 
-def _label(
-    ax: Axes, obj: LabelledObject, placed: list[tuple[float, float, str]], *, extent: float, fontsize: float
-) -> None:
-    """Label an object above its footprint, or below when a neighbour's label is close by.
+_HALO_PT = 2.6  # [pt] the white outline behind each label: readable on dark walls and markers
+_GAP_PX = 2.0  # [px] between a footprint and its label
+_LEADER = {"arrowstyle": "-", "linewidth": 0.6, "color": (0.25, 0.25, 0.25), "shrinkA": 1.0, "shrinkB": 2.0}
+# Where a label may go around its object, in order of preference: (dx, dy) of the label's side.
+_DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, 1), (1, -1), (-1, -1))
 
-    When both spots are taken by a label with the same text (a cluster of barrels), one label is enough.
+
+def place_labels(ax: Axes, scenario: Scenario, *, fontsize: float) -> list[Any]:
+    """Label every object where its text overlaps no other label, with a leader line when set apart.
+
+    Candidate places go around the footprint, then on two wider rings (those get a leader line). Each is
+    scored in display pixels: overlapping a placed label is worst, leaving the axes next, covering a
+    wall, obstacle or object (a label on a dark wall) after that, distance last. A white halo keeps the
+    text readable wherever it lands. A cluster of objects with the same text (barrels) gets one label.
+    Call it after the axes' limits and size are final; returns the annotations.
     """
-    half_y = obj.half_extents()[1]
-    spots = [
-        ((obj.center[0], obj.center[1] + half_y), False),
-        ((obj.center[0], obj.center[1] - half_y), True),
-    ]
+    from matplotlib import patheffects
+    from matplotlib.transforms import Bbox
 
-    def near(x: float, y: float) -> list[str]:
-        return [t for px, py, t in placed if abs(px - x) < 0.12 * extent and abs(py - y) < 0.03 * extent]
+    ax.apply_aspect()
+    renderer = ax.figure.canvas.get_renderer()  # type: ignore[attr-defined]
+    to_px = ax.transData.transform
+    frame = ax.get_window_extent(renderer)
+    px_per_pt = ax.figure.dpi / 72.0
 
-    free = [(anchor, below) for anchor, below in spots if not near(*anchor)]
-    if not free and any(obj.label in near(*anchor) for anchor, _ in spots):
-        return
-    anchor, below = free[0] if free else spots[0]
-    placed.append((anchor[0], anchor[1], obj.label))
-    ax.annotate(
-        obj.label,
-        anchor,
-        textcoords="offset points",
-        xytext=(0, -1.5 if below else 1.5),
-        ha="center",
-        va="top" if below else "bottom",
-        fontsize=fontsize,
-        color=(0.1, 0.1, 0.1),
-        zorder=6,
-    )
+    def footprint(shape: Shape) -> Bbox:
+        hx, hy = shape.half_extents()
+        x, y = shape.center
+        (x0, y0), (x1, y1) = to_px([(x - hx, y - hy), (x + hx, y + hy)])
+        return Bbox.from_extents(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
+
+    covers = [footprint(shape) for shape in (*scenario.walls, *scenario.obstacles, *scenario.objects)]
+    probe = ax.text(0.0, 0.0, "", fontsize=fontsize)
+    placed: list[tuple[Bbox, str]] = []
+    annotations: list[Any] = []
+    for obj in scenario.objects:
+        own = footprint(obj)
+        probe.set_text(obj.label)
+        size = probe.get_window_extent(renderer)
+        w, h = size.width + 2 * _HALO_PT * px_per_pt, size.height + _HALO_PT * px_per_pt
+        if any(text == obj.label and _gap(box, own) < 1.5 * h for box, text in placed):
+            continue  # its neighbour of the same name already says it
+        best: tuple[float, Bbox, bool] | None = None
+        for ring in (0, 1, 2):
+            reach = _GAP_PX + ring * 1.6 * h
+            for dx, dy in _DIRECTIONS:
+                box = _beside(own, dx, dy, reach, w, h)
+                score = 1000.0 * sum(box.overlaps(b) for b, _ in placed)
+                score += 0.0 if frame.contains(box.x0, box.y0) and frame.contains(box.x1, box.y1) else 500.0
+                score += 10.0 * sum(box.overlaps(c) for c in covers if c is not own) + 3.0 * ring
+                if best is None or score < best[0]:
+                    best = (score, box, ring > 0)
+            if best is not None and best[0] < 10.0:
+                break  # nothing in the way at this distance: no need to look farther out
+        assert best is not None
+        _, box, leader = best
+        cx, cy = to_px(obj.center)
+        annotations.append(
+            ax.annotate(
+                obj.label,
+                obj.center,
+                xytext=((box.x0 + box.width / 2 - cx) / px_per_pt, (box.y0 + box.height / 2 - cy) / px_per_pt),
+                textcoords="offset points",
+                ha="center",
+                va="center",
+                fontsize=fontsize,
+                color=(0.08, 0.08, 0.08),
+                zorder=6,
+                path_effects=[patheffects.withStroke(linewidth=_HALO_PT, foreground="white")],
+                arrowprops=_LEADER if leader else None,
+            )
+        )
+        placed.append((box, obj.label))
+    probe.remove()
+    return annotations
+
+
+def _beside(own: Any, dx: int, dy: int, reach: float, w: float, h: float) -> Any:
+    """The w × h box on side (dx, dy) of the footprint `own`, `reach` pixels away (display coordinates)."""
+    from matplotlib.transforms import Bbox
+
+    cx = (own.x0 + own.x1) / 2 if dx == 0 else (own.x1 + reach + w / 2 if dx > 0 else own.x0 - reach - w / 2)
+    cy = (own.y0 + own.y1) / 2 if dy == 0 else (own.y1 + reach + h / 2 if dy > 0 else own.y0 - reach - h / 2)
+    return Bbox.from_extents(cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
+
+
+def _gap(a: Any, b: Any) -> float:
+    """The distance between two boxes [px] (0 when they overlap)."""
+    return math.hypot(max(0.0, max(a.x0, b.x0) - min(a.x1, b.x1)), max(0.0, max(a.y0, b.y0) - min(a.y1, b.y1)))
 
 
 def _draw_start_poses(ax: Axes, scenario: Scenario, task: Task | None) -> None:

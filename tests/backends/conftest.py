@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
+
+LLMNAV = str(Path(sys.executable).parent / "llmnav")
+SERVE_KEY = "serve-client-key-81c3"
 
 
 @pytest.fixture
@@ -23,3 +31,30 @@ def fast() -> dict[str, Any]:
         "timeout_s": 2.0,
         "connect_timeout_s": 1.0,
     }
+
+
+@pytest.fixture
+def serve_process() -> Iterator[tuple[subprocess.Popen[str], str, str]]:
+    """`llmnav serve --port 0` (the bundled model, on 127.0.0.1, with a key): (process, base URL, key).
+
+    Killed at the end if the test did not stop it.
+    """
+    process = subprocess.Popen(
+        [LLMNAV, "serve", "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "LLMNAV_API_KEY": SERVE_KEY},
+    )
+    assert process.stdout is not None
+    url = process.stdout.readline().strip()
+    process.stdout.readline()
+    if not url.startswith("http://127.0.0.1:"):
+        process.kill()
+        raise AssertionError(f"llmnav serve did not start: {url!r} {process.communicate(timeout=30)[1][-2000:]}")
+    try:
+        yield process, url, SERVE_KEY
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(timeout=30)

@@ -50,3 +50,17 @@ def test_broken_backend_is_shown_not_raised(quiet_env, monkeypatch):
     assert rows["replay"].ready is True  # the others are still listed
     result = CliRunner().invoke(app, ["backends"])
     assert result.exit_code == 0 and "broken" in result.output and "ghost" in result.output
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--check", "policy:first", "--sensing", "sonar"], "--sensing 'sonar': a comma list of lidar, image"),
+        (["--check", "policy:first", "--sensing", "lidar,lidar"], "lists lidar more than once"),
+        (["--sensing", "lidar"], "--sensing goes with --check SPEC"),
+    ],
+)
+def test_bad_sensing_is_one_line_exit_2(quiet_env, args, message):
+    result = CliRunner().invoke(app, ["backends", *args])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip().count("\n") == 0 and message in result.stderr

@@ -161,6 +161,17 @@ def test_hybrid_scores_over_http_reaches_the_room_and_replays(served, tmp_path):
     assert code_again == 0 and second["final_pose"] == first["final_pose"]
 
 
+def test_check_with_lidar_sensing_passes_a_text_only_server(served):
+    result = CliRunner().invoke(app, ["backends", "--check", served.backend, "--sensing", "lidar"])
+    lines = {line[4:].split(":")[0]: line for line in result.stdout.splitlines()}
+    assert result.exit_code == 0, result.output
+    assert lines["accepts images"].startswith("–") and "not needed with --sensing lidar" in lines["accepts images"]
+    assert "text-only" in lines["accepts images"]  # the finding is still shown
+    # a run that does send images is still judged on them
+    with_images = CliRunner().invoke(app, ["backends", "--check", served.backend, "--sensing", "lidar,image"])
+    assert with_images.exit_code == 1, with_images.output
+
+
 @pytest.mark.parametrize("planner", ["hybrid", "stepwise"])
 def test_default_sensing_stops_at_once_with_the_hint(served, tmp_path, planner):
     out = tmp_path / planner

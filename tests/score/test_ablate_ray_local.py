@@ -139,10 +139,14 @@ def _ablate(grid: Path, out: Path, *args: str, env: dict[str, str], listening=No
 
 def test_ray_local_equals_workers_1_keeps_to_loopback_and_carries_the_key(key_server, tmp_path, listening):
     grid = _grid(tmp_path, key_server.url)
-    env = _env(OPENAI_API_KEY=KEY)
+    home = tmp_path / "home"  # the user's home: a private Ray must leave nothing there (no ~/.ray/auth_token)
+    home.mkdir()
+    env = _env(OPENAI_API_KEY=KEY, HOME=str(home))
     started = time.time()
     code, stdout, stderr, seen = _ablate(grid, tmp_path / "ray", "--ray", "local", env=env, listening=listening)
     assert code == 0, stderr[-3000:]
+    assert list(home.rglob("*")) == []
+    assert "Token authentication" not in stderr and " INFO " not in stderr and " WARNING " not in stderr, stderr
     assert seen, "no Ray process was seen listening: the loopback check saw nothing"
     assert all(_loopback(ip) for ip, _ in seen), sorted(seen)
 

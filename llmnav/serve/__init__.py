@@ -7,6 +7,10 @@ context. It listens on 127.0.0.1 unless told otherwise; a key, when given, is re
 
 llama.cpp's server installs its own SIGINT/SIGTERM handlers when it starts, which would make Ctrl-C do
 nothing in the Python process; `LlamaServer.start` puts Python's handlers back.
+
+Clients talk to llmnav's front (`llmnav.serve.front`), which relays to llama.cpp on a private loopback
+port: it lets `stop` cut in-flight responses at once (llama.cpp alone would finish them first) and
+answers `GET /v1/models/{id}`.
 """
 
 from __future__ import annotations
@@ -115,6 +119,7 @@ class LlamaServer:
     def __init__(self, options: ServeOptions) -> None:
         self.options = options
         self._server: Any = None
+        self._front: Any = None
         self.info: ServerInfo | None = None
 
     def start(self, on_loading: Callable[[Path], None] | None = None) -> ServerInfo:
@@ -133,8 +138,8 @@ class LlamaServer:
         params = xllamacpp.CommonParams()
         params.model.path = str(path)
         params.model_alias = {opts.alias}
-        params.hostnames = [opts.host]
-        params.port = port
+        params.hostnames = [LOOPBACK]  # only the front talks to llama.cpp
+        params.port = free_port(LOOPBACK)
         params.n_parallel = opts.parallel
         params.n_ctx = opts.n_ctx * opts.parallel  # llama.cpp splits the context evenly among the slots
         params.cache_prompt = True
@@ -154,13 +159,24 @@ class LlamaServer:
             ) from None
         finally:
             _restore_handlers(handlers)
+        from llmnav.serve.front import Front
+
+        try:
+            self._front = Front(opts.host, port, params.port)
+        except OSError as err:
+            self._server = None
+            raise BadInputError(f"cannot listen on {opts.host}:{port}: {err.strerror or err}") from None
+        self._front.start()
         self.info = ServerInfo(
             path, opts.host, port, opts.alias, opts.parallel, opts.n_ctx, threads, bool(opts.api_key)
         )
         return self.info
 
     def stop(self) -> None:
-        """Stop listening and free the model (llama.cpp shuts its server down when the object goes)."""
+        """Stop listening, cut in-flight requests, free the model (llama.cpp's server ends with its object)."""
+        if self._front is not None:
+            self._front.stop()
+            self._front = None
         self._server = None
 
     def __enter__(self) -> ServerInfo:

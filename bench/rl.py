@@ -1,0 +1,65 @@
+"""Environment throughput: steps/s of each Gymnasium id, raw (random actions) and under SB3's PPO.
+
+`python -m bench rl` (needs the `rl` extra). "raw" steps the `gymnasium.make` environment (safety veto on)
+with sampled actions; "raw, LiDAR only" drops the camera and detections; "PPO" is `make_sb3` under
+`PPO("MultiInputPolicy")`, rollouts and updates included, one torch thread (the simulation has the other
+core), with the env's default sensing and with LiDAR only. One run each; wall time on a shared machine,
+so the load average is printed with the table.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import gymnasium as gym
+
+import llmnav.gym
+
+RAW_STEPS = 300
+PPO_STEPS = 512  # two PPO updates of 256 steps
+
+
+def raw_rate(env_id: str, steps: int = RAW_STEPS, **options: Any) -> float:
+    """Steps per second of the raw environment with sampled actions (resets included)."""
+    env = gym.make(env_id, **options)
+    try:
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        started = time.perf_counter()
+        for _ in range(steps):
+            terminated, truncated = env.step(env.action_space.sample())[2:4]
+            if terminated or truncated:
+                env.reset()
+        return steps / (time.perf_counter() - started)
+    finally:
+        env.close()
+
+
+def ppo_rate(env_id: str, steps: int = PPO_STEPS, **options: Any) -> float:
+    """Steps per second of PPO learning on `make_sb3(env_id)` (collection and gradient steps)."""
+    import torch
+    from stable_baselines3 import PPO
+
+    torch.set_num_threads(1)
+    env = llmnav.gym.make_sb3(env_id, **options)
+    try:
+        model = PPO("MultiInputPolicy", env, n_steps=steps // 2, batch_size=64, n_epochs=4, seed=0, device="cpu")
+        started = time.perf_counter()
+        model.learn(total_timesteps=steps)
+        return model.num_timesteps / (time.perf_counter() - started)
+    finally:
+        env.close()
+
+
+def main() -> None:
+    """Print the table."""
+    lidar = {"sensing": ("lidar",)}
+    print(f"[bench.rl] steps/s, one run each, load {os.getloadavg()[0]:.1f} at the start")
+    print(f"  {'id':<20} {'raw':>8} {'raw lidar':>10} {'PPO':>8} {'PPO lidar':>10}")
+    for env_id in llmnav.gym.ENV_IDS:
+        cells = [raw_rate(env_id), raw_rate(env_id, **lidar), ppo_rate(env_id), ppo_rate(env_id, **lidar)]
+        widths = (8, 10, 8, 10)
+        print(f"  {env_id.split('/')[1]:<20} " + " ".join(f"{c:>{w}.0f}" for c, w in zip(cells, widths, strict=True)))
+    print(f"  load {os.getloadavg()[0]:.1f} at the end")
