@@ -90,6 +90,7 @@ class Engine(Protocol):
 
 
 E = TypeVar("E", bound=Engine)
+R = TypeVar("R")
 
 # One loaded model per configuration per process: loading costs about a second and ~250 MB, and every
 # backend instance (one per episode, one per planner thread) should share it.
@@ -506,13 +507,17 @@ class LocalBackend(Backend):
             self._engine, self._lock = shared_engine(key, factory)
         return self._engine
 
-    def chat(self, request: ChatRequest) -> ChatResult:
-        """Answer one request; calls from several threads are served one at a time."""
-        started = time.perf_counter()
+    def _serve(self, work: Callable[[Engine], R]) -> R:
+        """Run `work` on the loaded engine; calls from several threads are served one at a time."""
         engine = self.load()
         assert self._lock is not None
         with self._lock:
-            result = engine.generate(request)
+            return work(engine)
+
+    def chat(self, request: ChatRequest) -> ChatResult:
+        """Answer one request; calls from several threads are served one at a time."""
+        started = time.perf_counter()
+        result = self._serve(lambda engine: engine.generate(request))
         result.latency_s = time.perf_counter() - started  # includes waiting for another thread's call
         return result
 
@@ -524,10 +529,7 @@ class LocalBackend(Backend):
     def score(self, request: ScoreRequest) -> ScoreResult:
         """Score continuations in process (calls from several threads are served one at a time)."""
         started = time.perf_counter()
-        engine = self.load()
-        assert self._lock is not None
-        with self._lock:
-            result = engine.score(request)
+        result = self._serve(lambda engine: engine.score(request))
         result.latency_s = time.perf_counter() - started
         return result
 

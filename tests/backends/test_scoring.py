@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from llmnav.backends.base import get_backend
-from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_tokens_grammar
+from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request, forced_tokens_grammar
 from llmnav.backends.local import LocalBackend
 from llmnav.backends.policy import PolicyBackend
 from llmnav.backends.replay import ReplayBackend, write_script
@@ -43,33 +43,30 @@ def test_forced_grammar_names_every_id_in_order() -> None:
     assert forced_tokens_grammar([11, 5, 300]) == "%llguidance {}\nstart: <[11]> <[5]> <[300]>"
 
 
+def _forced(backend: LocalBackend, prefix: str, text: str) -> tuple[list[int], list[dict[str, Any]]]:
+    """The canonical tail of `text` after `prefix` and the engine's reply items for it, forced as sent."""
+    engine: Any = backend.load()
+    ids = engine.tokenize(prefix)
+    tail = continuation_tokens(ids, engine.tokenize(prefix + text), text)
+    reply = engine._server.handle_completions(forced_request(ids, tail))
+    return tail, reply["choices"][0]["logprobs"]["content"]
+
+
 def test_canonical_tail_spells_the_continuation_in_whole_words(backend: LocalBackend) -> None:
     """With the real tokeniser: the forced tail reads back as the text, its first token carrying the space.
 
     (A plain string grammar lets greedy decoding start with a lone " ", a split the model never writes.)
     """
-    engine: Any = backend.load()
-    prefix = "Task: find it\nThe robot drives to the"
-    ids = engine.tokenize(prefix)
-    tail = continuation_tokens(ids, engine.tokenize(prefix + " fire extinguisher"), " fire extinguisher")
-    reply = engine._server.handle_completions(
-        {"prompt": ids, "max_tokens": len(tail), "logprobs": 1, "grammar": forced_tokens_grammar(tail)}
-    )
-    pieces = [item["token"] for item in reply["choices"][0]["logprobs"]["content"]]
+    _, items = _forced(backend, "Task: find it\nThe robot drives to the", " fire extinguisher")
+    pieces = [item["token"] for item in items]
     assert "".join(pieces) == " fire extinguisher"
     assert pieces[0] == " fire"
 
 
 # --- forced tokens come back as sent -----------------------------------------------------------
 def test_forced_tokens_come_back_as_sent(backend: LocalBackend) -> None:
-    engine: Any = backend.load()
-    prefix = "Task: Go to the stairs\nThe robot drives to the"
-    ids = engine.tokenize(prefix)
-    tail = continuation_tokens(ids, engine.tokenize(prefix + " stairs"), " stairs")
-    reply = engine._server.handle_completions(
-        {"prompt": ids, "max_tokens": len(tail), "logprobs": 1, "grammar": forced_tokens_grammar(tail)}
-    )
-    assert [item["id"] for item in reply["choices"][0]["logprobs"]["content"]] == tail
+    tail, items = _forced(backend, "Task: Go to the stairs\nThe robot drives to the", " stairs")
+    assert [item["id"] for item in items] == tail
 
 
 def test_a_reply_with_other_tokens_is_a_model_error() -> None:
