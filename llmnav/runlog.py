@@ -39,6 +39,8 @@ from typing import Any
 from llmnav.chat import Image
 from llmnav.errors import BadInputError, FolderLockedError, RunFolderError
 from llmnav.locking import LOCK_FILE, FolderLock, locked_by
+from llmnav.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, read_text, write_bytes, write_text
+from llmnav.safefiles import loads as bounded_loads
 
 RUN_FILE = "run.jsonl"
 SUMMARY_FILE = "summary.json"
@@ -122,10 +124,8 @@ def cap_text(record: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any
 
 
 def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
-    """Write JSON via a temporary file and rename, so readers never see half a file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_clean(data), default=_json_default, indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
+    """Write JSON via a fresh temporary file and rename, so readers never see half a file (links not followed)."""
+    write_text(path, json.dumps(_clean(data), default=_json_default, indent=2, allow_nan=False) + "\n")
 
 
 class RunLog:
@@ -148,7 +148,12 @@ class RunLog:
             (self.run_dir / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
             # A lone surrogate (a model answer may carry "\ud800" escapes) cannot be UTF-8: written as the
             # same JSON escape it came from, the line stays valid JSON instead of the write raising.
-            self._file = open(partial, "w", encoding="utf-8", errors="backslashreplace")  # noqa: SIM115
+            # A leftover partial (a run killed in its first instant) is ours to remove; the new one is created
+            # exclusively and never through a link someone planted under its name.
+            if os.path.lexists(partial):
+                os.unlink(partial)
+            fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            self._file = os.fdopen(fd, "w", encoding="utf-8", errors="backslashreplace")
         except OSError as err:
             self._folder_lock.release()
             raise BadInputError(f"cannot write run folder {self.run_dir}: {err.strerror or err}") from None
@@ -203,10 +208,8 @@ class RunLog:
         if digest not in self._images:
             path = self.run_dir / IMAGES_DIR / f"{digest}.jpg"
             if not path.exists():
-                tmp = path.with_suffix(".tmp")
                 try:
-                    tmp.write_bytes(image.jpeg_bytes)
-                    os.replace(tmp, path)
+                    write_bytes(path, image.jpeg_bytes)
                 except OSError as err:  # no event will name it: the log stops here
                     self.write_error = self.write_error or f"cannot write {path.name}: {err.strerror or err}"
                     return digest
@@ -273,8 +276,10 @@ class RunRecord:
 def read_run(run_dir: Path) -> RunRecord:
     """Read a run folder (complete or cut short); raise BadInputError if it is no run folder."""
     path = Path(run_dir) / RUN_FILE
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+    try:  # a FIFO, /dev/zero or a link out of the folder is refused, not waited on or read without end
+        text = read_text(path, limit=LOG_LIMIT, root=Path(run_dir))
+    except UnsafeFileError:
+        raise
     except OSError:
         raise BadInputError(f"{run_dir}: not a run folder (no {RUN_FILE})") from None
     lines = text.split("\n")
@@ -284,7 +289,7 @@ def read_run(run_dir: Path) -> RunRecord:
         if not line.strip():
             continue
         try:
-            record = json.loads(line)
+            record = bounded_loads(line)
         except json.JSONDecodeError:
             if number >= len(lines) - 1:  # only the last line may be torn by a kill
                 torn += 1
@@ -295,11 +300,14 @@ def read_run(run_dir: Path) -> RunRecord:
         records.append(record)
     if not records or records[0].get("type") != "config":
         raise BadInputError(f"{path}: first line is not the run configuration")
-    summary = None
-    summary_path = Path(run_dir) / SUMMARY_FILE
-    if summary_path.exists():
-        try:
-            summary = json.loads(summary_path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, OSError):
-            summary = None
+    summary = read_summary(Path(run_dir))
     return RunRecord(Path(run_dir), records[0], records[1:], summary, torn)
+
+
+def read_summary(run_dir: Path) -> dict[str, Any] | None:
+    """A run's summary.json, or None when it is missing, damaged, no regular file in the folder, or too large."""
+    try:
+        summary = bounded_loads(read_text(run_dir / SUMMARY_FILE, limit=SUMMARY_LIMIT, root=run_dir))
+    except (ValueError, OSError, UnsafeFileError):
+        return None
+    return summary if isinstance(summary, dict) else None

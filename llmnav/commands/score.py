@@ -11,6 +11,7 @@ import typer
 
 from llmnav.commands.common import chart_folder_option, check_output_path, cli_errors, console, err_console, esc
 from llmnav.errors import BadInputError
+from llmnav.safefiles import write_text
 
 if TYPE_CHECKING:
     from llmnav.score import Table
@@ -113,7 +114,7 @@ def emit(tables: list[Table], fmt: OutputFormat, out: Path | None) -> None:
         sys.stdout.flush()
         return
     try:
-        out.write_text(text, encoding="utf-8")
+        write_text(out, text)  # a fresh file renamed into place: never through a link at `out`
     except OSError as err:
         raise BadInputError(f"--out {out}: cannot write: {err.strerror or err}") from None
     err_console.print(f"[dim]tables written to {esc(out)}[/]")

@@ -31,6 +31,7 @@ CATEGORIES = {
     "test_secrets": "secrets",
     "test_fsm_deadline": "fsm deadline",
     "test_data_safety": "data safety",
+    "test_hostile_folders": "hostile folders",
 }
 
 

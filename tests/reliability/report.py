@@ -19,6 +19,7 @@ ORDER = [
     "backend faults",
     "crash safety",
     "data safety",
+    "hostile folders",
     "bad input",
     "secrets",
     "fsm deadline",
