@@ -21,7 +21,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from llmnav.geometry import Pose2D, path_length, wrap_angle
+from llmnav.geometry import Pose2D, logged_pose, path_length, wrap_angle
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeOutcome
@@ -128,8 +128,9 @@ def _as_pose(value: Any) -> Pose2D | None:
         if isinstance(value, dict):
             yaw = value["yaw"] if "yaw" in value else math.radians(float(value.get("yaw_deg", 0.0)))
             return Pose2D(float(value["x"]), float(value["y"]), float(yaw))
-        if isinstance(value, (list, tuple)) and len(value) >= 2:
-            return Pose2D(float(value[0]), float(value[1]), float(value[2]) if len(value) > 2 else 0.0)
+        pose = logged_pose(value)
+        if pose is not None:
+            return Pose2D(pose[0], pose[1], pose[2] if len(pose) > 2 else 0.0)
     except (KeyError, TypeError, ValueError):
         return None
     return None

@@ -38,6 +38,7 @@ from typing import Any
 
 from llmnav.chat import Image
 from llmnav.errors import BadInputError, FolderLockedError, RunFolderError
+from llmnav.geometry import logged_pose
 from llmnav.locking import LOCK_FILE, FolderLock, locked_by
 from llmnav.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, read_text, write_bytes, write_text
 from llmnav.safefiles import loads as bounded_loads
@@ -269,8 +270,9 @@ class RunRecord:
         return [e for e in self.events if e.get("type") == type_]
 
     def poses(self) -> list[list[float]]:
-        """The trajectory: every logged `pose` sample, in order."""
-        return [e["pose"] for e in self.events if e.get("type") == "pose" and "pose" in e]
+        """The trajectory: every logged `pose` sample with finite numbers, in order (others count as missing)."""
+        poses = (logged_pose(e.get("pose")) for e in self.events if e.get("type") == "pose")
+        return [p for p in poses if p is not None]
 
 
 def read_run(run_dir: Path) -> RunRecord:

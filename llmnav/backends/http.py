@@ -39,6 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
 from llmnav.errors import BackendSpecError, ImagesRejectedError, LlmnavError, ModelError, one_line
+from llmnav.safefiles import loads as bounded_loads
 
 if TYPE_CHECKING:
     import httpx
@@ -85,6 +86,9 @@ class HttpOptions(BaseModel):
 
 
 OptionsT = TypeVar("OptionsT", bound=BaseModel)
+
+
+MAX_REPLY_BYTES = 64 << 20  # [bytes] one reply (a chat answer with reasoning is at most a few MB)
 
 
 def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) -> OptionsT:
@@ -139,7 +143,7 @@ def server_retry_delay(response: httpx.Response) -> float | None:
         if delay is not None:
             return delay
     try:
-        data = response.json()
+        data = bounded_loads(response.content)
     except ValueError:
         return None
     error = data.get("error") if isinstance(data, dict) else None
@@ -158,7 +162,7 @@ def error_reason(response: httpx.Response) -> str:
     """A short reason for a failed reply: the provider's error message if it gave one."""
     reason = response.reason_phrase or ""
     try:
-        data = response.json()
+        data = bounded_loads(response.content)
     except ValueError:
         data = None
     if isinstance(data, dict) and "error" in data:
@@ -342,16 +346,22 @@ class JsonHttpClient:
         extra: dict[str, Any] = {} if timeout is None else {"timeout": timeout}
         with self._client.stream(method, url, json=body, **extra) as response:
             chunks: list[bytes] = []
+            size = 0
             for chunk in response.iter_bytes():
                 chunks.append(chunk)
+                size += len(chunk)
                 if time.perf_counter() > deadline:
                     raise httpx.ReadTimeout("reply not complete in time", request=response.request)
+                if size > MAX_REPLY_BYTES:  # a reply is kilobytes; a server sending without end is broken
+                    raise httpx.RemoteProtocolError(
+                        f"reply over {MAX_REPLY_BYTES >> 20} MB", request=response.request
+                    )
             response._content = b"".join(chunks)  # what Response.read() would store
         return response
 
     def _decode(self, response: httpx.Response) -> dict[str, Any]:
         try:
-            data = json.loads(response.content)
+            data = bounded_loads(response.content)  # a `[` × 200,000 is a bad reply, not a RecursionError
         except (ValueError, UnicodeDecodeError):
             data = None
             snippet = one_line(response.content[:60].decode("utf-8", errors="replace"), 60)
@@ -607,7 +617,7 @@ class HttpBackend(Backend):
         except ModelError as err:
             return Check("accepts a JSON Schema", False, f"request failed: {short_reason(err)}")
         try:
-            answer = json.loads(text)
+            answer = bounded_loads(text)
         except ValueError:
             answer = None
         if isinstance(answer, dict) and set(answer) == {"colour"} and answer["colour"] in ("red", "green", "blue"):
