@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from llmnav.ablate.grid import Episode, GridSpec, expand
+from llmnav.ablate.grid import MAX_EPISODES, Episode, GridSpec, expand
 from llmnav.runlog import SUMMARY_FILE, write_json_atomic
 
 MANIFEST_FILE = "manifest.json"
@@ -132,9 +132,9 @@ class Ablation:
         return path
 
 
-def plan(grid: GridSpec, root: Path) -> Ablation:
-    """Expand the grid for the folder `root` (nothing is written)."""
-    return Ablation(grid, Path(root), expand(grid))
+def plan(grid: GridSpec, root: Path, max_episodes: int = MAX_EPISODES) -> Ablation:
+    """Expand the grid for the folder `root` (nothing is written); refused above `max_episodes`."""
+    return Ablation(grid, Path(root), expand(grid, max_episodes))
 
 
 def results_runs(ablation: Ablation) -> list[Any]:

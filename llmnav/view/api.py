@@ -53,6 +53,9 @@ def write_view(
             raise BadInputError("--video needs a run folder, not a sweep")
         if video.suffix.lower() not in (".mp4", ".gif"):
             raise BadInputError(f"--video {video}: give a file ending in .mp4 or .gif")
+        from llmnav.view.video import check_timing
+
+        check_timing(fps, seconds_per_step)  # bad flags fail before the page is written
         # a video carries no mark of its writer: an existing file is replaced only when forced
         check_target(video, "--video", force=force, ours=lambda _: False)
         if video.absolute() == page.absolute():

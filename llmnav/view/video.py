@@ -223,13 +223,39 @@ def writable_codec(probe_dir: Path) -> str | None:
             os.environ[_FFMPEG_LOG_ENV] = saved_env
 
 
+MAX_FPS = 60.0  # frames per second: more is no smoother on any screen, only larger
+MAX_SECONDS_PER_STEP = 60.0  # [s] of video per action
+MAX_FRAMES = 36_000  # one hour at 10 fps; every frame is drawn and encoded
+
+
+def check_timing(fps: float, seconds_per_step: float) -> None:
+    """Refuse --fps and --seconds-per-step outside (0, their maximum] (NaN and infinity included)."""
+    if not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
+        raise BadInputError(f"--fps {fps:g}: give a number above 0 and at most {MAX_FPS:g}")
+    if not (math.isfinite(seconds_per_step) and 0 < seconds_per_step <= MAX_SECONDS_PER_STEP):
+        raise BadInputError(
+            f"--seconds-per-step {seconds_per_step:g}: give a number above 0 and at most {MAX_SECONDS_PER_STEP:g}"
+        )
+
+
+def frame_count(view: RunView, fps: float, seconds_per_step: float) -> int:
+    """How many frames `_frames` draws: `per_action` for every action slot of every decision."""
+    per_action = max(1, round(fps * seconds_per_step))
+    return sum(per_action * _actions(step) for step, _ in _segments(view))
+
+
 def render_video(view: RunView, out: Path, *, fps: float = 10.0, seconds_per_step: float = 1.0) -> VideoInfo:
     """Write the episode to `out` (.mp4 or .gif); returns what was written."""
     suffix = out.suffix.lower()
     if suffix not in (".mp4", ".gif"):
         raise BadInputError(f"--video {out}: give a file ending in .mp4 or .gif")
-    if fps <= 0 or seconds_per_step <= 0:
-        raise BadInputError("--fps and --seconds-per-step must be positive")
+    check_timing(fps, seconds_per_step)
+    frames = frame_count(view, fps, seconds_per_step)
+    if frames > MAX_FRAMES:
+        raise BadInputError(
+            f"--video: {frames:,} frames at --fps {fps:g} and --seconds-per-step {seconds_per_step:g}, over the "
+            f"limit of {MAX_FRAMES:,}; lower either"
+        )
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:

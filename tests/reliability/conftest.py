@@ -32,6 +32,7 @@ CATEGORIES = {
     "test_fsm_deadline": "fsm deadline",
     "test_data_safety": "data safety",
     "test_hostile_folders": "hostile folders",
+    "test_hostile_sizes": "hostile sizes",
 }
 
 

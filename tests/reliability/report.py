@@ -20,6 +20,7 @@ ORDER = [
     "crash safety",
     "data safety",
     "hostile folders",
+    "hostile sizes",
     "bad input",
     "secrets",
     "fsm deadline",
