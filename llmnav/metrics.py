@@ -230,6 +230,15 @@ def _rounded(value: float | None, digits: int = 4) -> float | None:
 # --- the summary -------------------------------------------------------------------------------
 
 
+def aborted_by_infrastructure(summary: dict[str, Any]) -> bool:
+    """Whether a run ended because the backend or its server failed (no answer came): not the model's result.
+
+    Such runs are never in a model's means (`llmnav score` lists them apart) and carry no score.
+    """
+    metrics = summary.get("planner_metrics")
+    return summary.get("outcome") == "aborted" and isinstance(metrics, dict) and metrics.get("failure") == "backend"
+
+
 def summarize_run(
     record: RunRecord, scenario: Scenario | None, outcome: EpisodeOutcome | None = None
 ) -> dict[str, Any]:
@@ -290,6 +299,9 @@ def summarize_run(
         success = completed and best.distance_m <= SUCCESS_RADIUS_M
     else:  # a target task whose targets cannot be resolved: nothing to score against
         score, success = None, False
+
+    if result == "aborted" and planner_metrics.get("failure") == "backend":
+        score, success = None, False  # the server failed, not the model: nothing of the model's to score
 
     collisions = sum(1 for a in actions if a.get("collided"))
     if isinstance(planner_metrics.get("collisions"), int):

@@ -303,6 +303,19 @@ def _plot(record: RunRecord, scenario: Scenario, task: Task, log: RunLog, summar
         summary["trajectory_error"] = f"{type(err).__name__}: {one_line(err)}"
 
 
+EXIT_SUCCESS, EXIT_TASK_FAILED, EXIT_MODEL_FAILED, EXIT_INFRASTRUCTURE = 0, 1, 3, 4  # 2 is bad input
+
+
 def exit_code(summary: dict[str, Any]) -> int:
-    """0 when the episode completed, 1 when it failed or aborted."""
-    return 0 if summary.get("outcome") == "completed" else 1
+    """What `drive` and `plan` exit with, so scripts can tell the cases apart.
+
+    0 the task succeeded; 1 it was not achieved (completed far from the target, or failed); 3 the model
+    failed (no valid action, every motion vetoed); 4 the backend or its server failed (no answer came).
+    """
+    from llmnav.metrics import aborted_by_infrastructure
+
+    if aborted_by_infrastructure(summary):
+        return EXIT_INFRASTRUCTURE
+    if summary.get("outcome") == "aborted":
+        return EXIT_MODEL_FAILED
+    return EXIT_SUCCESS if summary.get("success") else EXIT_TASK_FAILED

@@ -320,9 +320,9 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
     """Everything the sweep template needs; writes the run pages that are missing."""
     from llmnav.ablate import MANIFEST_FILE
     from llmnav.safefiles import loads as bounded_loads
-    from llmnav.score import build_tables, find_run_dirs, load_run, varying_keys
+    from llmnav.score import build_tables, read_runs, split_aborted, varying_keys
 
-    runs = [load_run(d) for d in find_run_dirs([root])]
+    runs, broken = read_runs([root])  # a damaged run is named on the page, not fatal to it
     keys = varying_keys(runs)
     links: dict[Path, str] = {}
     for run in runs:
@@ -344,7 +344,7 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
         "root": str(root),
         "keys": keys,
         "tables": tables,
-        "charts": _charts(runs, keys),
+        "charts": _charts(split_aborted(runs)[0], keys),  # infrastructure failures are in no mean
         "maps": _success_maps(runs, keys, links),
         "runs": [
             {
@@ -360,6 +360,7 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
             }
             for r in runs
         ],
+        "broken": broken,
         "errors": [e for e in manifest.get("episodes") or [] if isinstance(e, dict) and e.get("status") == "error"],
     }
 
