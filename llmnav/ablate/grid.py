@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from llmnav.errors import BadInputError
+from llmnav.errors import BadInputError, validation_message
 from llmnav.planners.base import DriveOptions
 
 if TYPE_CHECKING:
@@ -153,10 +153,7 @@ def parse_poses(text: str) -> list[int] | None:
     return poses
 
 
-def _validation_message(err: ValidationError) -> str:
-    first = err.errors()[0]
-    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-    return f"{where}: {first['msg'].removeprefix('Value error, ')}"
+_validation_message = validation_message
 
 
 def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:

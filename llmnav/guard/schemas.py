@@ -277,10 +277,10 @@ class ActionBounds:
         cmd, p = spec.command, spec.parameters
         if cmd in (ActionCommand.FRONT, ActionCommand.BACK):
             if not 0.0 < p <= self.max_step_m:
-                return f"{cmd} takes metres with 0 < parameters <= {self.max_step_m:g}; got {p:g}"
+                return f"{cmd} takes metres with 0 < parameters <= {self.max_step_m:g}; got {p!r}"
         elif cmd in (ActionCommand.ROTATE_LEFT, ActionCommand.ROTATE_RIGHT):
             if not 0.0 < p <= self.max_rotate_deg:
-                return f"{cmd} takes degrees with 0 < parameters <= {self.max_rotate_deg:g}; got {p:g}"
+                return f"{cmd} takes degrees with 0 < parameters <= {self.max_rotate_deg:g}; got {p!r}"
         elif p != 0.0:
             return f"COMPLETE takes parameters 0; got {p:g}"
         return None
