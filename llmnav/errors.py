@@ -82,6 +82,15 @@ def printable(text: str) -> str:
     return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
+# `scheme://user:password@host`: credentials written into a URL (httpx sends them as Basic auth)
+_USERINFO = re.compile(r"(?<=://)[^/@\s]+@")
+
+
+def redact_userinfo(text: str) -> str:
+    """Text with the credentials of every URL in it replaced by `***` (`http://***@host/v1`)."""
+    return _USERINFO.sub("***@", text)
+
+
 def one_line(value: BaseException | str, limit: int | None = None) -> str:
     """One printable line for logs and the terminal, at most `limit` characters (shortened with "…").
 

@@ -32,6 +32,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -132,8 +133,10 @@ def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
 class RunLog:
     """Append-only writer of one run folder."""
 
-    def __init__(self, run_dir: Path, config: dict[str, Any]) -> None:
+    def __init__(self, run_dir: Path, config: dict[str, Any], *, secrets: Iterable[str] = ()) -> None:
         self.run_dir = Path(run_dir)
+        self._secrets: tuple[str, ...] = ()
+        self.redact(secrets)  # before the first line: the configuration names the backend
         holder = locked_by(self.run_dir)
         if holder is not None:  # another process is writing it: say who, before anything else
             raise FolderLockedError(f"{self.run_dir} is in use: {holder} is writing this run folder")
@@ -181,11 +184,17 @@ class RunLog:
         else:
             os.unlink(partial)
 
+    def redact(self, secrets: Iterable[str]) -> None:
+        """Replace these strings (a backend's key, URL credentials) by `***` in every line written from now."""
+        self._secrets = tuple(sorted({s for s in (*self._secrets, *secrets) if len(s) >= 4}, key=len, reverse=True))
+
     def _write(self, record: dict[str, Any]) -> None:
         record, cut = cap_text(record)
         if cut:
             record["truncated"] = cut
         line = dumps(record) + "\n"
+        for secret in self._secrets:  # a server may echo the key back: it is never logged, wherever it is
+            line = line.replace(secret, "***")
         with self._lock:
             if self._file.closed or self.write_error:  # a late model call, or the disk is full
                 return

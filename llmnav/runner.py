@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
-from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line
+from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line, redact_userinfo
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Information, NullView, View
 from llmnav.scenario import resolve_scenario_path
 
@@ -114,7 +114,7 @@ def build_config(
         "start_pose": start.as_list(),
         "planner": spec.options.planner,
         "information": information,
-        "backend": backend.spec if backend is not None else None,
+        "backend": redact_userinfo(backend.spec) if backend is not None else None,
         # what the requests carried (replay asks the same): {"modality": "text" | "multimodal", "attachments"}
         **(request_modality(backend, camera) if backend is not None else {"modality": None, "attachments": []}),
         "options": spec.options.model_dump(mode="json"),
@@ -193,7 +193,8 @@ def run_episode(
                 backend,
                 information,
             )
-            with RunLog(spec.out_dir, config) as log:
+            # the key and URL credentials the backend holds are never logged, even when a server echoes them
+            with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
                 return _run_logged(
                     planner, world, scenario, task, backend, log, spec, view or NullView(), information
                 )

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from llmnav.errors import BadInputError, validation_message
+from llmnav.errors import BadInputError, redact_userinfo, validation_message
 from llmnav.planners.base import DriveOptions
 
 if TYPE_CHECKING:
@@ -230,7 +230,8 @@ def episode_seed(base_seed: int, task_id: str, start_pose: int, trial: int) -> i
 def episode_key(task_id: str, start_pose: int, trial: int, factors: dict[str, Any]) -> str:
     """`T8-p1-t2` plus `-lidar_sectors=3` per factor given (callers pass the ones that vary)."""
     parts = [f"{task_id}-p{start_pose}-t{trial}"]
-    parts += [f"{name}={value}" for name, value in factors.items()]
+    # a key names a folder and a manifest entry: a backend URL's credentials stay out of both
+    parts += [f"{name}={redact_userinfo(str(value))}" for name, value in factors.items()]
     return "-".join(parts)
 
 

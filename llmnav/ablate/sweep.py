@@ -8,7 +8,7 @@ from typing import Any
 
 from llmnav.ablate.executors import Runner, default_runner, execute_episode, run_pool
 from llmnav.ablate.grid import Episode, GridSpec
-from llmnav.ablate.manifest import MANIFEST_FILE, Ablation, ManifestEntry
+from llmnav.ablate.manifest import MANIFEST_FILE, Ablation, ManifestEntry, without_credentials
 from llmnav.ablate.resume import locate, set_aside
 from llmnav.errors import BadInputError
 from llmnav.locking import LOCK_FILE, FolderLock
@@ -77,7 +77,7 @@ def check_out_folder(root: Path, ablation: Ablation) -> None:
         raise BadInputError(
             f"--out {root}: {MANIFEST_FILE} is damaged; move it away to run into this folder"
         ) from None
-    new = ablation.grid.model_dump(mode="json", exclude={"name"})
+    new = without_credentials(ablation.grid.model_dump(mode="json", exclude={"name"}))  # as the manifest holds it
     before = old_grid.model_dump(mode="json", exclude={"name"})
     changed = [k for k in new if new[k] != before.get(k)]
     if changed:

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
-from llmnav.errors import BackendSpecError, ImagesRejectedError, LlmnavError, ModelError, one_line
+from llmnav.errors import BackendSpecError, ImagesRejectedError, LlmnavError, ModelError, one_line, redact_userinfo
 from llmnav.safefiles import loads as bounded_loads
 
 if TYPE_CHECKING:
@@ -103,11 +103,23 @@ def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) 
 
 
 def redact(text: str, secrets: Iterable[str] = ()) -> str:
-    """Remove API keys from text: every known secret, and secret-looking URL query values."""
+    """Remove API keys from text: every known secret, secret-looking URL query values, URL credentials."""
     for secret in secrets:
         if secret:
             text = text.replace(secret, "***")
-    return _SECRET_QUERY.sub(r"\1***", text)
+    return redact_userinfo(_SECRET_QUERY.sub(r"\1***", text))
+
+
+def url_secrets(url: str) -> tuple[str, ...]:
+    """The credentials written into a URL (`user:password@`), as secrets to redact wherever they appear."""
+    from urllib.parse import unquote, urlsplit
+
+    try:
+        parts = urlsplit(url)
+    except ValueError:
+        return ()
+    found = [parts.password, f"{parts.username}:{parts.password}" if parts.password else None]
+    return tuple(unquote(s) for s in found if s) + tuple(s for s in found if s)
 
 
 def parse_retry_delay(value: str, now: datetime | None = None) -> float | None:
@@ -232,7 +244,7 @@ class JsonHttpClient:
         self.label = label  # backend name, the prefix of every error message
         self.base_url = base_url.rstrip("/")
         self.options = options
-        self._secrets = tuple(s for s in secrets if s)
+        self._secrets = tuple(s for s in (*secrets, *url_secrets(base_url)) if s)
         self._sleep = options.sleep or time.sleep
         self._rng = random.Random()
         self._last_start = float("-inf")  # [s] monotonic start of the latest reserved request (rate limit)
@@ -246,6 +258,11 @@ class JsonHttpClient:
     def redact(self, text: str) -> str:
         """Text with this client's secrets removed."""
         return redact(text, self._secrets)
+
+    @property
+    def secrets(self) -> tuple[str, ...]:
+        """What this client must never show or log: its key, the URL's credentials."""
+        return self._secrets
 
     def post(self, path: str, body: dict[str, Any]) -> HttpReply:
         """POST JSON with retries; raise one ModelError after the last attempt."""
@@ -537,6 +554,11 @@ class HttpBackend(Backend):
             if first:
                 log.warning("%s takes no images: going on without them (--drop-images)", where)
         return ChatPost(self.client.post(self.chat_path, self.build_body(without_images(request))), images)
+
+    @property
+    def secrets(self) -> tuple[str, ...]:
+        """The key and URL credentials this backend holds: a run log redacts them wherever they appear."""
+        return self.client.secrets
 
     @property
     def client(self) -> JsonHttpClient:
