@@ -88,6 +88,10 @@ class HttpOptions(BaseModel):
 OptionsT = TypeVar("OptionsT", bound=BaseModel)
 
 
+# `backends --check`: the model list must come whole within CHECK_LIST_TIMEOUT_S (plus as much to connect:
+# a dead server is reported within about 10 s); each short chat probe after it gets CHECK_CHAT_TIMEOUT_S.
+CHECK_LIST_TIMEOUT_S = 4.0
+CHECK_CHAT_TIMEOUT_S = 30.0
 MAX_REPLY_BYTES = 64 << 20  # [bytes] one reply (a chat answer with reasoning is at most a few MB)
 
 
@@ -582,8 +586,8 @@ class HttpBackend(Backend):
 
         The last two send one short chat request each (a few tokens), with no retries.
         """
-        try:
-            backend = cls(arg, max_retries=0)
+        try:  # short timeouts: a dead or dripping server is reported in seconds, not minutes
+            backend = cls(arg, max_retries=0, timeout_s=CHECK_CHAT_TIMEOUT_S, connect_timeout_s=CHECK_LIST_TIMEOUT_S)
         except LlmnavError as err:
             return [Check("configured", False, str(err))]
         try:
@@ -595,7 +599,7 @@ class HttpBackend(Backend):
         """The probes of `check`, on this instance's server."""
         where = self.client.redact(self.client.base_url)
         try:
-            reply = self.client.get(self.models_path, retries=False)
+            reply = self.client.get(self.models_path, retries=False, timeout_s=CHECK_LIST_TIMEOUT_S)
         except ModelError as err:
             return [Check("reachable", False, f"{where}: {short_reason(err)}")]
         names = self.listed_models(reply.data)

@@ -33,6 +33,7 @@ CATEGORIES = {
     "test_data_safety": "data safety",
     "test_hostile_folders": "hostile folders",
     "test_hostile_sizes": "hostile sizes",
+    "test_servers": "servers",
 }
 
 

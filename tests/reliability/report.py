@@ -21,6 +21,7 @@ ORDER = [
     "data safety",
     "hostile folders",
     "hostile sizes",
+    "servers",
     "bad input",
     "secrets",
     "fsm deadline",
