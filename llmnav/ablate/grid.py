@@ -66,6 +66,18 @@ class GridSpec(BaseModel):
             raise ValueError("start poses are 1-based and at least one is needed")
         return poses
 
+    @field_validator("wording", mode="before")
+    @classmethod
+    def _canonical_wording(cls, values: Any) -> Any:
+        # `paraphrase:01` is `paraphrase:1`: written both ways it would run one wording twice, same seeds
+        if not isinstance(values, list):
+            return values
+        out = []
+        for value in values:
+            prefix, sep, number = str(value).strip().partition(":")
+            out.append(f"{prefix}:{int(number)}" if sep and number.strip().isdigit() else value)
+        return out
+
     @field_validator("planner", "backend", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording")
     @classmethod
     def _non_empty(cls, values: list[Any] | None) -> list[Any] | None:

@@ -164,3 +164,10 @@ def test_a_video_of_too_many_frames_is_refused_before_drawing(tmp_path: Path, ta
     code, text = _cli("view", str(run), "--video", str(tmp_path / "v.gif"))
     assert code == 2 and "10 frames" in text and "limit of 9" in text, text
     assert not (tmp_path / "v.gif").exists()
+
+
+def test_one_wording_written_two_ways_is_a_duplicate(tmp_path: Path, tally) -> None:
+    tally.add(CATEGORY, tried=1)
+    with pytest.raises(BadInputError, match="the same value twice"):
+        _grid(tmp_path, wording=["paraphrase:1", "paraphrase:01"])
+    assert _grid(tmp_path, wording=["bundled", "paraphrase:02"]).wording == ["bundled", "paraphrase:2"]
