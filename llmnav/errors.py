@@ -6,6 +6,7 @@ The CLI turns any `LlmnavError` into a one-line message and an exit code; anythi
 from __future__ import annotations
 
 import re
+from typing import Any
 
 
 class LlmnavError(Exception):
@@ -81,6 +82,15 @@ def printable(text: str) -> str:
     return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
+# `scheme://user:password@host`: credentials written into a URL (httpx sends them as Basic auth)
+_USERINFO = re.compile(r"(?<=://)[^/@\s]+@")
+
+
+def redact_userinfo(text: str) -> str:
+    """Text with the credentials of every URL in it replaced by `***` (`http://***@host/v1`)."""
+    return _USERINFO.sub("***@", text)
+
+
 def one_line(value: BaseException | str, limit: int | None = None) -> str:
     """One printable line for logs and the terminal, at most `limit` characters (shortened with "…").
 
@@ -95,3 +105,10 @@ def one_line(value: BaseException | str, limit: int | None = None) -> str:
         line = " ".join(str(value).split())
     line = printable(line)
     return line if limit is None or len(line) <= limit else line[: limit - 1] + "…"
+
+
+def validation_message(err: Any) -> str:
+    """The first problem of a pydantic ValidationError as one line: `field.path: message`."""
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    return one_line(f"{where}: {first['msg'].removeprefix('Value error, ')}")

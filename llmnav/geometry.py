@@ -23,6 +23,25 @@ def path_length(points: Iterable[Sequence[float]]) -> float:
     return total
 
 
+MAX_LOGGED_COORD_M = 1e6  # [m] no world is this large: a logged coordinate beyond it is damage, not a pose
+
+
+def logged_pose(value: object) -> list[float] | None:
+    """A pose read from a log, [x, y(, yaw)] as floats; None unless every number is real and finite.
+
+    Logs are files a user may edit: NaN, 1e308 or a string where a number belongs count as no pose
+    (views and scores skip it) rather than reaching arithmetic and plotting that cannot take them.
+    """
+    if not isinstance(value, (list, tuple)) or len(value) < 2:
+        return None
+    head = value[:3]
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in head):
+        return None
+    if abs(head[0]) > MAX_LOGGED_COORD_M or abs(head[1]) > MAX_LOGGED_COORD_M:
+        return None
+    return [float(v) for v in head]
+
+
 @dataclass(frozen=True)
 class Pose2D:
     """A planar pose in the world frame: x, y [m] and yaw [rad], counter-clockwise from +x."""

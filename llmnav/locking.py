@@ -8,6 +8,7 @@ stays. A second process does not wait: it gets a one-line `FolderLockedError` na
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 from llmnav.errors import BadInputError, FolderLockedError
@@ -20,9 +21,15 @@ except ImportError:  # not POSIX: no cross-process lock (documented; the rest st
 LOCK_FILE = ".llmnav.lock"
 
 
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+_NONBLOCK = getattr(os, "O_NONBLOCK", 0)  # a FIFO under the lock's name must not block the probe
+
+
 def _holder(path: Path) -> str:
     try:
-        text = path.read_text(encoding="ascii", errors="replace").strip()
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | _NOFOLLOW | _NONBLOCK)
+        with os.fdopen(fd, "rb") as handle:
+            text = handle.read(32).decode("ascii", errors="replace").strip()
     except OSError:
         text = ""
     return f"pid {text}" if text.isdigit() else "another process"
@@ -36,8 +43,16 @@ class FolderLock:
         self._fd: int | None = None
         try:
             Path(folder).mkdir(parents=True, exist_ok=True)
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            # never through a link planted under the lock's name (it would be truncated and overwritten)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | _NOFOLLOW, 0o644)
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                os.close(fd)
+                raise OSError(0, f"{LOCK_FILE} is not a regular file")
         except OSError as err:
+            if os.path.islink(self.path):
+                raise BadInputError(
+                    f"{folder}: {LOCK_FILE} is a symbolic link, not a lock llmnav made; remove it to use this folder"
+                ) from None
             raise BadInputError(f"{folder}: cannot create {what}: {err.strerror or err}") from None
         if fcntl is not None:
             try:
@@ -71,7 +86,7 @@ def locked_by(folder: Path) -> str | None:
     if fcntl is None or not path.exists():
         return None
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | _NOFOLLOW | _NONBLOCK)
     except OSError:
         return None
     try:

@@ -21,7 +21,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from llmnav.geometry import Pose2D, path_length, wrap_angle
+from llmnav.geometry import Pose2D, logged_pose, path_length, wrap_angle
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeOutcome
@@ -129,8 +129,9 @@ def _as_pose(value: Any) -> Pose2D | None:
         if isinstance(value, dict):
             yaw = value["yaw"] if "yaw" in value else math.radians(float(value.get("yaw_deg", 0.0)))
             return Pose2D(float(value["x"]), float(value["y"]), float(yaw))
-        if isinstance(value, (list, tuple)) and len(value) >= 2:
-            return Pose2D(float(value[0]), float(value[1]), float(value[2]) if len(value) > 2 else 0.0)
+        pose = logged_pose(value)
+        if pose is not None:
+            return Pose2D(pose[0], pose[1], pose[2] if len(pose) > 2 else 0.0)
     except (KeyError, TypeError, ValueError):
         return None
     return None
@@ -230,6 +231,15 @@ def _rounded(value: float | None, digits: int = 4) -> float | None:
 # --- the summary -------------------------------------------------------------------------------
 
 
+def aborted_by_infrastructure(summary: dict[str, Any]) -> bool:
+    """Whether a run ended because the backend or its server failed (no answer came): not the model's result.
+
+    Such runs are never in a model's means (`llmnav score` lists them apart) and carry no score.
+    """
+    metrics = summary.get("planner_metrics")
+    return summary.get("outcome") == "aborted" and isinstance(metrics, dict) and metrics.get("failure") == "backend"
+
+
 def summarize_run(
     record: RunRecord, scenario: Scenario | None, outcome: EpisodeOutcome | None = None
 ) -> dict[str, Any]:
@@ -290,6 +300,9 @@ def summarize_run(
         success = completed and best.distance_m <= SUCCESS_RADIUS_M
     else:  # a target task whose targets cannot be resolved: nothing to score against
         score, success = None, False
+
+    if result == "aborted" and planner_metrics.get("failure") == "backend":
+        score, success = None, False  # the server failed, not the model: nothing of the model's to score
 
     collisions = sum(1 for a in actions if a.get("collided"))
     if isinstance(planner_metrics.get("collisions"), int):

@@ -32,13 +32,17 @@ import math
 import os
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from llmnav.chat import Image
 from llmnav.errors import BadInputError, FolderLockedError, RunFolderError
+from llmnav.geometry import logged_pose
 from llmnav.locking import LOCK_FILE, FolderLock, locked_by
+from llmnav.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, read_text, write_bytes, write_text
+from llmnav.safefiles import loads as bounded_loads
 
 RUN_FILE = "run.jsonl"
 SUMMARY_FILE = "summary.json"
@@ -122,17 +126,17 @@ def cap_text(record: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any
 
 
 def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
-    """Write JSON via a temporary file and rename, so readers never see half a file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_clean(data), default=_json_default, indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
+    """Write JSON via a fresh temporary file and rename, so readers never see half a file (links not followed)."""
+    write_text(path, json.dumps(_clean(data), default=_json_default, indent=2, allow_nan=False) + "\n")
 
 
 class RunLog:
     """Append-only writer of one run folder."""
 
-    def __init__(self, run_dir: Path, config: dict[str, Any]) -> None:
+    def __init__(self, run_dir: Path, config: dict[str, Any], *, secrets: Iterable[str] = ()) -> None:
         self.run_dir = Path(run_dir)
+        self._secrets: tuple[str, ...] = ()
+        self.redact(secrets)  # before the first line: the configuration names the backend
         holder = locked_by(self.run_dir)
         if holder is not None:  # another process is writing it: say who, before anything else
             raise FolderLockedError(f"{self.run_dir} is in use: {holder} is writing this run folder")
@@ -148,7 +152,12 @@ class RunLog:
             (self.run_dir / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
             # A lone surrogate (a model answer may carry "\ud800" escapes) cannot be UTF-8: written as the
             # same JSON escape it came from, the line stays valid JSON instead of the write raising.
-            self._file = open(partial, "w", encoding="utf-8", errors="backslashreplace")  # noqa: SIM115
+            # A leftover partial (a run killed in its first instant) is ours to remove; the new one is created
+            # exclusively and never through a link someone planted under its name.
+            if os.path.lexists(partial):
+                os.unlink(partial)
+            fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            self._file = os.fdopen(fd, "w", encoding="utf-8", errors="backslashreplace")
         except OSError as err:
             self._folder_lock.release()
             raise BadInputError(f"cannot write run folder {self.run_dir}: {err.strerror or err}") from None
@@ -175,11 +184,17 @@ class RunLog:
         else:
             os.unlink(partial)
 
+    def redact(self, secrets: Iterable[str]) -> None:
+        """Replace these strings (a backend's key, URL credentials) by `***` in every line written from now."""
+        self._secrets = tuple(sorted({s for s in (*self._secrets, *secrets) if len(s) >= 4}, key=len, reverse=True))
+
     def _write(self, record: dict[str, Any]) -> None:
         record, cut = cap_text(record)
         if cut:
             record["truncated"] = cut
         line = dumps(record) + "\n"
+        for secret in self._secrets:  # a server may echo the key back: it is never logged, wherever it is
+            line = line.replace(secret, "***")
         with self._lock:
             if self._file.closed or self.write_error:  # a late model call, or the disk is full
                 return
@@ -203,10 +218,8 @@ class RunLog:
         if digest not in self._images:
             path = self.run_dir / IMAGES_DIR / f"{digest}.jpg"
             if not path.exists():
-                tmp = path.with_suffix(".tmp")
                 try:
-                    tmp.write_bytes(image.jpeg_bytes)
-                    os.replace(tmp, path)
+                    write_bytes(path, image.jpeg_bytes)
                 except OSError as err:  # no event will name it: the log stops here
                     self.write_error = self.write_error or f"cannot write {path.name}: {err.strerror or err}"
                     return digest
@@ -266,15 +279,18 @@ class RunRecord:
         return [e for e in self.events if e.get("type") == type_]
 
     def poses(self) -> list[list[float]]:
-        """The trajectory: every logged `pose` sample, in order."""
-        return [e["pose"] for e in self.events if e.get("type") == "pose" and "pose" in e]
+        """The trajectory: every logged `pose` sample with finite numbers, in order (others count as missing)."""
+        poses = (logged_pose(e.get("pose")) for e in self.events if e.get("type") == "pose")
+        return [p for p in poses if p is not None]
 
 
 def read_run(run_dir: Path) -> RunRecord:
     """Read a run folder (complete or cut short); raise BadInputError if it is no run folder."""
     path = Path(run_dir) / RUN_FILE
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+    try:  # a FIFO, /dev/zero or a link out of the folder is refused, not waited on or read without end
+        text = read_text(path, limit=LOG_LIMIT, root=Path(run_dir))
+    except UnsafeFileError:
+        raise
     except OSError:
         raise BadInputError(f"{run_dir}: not a run folder (no {RUN_FILE})") from None
     lines = text.split("\n")
@@ -284,7 +300,7 @@ def read_run(run_dir: Path) -> RunRecord:
         if not line.strip():
             continue
         try:
-            record = json.loads(line)
+            record = bounded_loads(line)
         except json.JSONDecodeError:
             if number >= len(lines) - 1:  # only the last line may be torn by a kill
                 torn += 1
@@ -295,11 +311,14 @@ def read_run(run_dir: Path) -> RunRecord:
         records.append(record)
     if not records or records[0].get("type") != "config":
         raise BadInputError(f"{path}: first line is not the run configuration")
-    summary = None
-    summary_path = Path(run_dir) / SUMMARY_FILE
-    if summary_path.exists():
-        try:
-            summary = json.loads(summary_path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, OSError):
-            summary = None
+    summary = read_summary(Path(run_dir))
     return RunRecord(Path(run_dir), records[0], records[1:], summary, torn)
+
+
+def read_summary(run_dir: Path) -> dict[str, Any] | None:
+    """A run's summary.json, or None when it is missing, damaged, no regular file in the folder, or too large."""
+    try:
+        summary = bounded_loads(read_text(run_dir / SUMMARY_FILE, limit=SUMMARY_LIMIT, root=run_dir))
+    except (ValueError, OSError, UnsafeFileError):
+        return None
+    return summary if isinstance(summary, dict) else None

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
-from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line
+from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line, redact_userinfo
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Information, NullView, View
 from llmnav.scenario import resolve_scenario_path
 
@@ -114,7 +114,7 @@ def build_config(
         "start_pose": start.as_list(),
         "planner": spec.options.planner,
         "information": information,
-        "backend": backend.spec if backend is not None else None,
+        "backend": redact_userinfo(backend.spec) if backend is not None else None,
         # what the requests carried (replay asks the same): {"modality": "text" | "multimodal", "attachments"}
         **(request_modality(backend, camera) if backend is not None else {"modality": None, "attachments": []}),
         "options": spec.options.model_dump(mode="json"),
@@ -200,7 +200,8 @@ def run_episode(
                 backend,
                 information,
             )
-            with RunLog(spec.out_dir, config) as log:
+            # the key and URL credentials the backend holds are never logged, even when a server echoes them
+            with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
                 return _run_logged(
                     planner, world, scenario, task, backend, log, spec, view or NullView(), information
                 )
@@ -310,6 +311,19 @@ def _plot(record: RunRecord, scenario: Scenario, task: Task, log: RunLog, summar
         summary["trajectory_error"] = f"{type(err).__name__}: {one_line(err)}"
 
 
+EXIT_SUCCESS, EXIT_TASK_FAILED, EXIT_MODEL_FAILED, EXIT_INFRASTRUCTURE = 0, 1, 3, 4  # 2 is bad input
+
+
 def exit_code(summary: dict[str, Any]) -> int:
-    """0 when the episode completed, 1 when it failed or aborted."""
-    return 0 if summary.get("outcome") == "completed" else 1
+    """What `drive` and `plan` exit with, so scripts can tell the cases apart.
+
+    0 the task succeeded; 1 it was not achieved (completed far from the target, or failed); 3 the model
+    failed (no valid action, every motion vetoed); 4 the backend or its server failed (no answer came).
+    """
+    from llmnav.metrics import aborted_by_infrastructure
+
+    if aborted_by_infrastructure(summary):
+        return EXIT_INFRASTRUCTURE
+    if summary.get("outcome") == "aborted":
+        return EXIT_MODEL_FAILED
+    return EXIT_SUCCESS if summary.get("success") else EXIT_TASK_FAILED

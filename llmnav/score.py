@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import BadInputError
-from llmnav.metrics import CONDITION_KEYS, summarize_run
+from llmnav.metrics import CONDITION_KEYS, aborted_by_infrastructure, summarize_run
 from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, read_run
 from llmnav.stats import Comparison, compare, describe
 
@@ -169,8 +169,34 @@ def load_run(run_dir: Path) -> Run:
 
 
 def load_runs(paths: Sequence[Path]) -> list[Run]:
-    """Every run below the given paths."""
+    """Every run below the given paths (BadInputError at the first that cannot be read)."""
     return [load_run(d) for d in find_run_dirs(paths)]
+
+
+def read_runs(paths: Sequence[Path]) -> tuple[list[Run], list[str]]:
+    """Every readable run below the given paths, and "folder: why" for each that is not.
+
+    One damaged log among thousands must not cancel the tables of the rest; when none can be read, the
+    first one's error is raised (a single broken run named on the command line is an error).
+    """
+    runs: list[Run] = []
+    broken: list[tuple[Path, BadInputError]] = []
+    for run_dir in find_run_dirs(paths):
+        try:
+            runs.append(load_run(run_dir))
+        except BadInputError as err:
+            broken.append((run_dir, err))
+    if broken and not runs:
+        raise broken[0][1]
+    from llmnav.errors import one_line
+
+    return runs, [f"{run_dir}: {one_line(err)}" for run_dir, err in broken]
+
+
+def split_aborted(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
+    """(the model's results, the runs aborted by a backend or server failure): the latter never enter a mean."""
+    results = [r for r in runs if not aborted_by_infrastructure(r.summary)]
+    return results, [r for r in runs if aborted_by_infrastructure(r.summary)]
 
 
 # --- grouping -----------------------------------------------------------------------------------
@@ -506,10 +532,34 @@ def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -
     from llmnav.score_policies import null_policy_table, wording_spread_table, wording_table
 
     keys = list(group_keys) if group_keys is not None else varying_keys(runs)
+    results, aborted = split_aborted(runs)
     builders = (
         stepwise_table, path_table, waypoint_table, fsm_table, null_policy_table, wording_table, wording_spread_table
     )  # fmt: skip
-    return [t for t in (b(runs, keys) for b in builders) if t is not None]
+    tables = [t for t in (b(results, keys) for b in builders) if t is not None]
+    table = aborted_table(aborted, keys)
+    return tables + ([table] if table is not None else [])
+
+
+def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Per task and condition: the runs a backend or server failure ended, kept out of every mean above."""
+    if not aborted:
+        return None
+    rows, records = [], []
+    for task, label, group in group_runs(aborted, keys):
+        reasons = sorted({str(r.summary.get("reason") or "?") for r in group})
+        more = f" (+{len(reasons) - 1} more)" if len(reasons) > 1 else ""
+        rows.append([task, label, str(len(group)), reasons[0] + more])
+        records.append({"task": task, "condition": label, **condition_fields(group[0], keys), "n": len(group),
+                        "reasons": reasons})  # fmt: skip
+    return Table(
+        "Runs aborted by a backend or server failure (not in the means above)",
+        ["Task", "Condition", "N", "Reason"],
+        rows,
+        records,
+        note="No answer came from the model's server: these runs say nothing about the model.",
+        name="aborted",
+    )
 
 
 def select_table(tables: Sequence[Table], name: str) -> Table:

@@ -21,6 +21,7 @@ from llmnav.ablate.executors import Runner, execute_episode, worker_model_thread
 from llmnav.ablate.grid import (
     DEFAULT_BACKEND,
     FACTORS,
+    MAX_EPISODES,
     Episode,
     GridSpec,
     episode_key,
@@ -43,6 +44,7 @@ from llmnav.ablate.manifest import (
 from llmnav.ablate.sweep import ProgressCallback, run
 
 __all__ = [
+    "MAX_EPISODES",
     "DEFAULT_BACKEND",
     "FACTORS",
     "MANIFEST_FILE",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 import re
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -14,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from llmnav.errors import BadInputError
+from llmnav.errors import BadInputError, redact_userinfo, validation_message
 from llmnav.planners.base import DriveOptions
 
 if TYPE_CHECKING:
@@ -65,6 +66,18 @@ class GridSpec(BaseModel):
         if poses is not None and (not poses or min(poses) < 1):
             raise ValueError("start poses are 1-based and at least one is needed")
         return poses
+
+    @field_validator("wording", mode="before")
+    @classmethod
+    def _canonical_wording(cls, values: Any) -> Any:
+        # `paraphrase:01` is `paraphrase:1`: written both ways it would run one wording twice, same seeds
+        if not isinstance(values, list):
+            return values
+        out = []
+        for value in values:
+            prefix, sep, number = str(value).strip().partition(":")
+            out.append(f"{prefix}:{int(number)}" if sep and number.strip().isdigit() else value)
+        return out
 
     @field_validator(
         "planner", "backend", "decide", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording"
@@ -155,10 +168,7 @@ def parse_poses(text: str) -> list[int] | None:
     return poses
 
 
-def _validation_message(err: ValidationError) -> str:
-    first = err.errors()[0]
-    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-    return f"{where}: {first['msg'].removeprefix('Value error, ')}"
+_validation_message = validation_message
 
 
 def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
@@ -171,12 +181,34 @@ def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
     return grid
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, refusing a key given twice in one mapping (YAML would keep the last silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if isinstance(key, (str, int, float, bool)) and key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} is given twice", key_node.start_mark
+                )
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def load_grid_file(path: Path) -> dict[str, Any]:
     """The raw mapping of a grid YAML file (validated later, merged with flags)."""
+    from llmnav.safefiles import SUMMARY_LIMIT, read_bytes
+
     try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        raw = read_bytes(Path(path).resolve(), limit=SUMMARY_LIMIT, what=f"--grid {path}")  # no FIFO, no /dev/zero
+        data = yaml.load(raw.decode("utf-8"), _UniqueKeyLoader)  # a SafeLoader
+    except FileNotFoundError:
+        raise BadInputError(f"--grid {path}: no such file") from None
     except OSError as err:
         raise BadInputError(f"--grid {path}: cannot read: {err.strerror or err}") from None
+    except UnicodeDecodeError:
+        raise BadInputError(f"--grid {path}: not a text file (not UTF-8); give a YAML grid file") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "(file)"
@@ -213,7 +245,8 @@ def episode_seed(base_seed: int, task_id: str, start_pose: int, trial: int) -> i
 def episode_key(task_id: str, start_pose: int, trial: int, factors: dict[str, Any]) -> str:
     """`T8-p1-t2` plus `-lidar_sectors=3` per factor given (callers pass the ones that vary)."""
     parts = [f"{task_id}-p{start_pose}-t{trial}"]
-    parts += [f"{name}={value}" for name, value in factors.items()]
+    # a key names a folder and a manifest entry: a backend URL's credentials stay out of both
+    parts += [f"{name}={redact_userinfo(str(value))}" for name, value in factors.items()]
     return "-".join(parts)
 
 
@@ -299,8 +332,31 @@ def check_backend(spec: str) -> None:
         raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {', '.join(sorted(points))})")
 
 
-def expand(grid: GridSpec) -> list[Episode]:
-    """Every episode of the grid, in a stable order (task, pose, trial, then factors)."""
+MAX_EPISODES = 20_000  # a grid larger than this is a typo more often than a plan (`--max-episodes` raises it)
+
+
+def check_size(grid: GridSpec, pose_counts: dict[str, int], max_episodes: int) -> int:
+    """The number of episodes, from the factor lengths alone; BadInputError above `max_episodes`.
+
+    Computed before anything is built: `trials: 1000000000` must be refused, not expanded into memory.
+    """
+    per_pose = grid.trials * math.prod(len(values) for values in grid.factors().values())
+    size = per_pose * sum(pose_counts.values())
+    if size > max_episodes:
+        detail = ", ".join(f"{k}: {len(v)}" for k, v in grid.factors().items()) or "no factors"
+        raise BadInputError(
+            f"the grid has {size:,} episodes ({len(pose_counts)} task(s), {sum(pose_counts.values())} start "
+            f"pose(s), trials: {grid.trials}, {detail}), over the limit of {max_episodes:,}; "
+            "use --max-episodes to allow more"
+        )
+    return size
+
+
+def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
+    """Every episode of the grid, in a stable order (task, pose, trial, then factors).
+
+    BadInputError before anything is built when the grid holds more than `max_episodes`.
+    """
     from llmnav.scenario import load_scenario, resolve_scenario_path
     from llmnav.tasks import worded_text
 
@@ -320,6 +376,16 @@ def expand(grid: GridSpec) -> list[Episode]:
                 ) from None
     if not tasks:
         raise BadInputError(f"scenario {scenario.name} has no tasks to ablate")
+    pose_counts: dict[str, int] = {}
+    for task_id in tasks:
+        available = len(scenario.start_poses(scenario.task(task_id)))
+        poses = grid.poses or list(range(1, available + 1))
+        if max(poses) > available:
+            raise BadInputError(
+                f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}"
+            )
+        pose_counts[task_id] = len(poses)
+    check_size(grid, pose_counts, max_episodes)
     for backend_spec in dict.fromkeys(grid.backend or [DEFAULT_BACKEND]):
         check_backend(backend_spec)
     factors = grid.factors()
@@ -331,10 +397,6 @@ def expand(grid: GridSpec) -> list[Episode]:
     for task_id in tasks:
         available = len(scenario.start_poses(scenario.task(task_id)))
         poses = grid.poses or list(range(1, available + 1))
-        if max(poses) > available:
-            raise BadInputError(
-                f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}"
-            )
         for wording in factors.get("wording", []):
             worded_text(grid.scenario, task_id, str(wording))  # a task without this wording is bad input
         for pose, trial, combo in itertools.product(poses, range(1, grid.trials + 1), combos):

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from llmnav.ablate.grid import Episode, GridSpec, expand
+from llmnav.ablate.grid import MAX_EPISODES, Episode, GridSpec, expand
+from llmnav.errors import redact_userinfo
 from llmnav.runlog import SUMMARY_FILE, write_json_atomic
 
 MANIFEST_FILE = "manifest.json"
@@ -126,15 +127,26 @@ class Ablation:
         }
 
     def write_manifest(self) -> Path:
-        """Rewrite manifest.json atomically."""
+        """Rewrite manifest.json atomically (credentials in a backend URL are not written)."""
         path = self.root / MANIFEST_FILE
-        write_json_atomic(path, self.manifest())
+        write_json_atomic(path, without_credentials(self.manifest()))
         return path
 
 
-def plan(grid: GridSpec, root: Path) -> Ablation:
-    """Expand the grid for the folder `root` (nothing is written)."""
-    return Ablation(grid, Path(root), expand(grid))
+def without_credentials(data: Any) -> Any:
+    """`data` with every URL's `user:password@` replaced by `***@` (a manifest is shared with the results)."""
+    if isinstance(data, str):
+        return redact_userinfo(data)
+    if isinstance(data, dict):
+        return {k: without_credentials(v) for k, v in data.items()}
+    if isinstance(data, list):
+        return [without_credentials(v) for v in data]
+    return data
+
+
+def plan(grid: GridSpec, root: Path, max_episodes: int = MAX_EPISODES) -> Ablation:
+    """Expand the grid for the folder `root` (nothing is written); refused above `max_episodes`."""
+    return Ablation(grid, Path(root), expand(grid, max_episodes))
 
 
 def results_runs(ablation: Ablation) -> list[Any]:

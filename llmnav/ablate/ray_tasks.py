@@ -49,6 +49,7 @@ from llmnav.ablate.executors import _WORKER_THREAD_VARS, Result, Runner, execute
 from llmnav.errors import BadInputError, one_line
 from llmnav.locking import LOCK_FILE
 from llmnav.runlog import SUMMARY_FILE, write_json_atomic
+from llmnav.safefiles import write_bytes
 
 if TYPE_CHECKING:
     from llmnav.ablate.grid import Episode
@@ -166,9 +167,7 @@ def write_files(task: TaskResult, run_dir: Path) -> None:
         if name == SUMMARY_FILE:
             _write_summary(task, target)
             continue
-        partial = target.with_name(target.name + ".part")
-        partial.write_bytes(task.files[name])
-        os.replace(partial, target)
+        write_bytes(target, task.files[name])
 
 
 def _write_summary(task: TaskResult, target: Path) -> None:
@@ -180,9 +179,7 @@ def _write_summary(task: TaskResult, target: Path) -> None:
     except (UnicodeDecodeError, ValueError):
         summary = None
     if not isinstance(summary, dict):
-        partial = target.with_name(target.name + ".part")
-        partial.write_bytes(task.files[SUMMARY_FILE])
-        os.replace(partial, target)
+        write_bytes(target, task.files[SUMMARY_FILE])
         return
     for key in ("run_dir", "trajectory"):
         value = summary.get(key)

@@ -20,6 +20,7 @@ from llmnav.ablate.manifest import is_result
 from llmnav.errors import BadInputError, FolderLockedError, one_line
 from llmnav.locking import locked_by
 from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, read_run, write_json_atomic
+from llmnav.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, loads, read_bytes
 
 _CONFIG_LINE_LIMIT = 4 << 20  # bytes: a config line is a few kB; more is damage, not a config
 
@@ -37,14 +38,17 @@ class Located:
 def _read_config(run_dir: Path) -> dict[str, Any] | str:
     """The config line of a run folder, or why it cannot be read."""
     try:
-        with open(run_dir / RUN_FILE, "rb") as log:
-            raw = log.readline(_CONFIG_LINE_LIMIT)
+        raw = read_bytes(run_dir / RUN_FILE, limit=LOG_LIMIT, root=run_dir).split(b"\n", 1)[0]
     except FileNotFoundError:
         return f"no {RUN_FILE}"
     except OSError as err:
         return f"cannot read {RUN_FILE}: {err.strerror or err}"
+    except UnsafeFileError as err:
+        return one_line(err).removeprefix(f"{run_dir}/")
+    if len(raw) > _CONFIG_LINE_LIMIT:
+        return f"{RUN_FILE} is damaged (its first line is over {_CONFIG_LINE_LIMIT} bytes)"
     try:
-        config = json.loads(raw.decode("utf-8"))
+        config = loads(raw)
     except (UnicodeDecodeError, json.JSONDecodeError):
         return f"{RUN_FILE} is damaged (its first line is not a JSON configuration)"
     if not isinstance(config, dict) or config.get("type") != "config":
@@ -54,18 +58,18 @@ def _read_config(run_dir: Path) -> dict[str, Any] | str:
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        data = json.loads(path.read_bytes().decode("utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        data = loads(read_bytes(path, limit=SUMMARY_LIMIT, root=path.parent))
+    except (OSError, UnsafeFileError, UnicodeDecodeError, json.JSONDecodeError):
         return {}
     return data if isinstance(data, dict) else {}
 
 
 def _read_summary(run_dir: Path) -> dict[str, Any] | str:
     try:
-        summary = json.loads((run_dir / SUMMARY_FILE).read_bytes().decode("utf-8"))
+        summary = loads(read_bytes(run_dir / SUMMARY_FILE, limit=SUMMARY_LIMIT, root=run_dir))
     except FileNotFoundError:
         return "cut short (no summary)"
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+    except (OSError, UnsafeFileError, UnicodeDecodeError, json.JSONDecodeError):
         return f"{SUMMARY_FILE} is damaged"
     if not isinstance(summary, dict) or "outcome" not in summary:
         return f"{SUMMARY_FILE} is damaged (no outcome)"

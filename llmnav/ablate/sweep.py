@@ -2,18 +2,18 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from llmnav.ablate.executors import Runner, default_runner, execute_episode, run_pool
 from llmnav.ablate.grid import Episode, GridSpec
-from llmnav.ablate.manifest import MANIFEST_FILE, Ablation, ManifestEntry
+from llmnav.ablate.manifest import MANIFEST_FILE, Ablation, ManifestEntry, without_credentials
 from llmnav.ablate.resume import locate, set_aside
 from llmnav.errors import BadInputError
 from llmnav.locking import LOCK_FILE, FolderLock
 from llmnav.runlog import RUN_FILE
+from llmnav.safefiles import SUMMARY_LIMIT, UnsafeFileError, is_our_page, loads, read_bytes
 
 ProgressCallback = Callable[[ManifestEntry, "Ablation"], None]
 
@@ -71,13 +71,13 @@ def check_out_folder(root: Path, ablation: Ablation) -> None:
     if not manifest_path.exists():  # run folders without their manifest: resume finds them by condition
         return
     try:
-        old = json.loads(manifest_path.read_bytes().decode("utf-8"))["grid"]
+        old = loads(read_bytes(manifest_path, limit=SUMMARY_LIMIT, root=root))["grid"]
         old_grid = GridSpec.model_validate(old)
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+    except (OSError, UnsafeFileError, UnicodeDecodeError, ValueError, KeyError, TypeError):
         raise BadInputError(
             f"--out {root}: {MANIFEST_FILE} is damaged; move it away to run into this folder"
         ) from None
-    new = ablation.grid.model_dump(mode="json", exclude={"name"})
+    new = without_credentials(ablation.grid.model_dump(mode="json", exclude={"name"}))  # as the manifest holds it
     before = old_grid.model_dump(mode="json", exclude={"name"})
     changed = [k for k in new if new[k] != before.get(k)]
     if changed:
@@ -89,8 +89,10 @@ def check_out_folder(root: Path, ablation: Ablation) -> None:
 
 
 def _ablation_entry(path: Path) -> bool:
-    """Whether `path` is something an ablation writes in its folder: lock, manifest, or a run folder."""
+    """Whether `path` is something llmnav writes in an ablation folder: lock, manifest, run folder, view page."""
     if path.name in (LOCK_FILE, MANIFEST_FILE, MANIFEST_FILE + ".tmp"):
+        return True
+    if path.suffix == ".html" and is_our_page(path):  # `llmnav view ABL` or `ablate --view`
         return True
     return path.is_dir() and any((path / name).exists() for name in (RUN_FILE, RUN_FILE + ".tmp", LOCK_FILE))
 

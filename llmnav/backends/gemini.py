@@ -143,6 +143,8 @@ class GeminiBackend(HttpBackend):
     example = "gemini:gemini-2.0-flash"
     multimodal = True
     options_model: ClassVar[type[HttpOptions]] = GeminiOptions
+    # the API's model list (one page holds them all; names come as `models/<id>`)
+    models_path: ClassVar[str] = "/v1beta/models?pageSize=1000"
 
     def __init__(self, arg: str | None = None, **options: Any) -> None:
         super().__init__(arg, **options)
@@ -160,6 +162,13 @@ class GeminiBackend(HttpBackend):
             headers={"x-goog-api-key": self.__key},
             secrets=(self.__key,),
         )
+
+    def listed_models(self, data: dict[str, Any]) -> list[str]:
+        """Model ids in a `models.list` reply (`models/gemini-2.0-flash` → `gemini-2.0-flash`)."""
+        models = data.get("models")
+        entries = models if isinstance(models, list) else []
+        names = [m.get("name") for m in entries if isinstance(m, dict)]
+        return [name.removeprefix("models/") for name in names if isinstance(name, str)]
 
     def build_body(self, request: ChatRequest) -> dict[str, Any]:
         """The generateContent body for a request."""

@@ -38,7 +38,8 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
-from llmnav.errors import BackendSpecError, ImagesRejectedError, LlmnavError, ModelError, one_line
+from llmnav.errors import BackendSpecError, ImagesRejectedError, LlmnavError, ModelError, one_line, redact_userinfo
+from llmnav.safefiles import loads as bounded_loads
 
 if TYPE_CHECKING:
     import httpx
@@ -89,6 +90,13 @@ class HttpOptions(BaseModel):
 OptionsT = TypeVar("OptionsT", bound=BaseModel)
 
 
+# `backends --check`: the model list must come whole within CHECK_LIST_TIMEOUT_S (plus as much to connect:
+# a dead server is reported within about 10 s); each short chat probe after it gets CHECK_CHAT_TIMEOUT_S.
+CHECK_LIST_TIMEOUT_S = 4.0
+CHECK_CHAT_TIMEOUT_S = 30.0
+MAX_REPLY_BYTES = 64 << 20  # [bytes] one reply (a chat answer with reasoning is at most a few MB)
+
+
 def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) -> OptionsT:
     """Validate backend options; a bad one becomes a one-line BackendSpecError."""
     try:
@@ -101,11 +109,23 @@ def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) 
 
 
 def redact(text: str, secrets: Iterable[str] = ()) -> str:
-    """Remove API keys from text: every known secret, and secret-looking URL query values."""
+    """Remove API keys from text: every known secret, secret-looking URL query values, URL credentials."""
     for secret in secrets:
         if secret:
             text = text.replace(secret, "***")
-    return _SECRET_QUERY.sub(r"\1***", text)
+    return redact_userinfo(_SECRET_QUERY.sub(r"\1***", text))
+
+
+def url_secrets(url: str) -> tuple[str, ...]:
+    """The credentials written into a URL (`user:password@`), as secrets to redact wherever they appear."""
+    from urllib.parse import unquote, urlsplit
+
+    try:
+        parts = urlsplit(url)
+    except ValueError:
+        return ()
+    found = [parts.password, f"{parts.username}:{parts.password}" if parts.password else None]
+    return tuple(unquote(s) for s in found if s) + tuple(s for s in found if s)
 
 
 def parse_retry_delay(value: str, now: datetime | None = None) -> float | None:
@@ -141,7 +161,7 @@ def server_retry_delay(response: httpx.Response) -> float | None:
         if delay is not None:
             return delay
     try:
-        data = response.json()
+        data = bounded_loads(response.content)
     except ValueError:
         return None
     error = data.get("error") if isinstance(data, dict) else None
@@ -160,7 +180,7 @@ def error_reason(response: httpx.Response) -> str:
     """A short reason for a failed reply: the provider's error message if it gave one."""
     reason = response.reason_phrase or ""
     try:
-        data = response.json()
+        data = bounded_loads(response.content)
     except ValueError:
         data = None
     if isinstance(data, dict) and "error" in data:
@@ -230,7 +250,7 @@ class JsonHttpClient:
         self.label = label  # backend name, the prefix of every error message
         self.base_url = base_url.rstrip("/")
         self.options = options
-        self._secrets = tuple(s for s in secrets if s)
+        self._secrets = tuple(s for s in (*secrets, *url_secrets(base_url)) if s)
         self._sleep = options.sleep or time.sleep
         self._rng = random.Random()
         self._last_start = float("-inf")  # [s] monotonic start of the latest reserved request (rate limit)
@@ -244,6 +264,11 @@ class JsonHttpClient:
     def redact(self, text: str) -> str:
         """Text with this client's secrets removed."""
         return redact(text, self._secrets)
+
+    @property
+    def secrets(self) -> tuple[str, ...]:
+        """What this client must never show or log: its key, the URL's credentials."""
+        return self._secrets
 
     def post(self, path: str, body: dict[str, Any]) -> HttpReply:
         """POST JSON with retries; raise one ModelError after the last attempt."""
@@ -344,16 +369,22 @@ class JsonHttpClient:
         extra: dict[str, Any] = {} if timeout is None else {"timeout": timeout}
         with self._client.stream(method, url, json=body, **extra) as response:
             chunks: list[bytes] = []
+            size = 0
             for chunk in response.iter_bytes():
                 chunks.append(chunk)
+                size += len(chunk)
                 if time.perf_counter() > deadline:
                     raise httpx.ReadTimeout("reply not complete in time", request=response.request)
+                if size > MAX_REPLY_BYTES:  # a reply is kilobytes; a server sending without end is broken
+                    raise httpx.RemoteProtocolError(
+                        f"reply over {MAX_REPLY_BYTES >> 20} MB", request=response.request
+                    )
             response._content = b"".join(chunks)  # what Response.read() would store
         return response
 
     def _decode(self, response: httpx.Response) -> dict[str, Any]:
         try:
-            data = json.loads(response.content)
+            data = bounded_loads(response.content)  # a `[` × 200,000 is a bad reply, not a RecursionError
         except (ValueError, UnicodeDecodeError):
             data = None
             snippet = one_line(response.content[:60].decode("utf-8", errors="replace"), 60)
@@ -531,6 +562,11 @@ class HttpBackend(Backend):
         return ChatPost(self.client.post(self.chat_path, self.build_body(without_images(request))), images)
 
     @property
+    def secrets(self) -> tuple[str, ...]:
+        """The key and URL credentials this backend holds: a run log redacts them wherever they appear."""
+        return self.client.secrets
+
+    @property
     def client(self) -> JsonHttpClient:
         """The backend's HTTP client, built on first use."""
         with self._client_lock:
@@ -552,8 +588,8 @@ class HttpBackend(Backend):
 
         The last two send one short chat request each (a few tokens), with no retries.
         """
-        try:
-            backend = cls(arg, max_retries=0)
+        try:  # short timeouts: a dead or dripping server is reported in seconds, not minutes
+            backend = cls(arg, max_retries=0, timeout_s=CHECK_CHAT_TIMEOUT_S, connect_timeout_s=CHECK_LIST_TIMEOUT_S)
         except LlmnavError as err:
             return [Check("configured", False, str(err))]
         try:
@@ -565,7 +601,7 @@ class HttpBackend(Backend):
         """The probes of `check`, on this instance's server."""
         where = self.client.redact(self.client.base_url)
         try:
-            reply = self.client.get(self.models_path, retries=False)
+            reply = self.client.get(self.models_path, retries=False, timeout_s=CHECK_LIST_TIMEOUT_S)
         except ModelError as err:
             return [Check("reachable", False, f"{where}: {short_reason(err)}")]
         names = self.listed_models(reply.data)
@@ -609,7 +645,7 @@ class HttpBackend(Backend):
         except ModelError as err:
             return Check("accepts a JSON Schema", False, f"request failed: {short_reason(err)}")
         try:
-            answer = json.loads(text)
+            answer = bounded_loads(text)
         except ValueError:
             answer = None
         if isinstance(answer, dict) and set(answer) == {"colour"} and answer["colour"] in ("red", "green", "blue"):

@@ -37,7 +37,7 @@ from llmnav.backends.http import (
     probe,
     short_reason,
 )
-from llmnav.errors import MissingKeyError, ModelError
+from llmnav.errors import BackendSpecError, MissingKeyError, ModelError
 
 DEFAULT_BASE_URL = "https://api.openai.com/v1"
 DEFAULT_MODEL = "gpt-4o-mini"
@@ -56,7 +56,9 @@ class OpenAIOptions(HttpOptions):
 
 def split_arg(arg: str | None) -> tuple[str, str | None]:
     """`MODEL@BASE_URL` → (model, base URL or None)."""
-    model, _, base = (arg or "").partition("@")
+    model, at, base = (arg or "").partition("@")
+    if at and not base.strip():  # never a silent switch to the public endpoint (with OPENAI_API_KEY)
+        raise BackendSpecError(f"openai:{arg}: no server URL after '@' (give MODEL@URL, or leave out the '@')")
     return model or DEFAULT_MODEL, (base or None)
 
 

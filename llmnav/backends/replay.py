@@ -105,8 +105,13 @@ def load_calls(file: Path) -> list[RecordedCall]:
 
 def load_recording(file: Path) -> Recording:
     """The config line and `llm_call` events of a run log; BadInputError (file and line) on anything malformed."""
-    try:
-        text = file.read_text(encoding="utf-8")
+    from llmnav.safefiles import LOG_LIMIT, UnsafeFileError, read_bytes
+    from llmnav.safefiles import loads as bounded_loads
+
+    try:  # a regular file of bounded size: `replay:/dev/zero` or a FIFO is refused, not read without end
+        text = read_bytes(file.resolve(), limit=LOG_LIMIT, what=str(file)).decode("utf-8")
+    except UnsafeFileError as err:
+        raise BadInputError(f"replay: {err}") from None
     except (OSError, UnicodeDecodeError) as err:
         reason = err.strerror if isinstance(err, OSError) and err.strerror else type(err).__name__
         raise BadInputError(f"replay: cannot read {file}: {reason}") from None
@@ -119,7 +124,7 @@ def load_recording(file: Path) -> Recording:
         if not line.strip():
             continue
         try:
-            event = json.loads(line)
+            event = bounded_loads(line)
         except json.JSONDecodeError:
             if number == len(lines) and not text.endswith("\n"):  # torn last line of a killed run
                 break

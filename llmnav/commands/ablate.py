@@ -61,7 +61,13 @@ def ablate(
     out: Annotated[
         str | None, typer.Option("--out", help="Ablation folder (default ablations/<name>).")
     ] = None,
-    workers: Annotated[int, typer.Option("--workers", min=1, help="Parallel worker processes.")] = 1,
+    workers: Annotated[
+        int, typer.Option("--workers", min=1, help="Parallel worker processes (at most the usable cores).")
+    ] = 1,
+    max_episodes: Annotated[
+        int | None,
+        typer.Option("--max-episodes", min=1, help="Refuse a grid of more episodes than this (default 20000)."),
+    ] = None,
     ray: Annotated[
         str | None,
         typer.Option(
@@ -110,11 +116,12 @@ def ablate(
         data["options"] = {**data.get("options", {}), **timing}
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
     root = path_option(out, "--out") or Path("ablations") / spec.default_name()
-    ablation = lib.plan(spec, root)
+    ablation = lib.plan(spec, root, max_episodes or lib.MAX_EPISODES)  # the size is checked before the grid is built
     if dry_run:
         _print_plan(ablation)
         _note_inapplicable(spec)
         return
+    workers = _usable_workers(workers)
     with _progress() as progress:
         lib.run(
             ablation,
@@ -130,6 +137,20 @@ def ablate(
 
         console.print(f"page: {esc(str(write_view(ablation.root).page))}", highlight=False, soft_wrap=True)
     _note_inapplicable(spec)  # after the work: a failure stays one error line
+
+
+def _usable_workers(workers: int) -> int:
+    """`workers`, capped at the cores this process may run on (more processes only share them)."""
+    import os
+
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not Linux
+        cores = os.cpu_count() or 1
+    if workers > cores:
+        err_console.print(f"note: --workers {workers} capped at {cores}, the usable cores", highlight=False)
+        return cores
+    return workers
 
 
 def _note_inapplicable(spec: Any) -> None:

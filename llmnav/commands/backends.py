@@ -6,10 +6,9 @@ from dataclasses import dataclass
 from typing import Annotated
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console, parse_sensing
+from llmnav.commands.common import cli_errors, console, esc, parse_sensing
 from llmnav.errors import BadInputError
 
 GROUP = "llmnav.backends"
@@ -93,7 +92,8 @@ def backends(
     table.add_column("description", style="dim")
     for row in collect_rows():
         mark = {True: "[green]yes[/]", False: "[yellow]no[/]", None: "[red]broken[/]"}[row.ready]
-        table.add_row(escape(row.name), mark, escape(row.example), escape(row.detail), escape(row.description))
+        # esc, not rich's escape alone: a detail may quote a server (model names with ESC sequences)
+        table.add_row(esc(row.name), mark, esc(row.example), esc(row.detail), esc(row.description))
     console.print(table)
 
 
@@ -125,5 +125,5 @@ def _check(spec: str, senses: tuple[str, ...] | None = None) -> int:
         ]
     for item in checks:
         mark = {True: "[green]ok[/]  ", False: "[red]no[/]  ", None: "[dim]–[/]   "}[item.ok]
-        console.print(f"{mark}{escape(item.name)}: {escape(item.detail)}", highlight=False, soft_wrap=True)
+        console.print(f"{mark}{esc(item.name)}: {esc(item.detail)}", highlight=False, soft_wrap=True)
     return 0 if all(item.ok is not False for item in checks) else 1

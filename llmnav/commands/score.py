@@ -11,6 +11,7 @@ import typer
 
 from llmnav.commands.common import chart_folder_option, check_output_path, cli_errors, console, err_console, esc
 from llmnav.errors import BadInputError
+from llmnav.safefiles import write_text
 
 if TYPE_CHECKING:
     from llmnav.score import Table
@@ -54,18 +55,27 @@ def score(
 
     Tables (or data) go to stdout; status and anything that could not be computed go to stderr.
     """
-    from llmnav.score import build_tables, compare_groups, load_runs, problems, select_table, varying_keys
+    from llmnav.score import (
+        build_tables,
+        compare_groups,
+        problems,
+        read_runs,
+        select_table,
+        split_aborted,
+        varying_keys,
+    )
 
     if out is not None:
         check_output_path(out, "--out", paths)
     chart_folder_option(plot)
-    runs = load_runs(paths)
+    runs, broken = read_runs(paths)
     keys = varying_keys(runs) if by is None else parse_keys(by)
     tables = build_tables(runs, keys)
+    results, aborted = split_aborted(runs)
     if compare:
         if len(compare) != 2:
             raise BadInputError("--compare needs exactly two selections: --compare KEY=A --compare KEY=B")
-        tables.append(compare_groups(runs, compare[0], compare[1])[0])
+        tables.append(compare_groups(results, compare[0], compare[1])[0])
     if table is not None:
         tables = [select_table(tables, table)]
     elif fmt is OutputFormat.csv and tables:
@@ -77,10 +87,19 @@ def score(
     if plot is not None:
         from llmnav.reporting.charts import plot_conditions
 
-        written = plot_conditions(runs, keys, plot)
+        written = plot_conditions(results, keys, plot)
         err_console.print(f"[dim]{len(written)} chart(s) written to {esc(plot)}[/]")
     for line in problems(runs):
         err_console.print(f"[yellow]not computed:[/] {esc(line)}", highlight=False, soft_wrap=True)
+    for line in broken:
+        err_console.print(f"[yellow]skipped:[/] {esc(line)}", highlight=False, soft_wrap=True)
+    if aborted:
+        err_console.print(
+            f"[yellow]left out of the means:[/] {len(aborted)} run(s) aborted by a backend or server failure "
+            "(table 'aborted' lists them per condition)",
+            highlight=False,
+            soft_wrap=True,
+        )
     cut = sum(1 for r in runs if r.summary.get("cut_short"))
     err_console.print(f"[dim]{len(runs)} run(s) read{f', {cut} cut short' if cut else ''}[/]", highlight=False)
 
@@ -113,7 +132,7 @@ def emit(tables: list[Table], fmt: OutputFormat, out: Path | None) -> None:
         sys.stdout.flush()
         return
     try:
-        out.write_text(text, encoding="utf-8")
+        write_text(out, text)  # a fresh file renamed into place: never through a link at `out`
     except OSError as err:
         raise BadInputError(f"--out {out}: cannot write: {err.strerror or err}") from None
     err_console.print(f"[dim]tables written to {esc(out)}[/]")

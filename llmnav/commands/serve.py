@@ -44,13 +44,20 @@ def serve(
     verbose: Annotated[bool, typer.Option("--verbose", help="Let llama.cpp log to stderr.")] = False,
 ) -> None:
     """Serve a model over HTTP (OpenAI-compatible) so runs and sweep workers can share one loaded copy."""
-    from llmnav.serve import CLIENT_KEY_VARIABLE, KEY_VARIABLE, LOOPBACK, LlamaServer, ServeOptions
+    from pydantic import ValidationError
+
+    from llmnav.errors import BadInputError, validation_message
+    from llmnav.serve import CLIENT_KEY_VARIABLE, KEY_VARIABLE, LOOPBACK, LlamaServer, ServeOptions, check_host
 
     key = api_key or os.environ.get(KEY_VARIABLE, "").strip() or None
-    options = ServeOptions(
-        model=model, host=host, port=port, parallel=parallel, n_ctx=n_ctx, threads=threads, api_key=key,
-        alias=alias, verbose=verbose,
-    )  # fmt: skip
+    host = check_host(host, key)  # before the model loads: an empty host, or one off loopback with no key
+    try:
+        options = ServeOptions(
+            model=model, host=host, port=port, parallel=parallel, n_ctx=n_ctx, threads=threads, api_key=key,
+            alias=alias, verbose=verbose,
+        )  # fmt: skip
+    except ValidationError as err:
+        raise BadInputError(f"--{validation_message(err)}") from None
     server = LlamaServer(options)
     info = server.start(lambda path: err_console.print(f"loading {path} …", highlight=False, soft_wrap=True))
     try:
@@ -64,13 +71,10 @@ def serve(
             highlight=False,
             soft_wrap=True,
         )
+        if info.host != LOOPBACK:  # check_host let it through with a key only
+            err_console.print(f"listening on {info.host}: other machines can reach it, with the key", highlight=False)
         if info.has_key:
             err_console.print(f"clients must send the key: set {CLIENT_KEY_VARIABLE} to it", highlight=False)
-        elif info.host != LOOPBACK:
-            err_console.print(
-                f"[yellow]warning:[/] listening on {info.host} with no key: anyone who can reach it can use it",
-                highlight=False,
-            )
         threading.Event().wait()  # until Ctrl-C / SIGTERM
     except KeyboardInterrupt:
         pass

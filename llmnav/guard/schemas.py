@@ -259,6 +259,12 @@ class Bounds(Protocol):
         ...
 
 
+def _shown(value: float) -> str:
+    """`value` short (`1e+09`, `360`) unless that rounds it: `360.0000000001` must not read as `360`."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(value)
+
+
 @dataclass(frozen=True)
 class ActionBounds:
     """Ranges of a stepwise action's parameter.
@@ -277,10 +283,10 @@ class ActionBounds:
         cmd, p = spec.command, spec.parameters
         if cmd in (ActionCommand.FRONT, ActionCommand.BACK):
             if not 0.0 < p <= self.max_step_m:
-                return f"{cmd} takes metres with 0 < parameters <= {self.max_step_m:g}; got {p:g}"
+                return f"{cmd} takes metres with 0 < parameters <= {self.max_step_m:g}; got {_shown(p)}"
         elif cmd in (ActionCommand.ROTATE_LEFT, ActionCommand.ROTATE_RIGHT):
             if not 0.0 < p <= self.max_rotate_deg:
-                return f"{cmd} takes degrees with 0 < parameters <= {self.max_rotate_deg:g}; got {p:g}"
+                return f"{cmd} takes degrees with 0 < parameters <= {self.max_rotate_deg:g}; got {_shown(p)}"
         elif p != 0.0:
             return f"COMPLETE takes parameters 0; got {p:g}"
         return None

@@ -50,9 +50,9 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from llmnav.errors import BadInputError
+from llmnav.errors import BadInputError, validation_message
 from llmnav.geometry import Pose2D, wrap_angle
 from llmnav.gym.text_space import TaskText
 from llmnav.metrics import SUCCESS_RADIUS_M, best_target, rotation_done
@@ -135,7 +135,11 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         from llmnav.sim.world import World
 
-        self.options = EnvOptions(**kwargs)
+        try:
+            self.options = EnvOptions(**kwargs)
+        except ValidationError as err:  # a `make` keyword out of range or unknown: one line, not pydantic's page
+            raise BadInputError(f"make(): {validation_message(err)}") from None
+        self._closed = False
         if render_mode not in (None, "rgb_array", "human"):
             raise BadInputError(f"render_mode {render_mode!r}: use 'rgb_array' or 'human'")
         problem = human_render_problem() if render_mode == "human" else None
@@ -208,6 +212,9 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         repeats observations exactly; an unseeded reset draws the world's seed from the environment's
         generator, continuing the seeded sequence.
         """
+        self._check_open()
+        if options is not None and not isinstance(options, dict):
+            raise BadInputError(f"reset options must be a dict (task_id, task_text, start_pose), not {options!r:.60}")
         super().reset(seed=seed)
         options = dict(options or {})
         unknown = set(options) - {"task_id", "task_text", "start_pose"}
@@ -237,6 +244,7 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
 
     def step(self, action: Any) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         """Carry out one action; see the module docstring for reward, termination and info."""
+        self._check_open()
         if self._done:
             raise BadInputError("the episode has ended: call reset() before step()")
         finished, result = self._act(action)
@@ -256,8 +264,13 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
             return None
         return frame
 
+    def _check_open(self) -> None:
+        if getattr(self, "_closed", False):
+            raise BadInputError("the environment is closed: make a new one")
+
     def close(self) -> None:
         """Release the physics client (idempotent)."""
+        self._closed = True
         world = getattr(self, "world", None)
         if world is not None:
             world.close()

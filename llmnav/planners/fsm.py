@@ -34,6 +34,7 @@ detector (a separate perception node at `perception_hz`) are the world, not the 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import threading
@@ -47,6 +48,7 @@ import numpy as np
 from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+from llmnav.realtime import realtime_priority
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -122,6 +124,7 @@ class FsmStats:
     accepted: int = 0
     ticks_using: int = 0
     missed_deadlines: int = 0
+    scheduling: str = "simulated"  # the loop thread's policy under --realtime (llmnav.realtime)
 
 
 def saturate(value: float, low: float, high: float) -> float:
@@ -342,6 +345,10 @@ class FsmPlanner(Planner):
 
         tick = 0
         outbox: list[tuple[str, dict[str, Any]]] = []  # events of a tick, written after its command is out
+        # Realtime: the loop thread runs ahead of every ordinary process where permitted, so another job on
+        # the same cores cannot make it miss a slot (the model's worker thread stays ordinary).
+        scheduling = contextlib.ExitStack()
+        stats.scheduling = scheduling.enter_context(realtime_priority()) if opts.realtime else "simulated"
 
         try:
             for tick in range(opts.max_ticks):
@@ -513,6 +520,7 @@ class FsmPlanner(Planner):
                 if tick % 25 == 0:
                     ctx.view.on_step(StepInfo(step=tick, action=f"{state} v={cmd_v:.3f} w={cmd_w:.2f}"))
         finally:
+            scheduling.close()  # ordinary priority again before the episode's bookkeeping
             for kind, fields in outbox:  # a tick that ended the episode before publishing
                 log.event(kind, **fields)
             if worker is not None:
@@ -653,6 +661,7 @@ class FsmPlanner(Planner):
             "real_length_m": real,
             "ticks": len(stats.tick_latency_ms),
             "missed_deadlines": stats.missed_deadlines,
+            "scheduling": stats.scheduling,
             "tick_latency_ms": {
                 "mean": float(lat.mean()),
                 "p50": float(np.percentile(lat, 50)),

@@ -85,6 +85,31 @@ def free_port(host: str = LOOPBACK) -> int:
         return int(sock.getsockname()[1])
 
 
+def check_host(host: str, api_key: str | None) -> str:
+    """The address to listen on for `--host`; BadInputError for an empty one, or one off loopback with no key.
+
+    `localhost` is loopback (127.0.0.1). Any other address can be reached from other machines, so the
+    server must want a key there: no one else's requests should run on this model.
+    """
+    import ipaddress
+
+    text = host.strip()
+    if not text:
+        raise BadInputError("--host '': give an address: 127.0.0.1 (this machine only) or 0.0.0.0 (every interface)")
+    if text.lower() == "localhost":
+        return LOOPBACK
+    try:
+        loopback = ipaddress.ip_address(text.strip("[]")).is_loopback
+    except ValueError:
+        loopback = False  # a host name: whatever it resolves to, treat it as reachable from elsewhere
+    if not loopback and not api_key:
+        raise BadInputError(
+            f"--host {text}: reachable from other machines; give a key with --api-key (or ${KEY_VARIABLE}), "
+            "which clients send as $" + CLIENT_KEY_VARIABLE
+        )
+    return text.strip("[]")
+
+
 def check_port(host: str, port: int) -> None:
     """Raise a one-line BadInputError when `host:port` cannot be bound (in use, or not an address here).
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from llmnav.ablate import MANIFEST_FILE
 from llmnav.errors import BadInputError
 from llmnav.runlog import RUN_FILE
-from llmnav.view.page import PAGE_FILE, check_out, run_page, sweep_page, write_page
+from llmnav.view.page import PAGE_FILE, check_out, check_target, run_page, sweep_page, write_page
 from llmnav.view.video import VideoInfo, render_video
 
 
@@ -53,6 +53,13 @@ def write_view(
             raise BadInputError("--video needs a run folder, not a sweep")
         if video.suffix.lower() not in (".mp4", ".gif"):
             raise BadInputError(f"--video {video}: give a file ending in .mp4 or .gif")
+        from llmnav.view.video import check_timing
+
+        check_timing(fps, seconds_per_step)  # bad flags fail before the page is written
+        # a video carries no mark of its writer: an existing file is replaced only when forced
+        check_target(video, "--video", force=force, ours=lambda _: False)
+        if video.absolute() == page.absolute():
+            raise BadInputError(f"--video {video}: is the page's --out too; choose another file")
     if kind == "run":
         write_page(run_page(folder), page)
     else:

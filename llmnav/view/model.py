@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.geometry import logged_pose
 from llmnav.runlog import IMAGES_DIR, RunRecord, read_run
 
 if TYPE_CHECKING:
@@ -264,16 +265,13 @@ def describe_action(action: dict[str, Any]) -> str:
 
 def as_pose(value: Any) -> list[float] | None:
     """A logged pose [x, y(, yaw)] as floats; None for anything else (a log may hold odd values)."""
-    if not isinstance(value, list) or len(value) < 2:
-        return None
-    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value[:3]):
-        return None
-    return [float(v) for v in value[:3]]
+    return logged_pose(value) if isinstance(value, list) else None
 
 
 def _number(value: Any) -> float | None:
-    """A logged number as a float; None for anything else (a log may hold odd values)."""
-    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+    """A logged number as a float; None for anything else, NaN and infinities included (a log may hold odd values)."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return float(value) if ok else None
 
 
 def logged_lidar(sectors: Any, front_m: Any, range_m: Any) -> LidarView | None:

@@ -14,11 +14,24 @@ from __future__ import annotations
 import base64
 import os
 import tempfile
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import BadInputError
+from llmnav.safefiles import (
+    IMAGE_LIMIT,
+    PAGE_GENERATOR,
+    SUMMARY_LIMIT,
+    UnsafeFileError,
+    image_kind,
+    is_our_page,
+    read_bytes,
+    write_text,
+)
+
+GENERATOR = PAGE_GENERATOR  # the page's <meta name="generator">: how `write_page` knows its own files
 
 if TYPE_CHECKING:
     from jinja2 import Environment
@@ -27,8 +40,6 @@ if TYPE_CHECKING:
     from llmnav.view.model import RunView, StepView
 
 PAGE_FILE = "view.html"  # default page name inside a run or sweep folder
-GENERATOR = "llmnav view"  # the page's <meta name="generator">: how `write_page` knows its own files
-_OWN_MARK = f'<meta name="generator" content="{GENERATOR}">'.encode()
 ARROW_M = 0.5  # [m] heading arrows on the map
 
 
@@ -79,12 +90,18 @@ def _joined(value: Any, separator: str = ", ") -> str:
     return "" if value is None else str(value)
 
 
-def data_uri(path: Path) -> str | None:
-    """A JPEG as a data URI (its bytes as recorded); None when it cannot be read."""
+def data_uri(path: Path, root: Path) -> str | None:
+    """A camera image in `root` as a data URI (its bytes as recorded); None when it cannot be embedded.
+
+    Only a regular file inside the run folder, of at most IMAGE_LIMIT bytes, that starts as a JPEG or
+    PNG does: a page is meant for sharing, and `images/x.jpg → ~/.ssh/id_rsa` must not end up in it.
+    """
     try:
-        return "data:image/jpeg;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
-    except OSError:
+        data = read_bytes(path, limit=IMAGE_LIMIT, root=root)
+    except (OSError, UnsafeFileError):
         return None
+    kind = image_kind(data)
+    return None if kind is None else f"data:image/{kind};base64," + base64.b64encode(data).decode("ascii")
 
 
 # --- the run page --------------------------------------------------------------------------------
@@ -152,7 +169,7 @@ def _velocity_profile(view: RunView) -> str | None:
             path = plot_velocity_profile(view.run_dir, Path(tmp) / PROFILE_FILE)
         if path is None:
             return None
-        return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+        return data_uri(path, path.parent)
 
 
 def _fsm_charts(view: RunView) -> dict[str, Any] | None:
@@ -208,7 +225,7 @@ def run_context(view: RunView) -> dict[str, Any]:
         scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
     base = draw_base_map(scenario, *page_size(scenario), trajectory=view.trajectory)
     trajectory = view.trajectory
-    images = {h: data_uri(p) for h, p in view.image_files.items()}
+    images = {h: data_uri(p, view.run_dir) for h, p in view.image_files.items()}
     metre = base.metre_px
     return {
         "generator": GENERATOR,
@@ -301,24 +318,23 @@ def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> l
 
 def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict[str, Any]:
     """Everything the sweep template needs; writes the run pages that are missing."""
-    import json
-
     from llmnav.ablate import MANIFEST_FILE
-    from llmnav.score import build_tables, find_run_dirs, load_run, varying_keys
+    from llmnav.safefiles import loads as bounded_loads
+    from llmnav.score import build_tables, read_runs, split_aborted, varying_keys
 
-    runs = [load_run(d) for d in find_run_dirs([root])]
+    runs, broken = read_runs([root])  # a damaged run is named on the page, not fatal to it
     keys = varying_keys(runs)
     links: dict[Path, str] = {}
     for run in runs:
         page = run.run_dir / PAGE_FILE
-        if make_run_pages and not page.exists():
+        if make_run_pages and not is_our_page(page):  # missing, or a link or file planted under its name
             write_page(run_page(run.run_dir), page)
         links[run.run_dir] = _href(page, out)
     manifest: dict[str, Any] = {}
     try:
-        loaded = json.loads((root / MANIFEST_FILE).read_text(encoding="utf-8"))
+        loaded = bounded_loads(read_bytes(root / MANIFEST_FILE, limit=SUMMARY_LIMIT, root=root))
         manifest = loaded if isinstance(loaded, dict) else {}
-    except (OSError, ValueError):
+    except (OSError, ValueError, UnsafeFileError):
         manifest = {}
     tables: list[Table] = build_tables(runs, keys)
     return {
@@ -328,7 +344,7 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
         "root": str(root),
         "keys": keys,
         "tables": tables,
-        "charts": _charts(runs, keys),
+        "charts": _charts(split_aborted(runs)[0], keys),  # infrastructure failures are in no mean
         "maps": _success_maps(runs, keys, links),
         "runs": [
             {
@@ -344,6 +360,7 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
             }
             for r in runs
         ],
+        "broken": broken,
         "errors": [e for e in manifest.get("episodes") or [] if isinstance(e, dict) and e.get("status") == "error"],
     }
 
@@ -356,31 +373,48 @@ def sweep_page(root: Path, out: Path) -> str:
 # --- writing -------------------------------------------------------------------------------------
 
 
-def is_our_page(path: Path) -> bool:
-    """Whether an existing file is a page this module wrote (its head carries the generator tag)."""
-    try:
-        with open(path, "rb") as handle:
-            return _OWN_MARK in handle.read(4096)
-    except OSError:
-        return False
+def run_own_file(path: Path) -> str | None:
+    """What `path` is when it is a file a run or a sweep keeps (its log, summary, images, lock), else None.
+
+    Those are never replaced by a page or a video, --force or not.
+    """
+    from llmnav.ablate import MANIFEST_FILE
+    from llmnav.locking import LOCK_FILE
+    from llmnav.reporting.velocity import PROFILE_FILE
+    from llmnav.runlog import IMAGES_DIR, RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE
+
+    target = path.absolute()
+    folder = target.parent
+    if folder.name == IMAGES_DIR and (folder.parent / RUN_FILE).exists():
+        return f"an image of the run {folder.parent}"
+    own = {RUN_FILE, RUN_FILE + ".tmp", SUMMARY_FILE, SUPERSEDED_FILE, LOCK_FILE, MANIFEST_FILE, PROFILE_FILE}
+    if target.name in own | {"trajectory.png"} and ((folder / RUN_FILE).exists() or (folder / MANIFEST_FILE).exists()):
+        return f"the {target.name} of {folder}"
+    return None
+
+
+def check_target(out: Path, flag: str, *, force: bool = False, ours: Callable[[Path], bool] = is_our_page) -> None:
+    """Refuse `out` before any work: a folder, a run's own file, or (unless forced) a file llmnav did not write."""
+    if out.is_dir():
+        raise BadInputError(f"{flag} {out}: is a folder; give a file name")
+    own = run_own_file(out)
+    if own is not None:
+        raise BadInputError(f"{flag} {out}: that is {own}; llmnav never replaces it, choose another file")
+    if os.path.lexists(out) and not force and not ours(out):
+        raise BadInputError(f"{flag} {out}: exists and was not written by llmnav view; use --force to replace it")
 
 
 def check_out(out: Path, *, force: bool = False) -> None:
-    """Refuse `out` when it exists and is not one of our pages (unless forced), before any work."""
-    if out.is_dir():
-        raise BadInputError(f"--out {out}: is a folder; give a file name ending in .html")
-    if out.exists() and not force and not is_our_page(out):
-        raise BadInputError(f"--out {out}: exists and was not written by llmnav view; use --force to replace it")
+    """`check_target` of a page's --out."""
+    check_target(out, "--out", force=force)
 
 
 def write_page(html: str, out: Path) -> Path:
-    """Write a page atomically (a temporary file renamed into place)."""
+    """Write a page atomically (a fresh temporary file renamed into place; a link at `out` is replaced)."""
     out = Path(out)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(html, encoding="utf-8")
-        os.replace(tmp, out)
+        write_text(out, html)
     except OSError as err:
         raise BadInputError(f"--out {out}: cannot write: {err.strerror or err}") from None
     return out

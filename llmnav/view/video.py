@@ -15,6 +15,7 @@ Either way the file holds exactly `frames` frames at `fps`, so its duration is f
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,7 +60,16 @@ def _camera(view: RunView, step: StepView | None) -> np.ndarray:
 
     panel = np.full((PANEL_H, PANEL_W, 3), 235, np.uint8)
     path = view.image_files.get(step.image) if step is not None and step.image else None
-    image = cv2.imread(str(path)) if path is not None else None
+    image = None
+    if path is not None:  # the same checks as the page's images: a regular file in the run, a picture
+        from llmnav.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes
+
+        try:
+            data = read_bytes(path, limit=IMAGE_LIMIT, root=view.run_dir)
+        except (OSError, UnsafeFileError):
+            data = b""
+        if image_kind(data) is not None:
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         text = "no camera image sent" if step is None or not step.image else "camera image missing"
         cv2.putText(panel, text, (170, PANEL_H // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (90, 90, 90), 2, cv2.LINE_AA)
@@ -213,27 +223,62 @@ def writable_codec(probe_dir: Path) -> str | None:
             os.environ[_FFMPEG_LOG_ENV] = saved_env
 
 
+MAX_FPS = 60.0  # frames per second: more is no smoother on any screen, only larger
+MAX_SECONDS_PER_STEP = 60.0  # [s] of video per action
+MAX_FRAMES = 36_000  # one hour at 10 fps; every frame is drawn and encoded
+
+
+def check_timing(fps: float, seconds_per_step: float) -> None:
+    """Refuse --fps and --seconds-per-step outside (0, their maximum] (NaN and infinity included)."""
+    if not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
+        raise BadInputError(f"--fps {fps:g}: give a number above 0 and at most {MAX_FPS:g}")
+    if not (math.isfinite(seconds_per_step) and 0 < seconds_per_step <= MAX_SECONDS_PER_STEP):
+        raise BadInputError(
+            f"--seconds-per-step {seconds_per_step:g}: give a number above 0 and at most {MAX_SECONDS_PER_STEP:g}"
+        )
+
+
+def frame_count(view: RunView, fps: float, seconds_per_step: float) -> int:
+    """How many frames `_frames` draws: `per_action` for every action slot of every decision."""
+    per_action = max(1, round(fps * seconds_per_step))
+    return sum(per_action * _actions(step) for step, _ in _segments(view))
+
+
 def render_video(view: RunView, out: Path, *, fps: float = 10.0, seconds_per_step: float = 1.0) -> VideoInfo:
     """Write the episode to `out` (.mp4 or .gif); returns what was written."""
     suffix = out.suffix.lower()
     if suffix not in (".mp4", ".gif"):
         raise BadInputError(f"--video {out}: give a file ending in .mp4 or .gif")
-    if fps <= 0 or seconds_per_step <= 0:
-        raise BadInputError("--fps and --seconds-per-step must be positive")
+    check_timing(fps, seconds_per_step)
+    frames = frame_count(view, fps, seconds_per_step)
+    if frames > MAX_FRAMES:
+        raise BadInputError(
+            f"--video: {frames:,} frames at --fps {fps:g} and --seconds-per-step {seconds_per_step:g}, over the "
+            f"limit of {MAX_FRAMES:,}; lower either"
+        )
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise BadInputError(f"--video {out}: cannot create its folder: {err.strerror or err}") from None
+    from llmnav.safefiles import private_dir
+
     width, height = 2 * PANEL_W, PANEL_H + CAPTION_H
-    codec = writable_codec(out.parent) if suffix == ".mp4" else None
-    if suffix == ".mp4" and codec is None:  # the GIF fallback: this OpenCV build encodes no MP4 codec
-        out = out.with_suffix(".gif")
-    tmp = out.with_name(out.stem + ".partial" + out.suffix)
-    if codec is None:
-        info = _write_gif(view, tmp, fps, seconds_per_step, width, height)
-    else:
-        info = _write_mp4(view, tmp, codec, fps, seconds_per_step, width, height)
-    tmp.replace(out)
+    # OpenCV and Pillow write to a path: a folder only this process can enter holds the partial file (a
+    # link planted under its name cannot be), and the rename replaces whatever is at `out`, never writing
+    # through a link there.
+    try:
+        with private_dir(out.parent) as work:
+            codec = writable_codec(work) if suffix == ".mp4" else None
+            if suffix == ".mp4" and codec is None:  # the GIF fallback: this OpenCV build encodes no MP4 codec
+                out = out.with_suffix(".gif")
+            tmp = work / ("partial" + out.suffix)
+            if codec is None:
+                info = _write_gif(view, tmp, fps, seconds_per_step, width, height)
+            else:
+                info = _write_mp4(view, tmp, codec, fps, seconds_per_step, width, height)
+            os.replace(tmp, out)
+    except OSError as err:
+        raise BadInputError(f"--video {out}: cannot write: {err.strerror or err}") from None
     info.path = out
     return info
 

@@ -103,3 +103,21 @@ def test_unknown_spec_is_one_line_exit_2():
     assert done.returncode == 2
     assert done.stderr.strip().count("\n") == 0 and "unknown backend 'nosuch'" in done.stderr
     assert done.stdout == ""
+
+
+HOSTILE_NAMES = ["\x1b]0;pwned\x07title", "\x1b[2Jclear", "bell\x07"]
+
+
+def test_model_names_from_a_server_reach_the_terminal_sanitised(server):
+    def reply(seen):
+        if seen.path == "/v1/models":
+            return server.reply(200, {"object": "list", "data": [{"id": name} for name in HOSTILE_NAMES]})
+        if seen.path == "/api/tags":
+            return server.reply(200, {"models": [{"name": name} for name in HOSTILE_NAMES]})
+        return server.reply(200, {"choices": [{"message": {"role": "assistant", "content": "{}"}}]})
+
+    server.default = reply
+    for spec, env in ((f"openai:x@{server.url}/v1", {}), ("ollama:x", {"OLLAMA_HOST": server.url})):
+        result = CliRunner().invoke(app, ["backends", "--check", spec], env=env)
+        assert "\x1b" not in result.output and "\x07" not in result.output, repr(result.output)
+        assert "\\x1b]0;pwned" in result.output  # shown, as a visible escape

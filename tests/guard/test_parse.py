@@ -285,3 +285,9 @@ def test_correction_message_names_problem_and_schema() -> None:
     assert "reasoning" in correction_message(missing, response_schema(StepAction))
     with pytest.raises(ValueError):
         correction_message(parse_answer(answer(), StepAction), StepAction)
+
+
+def test_a_bounds_message_shows_the_value_that_broke_the_bound() -> None:
+    result = parse_answer(answer("ROTATE_RIGHT", 360.0000000001), StepAction, bounds=BOUNDS)
+    assert result.outcome == "bounds"
+    assert "got 360.0000000001" in str(result.error)  # not "<= 360; got 360"

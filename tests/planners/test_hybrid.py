@@ -228,7 +228,7 @@ def menu_of(call: dict[str, Any]) -> dict[int, str]:
 def test_exhausted_corrections_abort_with_the_reason(tmp_path: Path) -> None:
     replay = ReplayBackend(script(tmp_path / "script", ["no", choice(0), "unused"]))
     summary, record = drive(tmp_path, replay, task_text="Go to room 101", max_corrections=1)
-    assert summary["outcome"] == "aborted" and exit_code(summary) == 1
+    assert summary["outcome"] == "aborted" and exit_code(summary) == 3  # a model failure
     assert summary["reason"] == "no valid choice after 1 correction turns"
     assert [g["outcome"] for g in record.of_type("guard")] == ["parse", "schema"]
     assert record.of_type("action") == [] and record.poses()[-1] == record.poses()[0]

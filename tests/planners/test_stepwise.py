@@ -70,7 +70,7 @@ def test_malformed_json_gets_a_correction_turn_with_the_exact_error(tmp_path: Pa
     summary, record = drive(
         tmp_path, ["I think we should go left", bad, answer("ROTATE_LEFT", 30), answer("COMPLETE", 0)]
     )
-    assert summary["outcome"] == "completed" and exit_code(summary) == 0
+    assert summary["outcome"] == "completed" and not summary["success"] and exit_code(summary) == 1
     assert [c["purpose"] for c in calls(record)] == ["action", "correction", "correction", "action"]
     guards = record.of_type("guard")
     assert [(g["step"], g["outcome"], g["attempt"]) for g in guards] == [
@@ -114,7 +114,7 @@ def test_a_front_into_a_wall_is_vetoed_and_the_alternative_accepted(tmp_path: Pa
 
 def test_vetoes_beyond_the_budget_abort_the_episode(tmp_path: Path) -> None:
     summary, record = drive(tmp_path, [answer("FRONT", 2.0), answer("FRONT", 3.0)], pose=2, max_vetoes=1)
-    assert summary["outcome"] == "aborted" and exit_code(summary) == 1
+    assert summary["outcome"] == "aborted" and exit_code(summary) == 3  # a model failure
     assert summary["reason"].startswith("safety veto: every proposed motion was blocked (1 vetoes)")
     assert [g["outcome"] for g in record.of_type("guard")] == ["ok", "veto", "ok", "veto"]
     assert record.of_type("action") == []

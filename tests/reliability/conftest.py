@@ -31,6 +31,9 @@ CATEGORIES = {
     "test_secrets": "secrets",
     "test_fsm_deadline": "fsm deadline",
     "test_data_safety": "data safety",
+    "test_hostile_folders": "hostile folders",
+    "test_hostile_sizes": "hostile sizes",
+    "test_servers": "servers",
 }
 
 

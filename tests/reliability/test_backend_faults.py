@@ -144,7 +144,7 @@ def run_fault(
     calls = record.of_type("llm_call")
     actions = record.of_type("action")
     fault_calls = len(server.seen) - 1
-    if result.exit_code != 1 or summary["outcome"] != "aborted":
+    if result.exit_code != 4 or summary["outcome"] != "aborted":
         problems.append(f"exit {result.exit_code}, outcome {summary['outcome']}")
     if "\n" in reason or reason.startswith("crash") or not all(w.lower() in reason.lower() for w in words):
         problems.append(f"reason {reason!r} lacks {words}")
@@ -204,7 +204,7 @@ def test_html_error_page_with_the_real_executable(
     tally.note_add(CATEGORY, "kinds", "HTML 404 page (CLI defaults)")
     record = read_run(out)
     summary = record.summary or {}
-    assert proc.returncode == 1, proc.stderr
+    assert proc.returncode == 4, proc.stderr
     assert "Traceback" not in proc.stdout + proc.stderr
     assert summary["outcome"] == "aborted" and "HTTP 404" in summary["reason"]
     assert "1 attempt" in summary["reason"] and "\n" not in summary["reason"]
@@ -237,7 +237,7 @@ def test_connection_refused_with_the_real_executable(tmp_path: Path, tally: Any)
     tally.note_add(CATEGORY, "kinds", "connection refused (CLI defaults)")
     record = read_run(out)
     summary = record.summary or {}
-    assert proc.returncode == 1, proc.stderr
+    assert proc.returncode == 4, proc.stderr
     assert "Traceback" not in proc.stdout + proc.stderr
     assert summary["outcome"] == "aborted" and "connection failed" in summary["reason"]
     assert "5 attempts" in summary["reason"] and "\n" not in summary["reason"]

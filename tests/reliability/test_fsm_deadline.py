@@ -115,6 +115,8 @@ def test_fsm_keeps_its_deadline_with_a_slow_model_quick(
     ticks, missed, p99 = record(tally, [metrics])
     context = note_environment(tally, perception_ms)
     assert ticks == 400 and backend.calls > 0 and metrics["suggestions"] > 0, metrics
+    assert metrics["scheduling"] in ("fifo", "nice-5", "normal"), metrics  # what the loop thread got
+    tally.note(CATEGORY, "loop scheduling", metrics["scheduling"])
     # The controller's own tick work (tick start -> command published) stays far inside the 20 ms slot:
     # a loop that waited for this 200 ms model would spend >= 200 ms in a tick for every call.
     assert p99 <= P99_LIMIT_MS, f"{metrics['tick_latency_ms']}; {missed} missed slots; {context}"
