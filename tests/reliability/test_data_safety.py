@@ -25,6 +25,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
+from llmnav.locking import LOCK_FILE
+
 sys.path.insert(0, str(Path(__file__).parents[1] / "score"))
 from score_fakes import CountingRunner, config_for, fake_episode, write_run, write_scenario_file  # noqa: E402
 
@@ -179,7 +181,13 @@ def concurrent_sweeps(tmp_path: Path, tries: int, tally: Any) -> None:
     for i in range(tries):
         out = tmp_path / f"sweep-{i}"
         first = subprocess.Popen(ablate_cli(out), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        time.sleep(0.2)
+        # The second starts once the first holds the sweep's lock (its pid in the lock file): a fixed head
+        # start lost the race on a loaded machine, and then the *first* was the one refused.
+        lock, deadline = out / LOCK_FILE, time.monotonic() + 120
+        while time.monotonic() < deadline and first.poll() is None:
+            if lock.is_file() and lock.read_text(errors="replace").strip() == str(first.pid):
+                break
+            time.sleep(0.02)
         started = time.perf_counter()
         second = subprocess.run(ablate_cli(out), capture_output=True, text=True, timeout=300)
         second_s = time.perf_counter() - started
