@@ -1,11 +1,12 @@
 """FSM deadline: the 50 Hz controller in realtime mode never misses its 20 ms slot and keeps its own tick
 latency (tick start → command published) at p99 ≤ 0.5 ms while a model generates in a worker thread.
 
-Quick subset: a scripted backend that sleeps 0.2 s per suggestion (the source's ≈ 5 Hz model) for a
-short run. The load it adds is one worker thread that sleeps (no CPU) beside the simulation on one core;
-what it asserts is the controller's own work — every tick within P99_LIMIT_MS at p99 and none near a
-20 ms slot — because missed slots also count the detector and physics, which other processes on a
-loaded machine can delay (misses and the load average are recorded in the reliability table).
+Quick subset (default suite): a scripted backend that sleeps 0.2 s per suggestion (the source's ≈ 5 Hz
+model) for a short run; it asserts that no tick comes near a 20 ms slot. The p99 bound is a speed target,
+checked by `make reliability` (marked slow) over a longer run. The load it adds is one worker thread
+that sleeps (no CPU) beside the simulation on one core; what the p99 test asserts is the controller's
+own work — every tick within P99_LIMIT_MS at p99 and none near a 20 ms slot — because missed slots
+also count the detector and physics, which other processes on a loaded machine can delay (misses and the load average are recorded in the reliability table).
 Full run: the real local model (llama.cpp in process) answering the FSM's state JSON, plus a second
 thread keeping it generating all the time, for ≥ 10 000 ticks on maze_arena (≈ 200 s wall).
 """
@@ -117,10 +118,22 @@ def test_fsm_keeps_its_deadline_with_a_slow_model_quick(
     assert ticks == 400 and backend.calls > 0 and metrics["suggestions"] > 0, metrics
     assert metrics["scheduling"] in ("fifo", "nice-5", "normal"), metrics  # what the loop thread got
     tally.note(CATEGORY, "loop scheduling", metrics["scheduling"])
-    # The controller's own tick work (tick start -> command published) stays far inside the 20 ms slot:
-    # a loop that waited for this 200 ms model would spend >= 200 ms in a tick for every call.
+    # The loop never waits for the model: a loop that waited for this 200 ms model would spend >= 200 ms
+    # in a tick for every call. (The p99 speed target is the reliability suite's, below: a timed bound
+    # in the default suite failed on this shared machine at load 0.5 on unchanged code.)
+    assert metrics["tick_latency_ms"]["max"] < 20.0, f"{metrics['tick_latency_ms']}; {missed} missed slots; {context}"
+
+
+@pytest.mark.slow
+@pytest.mark.reliability
+def test_fsm_tick_latency_p99_with_a_slow_model(tmp_path: Path, tally: Any, perception_ms: list[float]) -> None:
+    """The controller's own tick work (tick start -> command published) at p99 <= P99_LIMIT_MS."""
+    backend = SlowModel(0.2)
+    metrics = realtime_episode(tmp_path, "p99", 2000, backend)
+    ticks, missed, p99 = record(tally, [metrics])
+    context = note_environment(tally, perception_ms)
+    assert ticks == 2000 and metrics["suggestions"] > 0, metrics
     assert p99 <= P99_LIMIT_MS, f"{metrics['tick_latency_ms']}; {missed} missed slots; {context}"
-    assert metrics["tick_latency_ms"]["max"] < 20.0, f"{metrics['tick_latency_ms']}; {context}"
 
 
 @pytest.mark.slow
