@@ -6,7 +6,8 @@ model) for a short run; it asserts that no tick comes near a 20 ms slot. The p99
 checked by `make reliability` (marked slow) over a longer run. The load it adds is one worker thread
 that sleeps (no CPU) beside the simulation on one core; what the p99 test asserts is the controller's
 own work — every tick within P99_LIMIT_MS at p99 and none near a 20 ms slot — because missed slots
-also count the detector and physics, which other processes on a loaded machine can delay (misses and the load average are recorded in the reliability table).
+also count the detector and physics, which other processes on a loaded machine can delay (misses and
+the load average are recorded in the reliability table).
 Full run: the real local model (llama.cpp in process) answering the FSM's state JSON, plus a second
 thread keeping it generating all the time, for ≥ 10 000 ticks on maze_arena (≈ 200 s wall).
 """
