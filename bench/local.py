@@ -80,7 +80,7 @@ def run_case(scenario: str, task: str, options: DriveOptions, episodes: int, roo
     calls = Calls()
     first = True
     for index in range(episodes):
-        out = root / f"{options.planner}-{index}"
+        out = root / f"{options.planner}-{options.decide}-{index}"
         spec = EpisodeSpec(
             scenario=scenario, task_id=task, start_pose=1 + index, options=options, backend="local", out_dir=out
         )
