@@ -152,6 +152,12 @@ class EpisodeContext:
 
         return call_model(self, request, purpose, step)
 
+    def decides_by_scores(self) -> bool:
+        """Whether `--decide` asks for scored choices with this episode's backend (`auto`: if it can score)."""
+        if self.options.decide == "generate" or self.backend is None:
+            return False
+        return self.options.decide == "score" or self.backend.can_score
+
     def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
         """Score continuations with the backend, logged as an `llm_call` event (`llmnav.observe.call_scorer`)."""
         from llmnav.observe import call_scorer

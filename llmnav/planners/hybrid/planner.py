@@ -176,9 +176,7 @@ class HybridPlanner(Planner):
     @staticmethod
     def decision_mode(ctx: EpisodeContext) -> str:
         """`score` or `generate`: what `--decide` means with this episode's backend."""
-        if ctx.options.decide == "generate" or ctx.backend is None:
-            return "generate"
-        return "score" if ctx.options.decide == "score" or ctx.backend.can_score else "generate"
+        return "score" if ctx.decides_by_scores() else "generate"
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""

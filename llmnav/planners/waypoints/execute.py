@@ -107,9 +107,7 @@ class WaypointPlanner(Planner):
             return call_model(ctx, request, purpose=purpose, step=step)
 
         # Free text that names no object is grounded by scores where the backend can (`--decide`).
-        backend = ctx.backend
-        scores = backend is not None and opts.decide != "generate" and (opts.decide == "score" or backend.can_score)
-        score = (lambda request: ctx.score(request, step)) if scores else None
+        score = (lambda request: ctx.score(request, step)) if ctx.decides_by_scores() else None
 
         def note(kind: str, **fields: Any) -> None:
             ctx.log.sim_time = world.sim_time
