@@ -30,6 +30,8 @@ if TYPE_CHECKING:
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
 ITERATIVE_PLANNERS = frozenset({"stepwise", "hybrid"})
+ORACLE_BACKEND = "policy:oracle"  # answers computed from the ground truth: a ceiling, neither model nor null policy
+ORACLE_MARK = " (oracle answers)"
 
 
 @dataclass
@@ -215,11 +217,22 @@ def varying_keys(runs: Sequence[Run]) -> list[str]:
     return keys
 
 
+def is_oracle(run: Run) -> bool:
+    """Whether oracle answers (`policy:oracle`, computed from the ground truth) drove this run."""
+    backend = str(run.summary.get("backend") or "")
+    return backend == ORACLE_BACKEND or backend.startswith(f"{ORACLE_BACKEND}:")
+
+
 def condition_label(run: Run, keys: Sequence[str]) -> str:
-    """`key=value, ...` over the varying keys ("all" when nothing varies)."""
-    if not keys:
-        return "all"
-    return ", ".join(f"{k}={run.condition.get(k)}" for k in keys)
+    """`key=value, ...` over the varying keys ("all" when nothing varies); oracle runs are marked as such.
+
+    The mark is part of the label even when the backend is not a grouping key, so oracle answers are never
+    pooled with a model's and a reader never takes them for one.
+    """
+    oracle = is_oracle(run)
+    parts = [f"{k}={run.condition.get(k)}{ORACLE_MARK if oracle and k == 'backend' else ''}" for k in keys]
+    label = ", ".join(parts) or "all"
+    return label + ORACLE_MARK if oracle and "backend" not in keys else label
 
 
 def condition_fields(run: Run, keys: Sequence[str]) -> dict[str, Any]:

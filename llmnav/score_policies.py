@@ -19,7 +19,17 @@ from dataclasses import dataclass
 from typing import Any
 
 from llmnav.metrics import CONDITION_KEYS
-from llmnav.score import MISSING, Run, Table, _hashable, _num, _task_sort_key, condition_fields, condition_label
+from llmnav.score import (
+    MISSING,
+    Run,
+    Table,
+    _hashable,
+    _num,
+    _task_sort_key,
+    condition_fields,
+    condition_label,
+    is_oracle,
+)
 from llmnav.stats import mean_sd
 
 POLICY_PREFIX = "policy:"
@@ -27,8 +37,13 @@ ALL_TASKS = "All tasks"
 
 
 def is_policy(run: Run) -> bool:
-    """Whether a null policy answered this run."""
-    return str(run.summary.get("backend") or "").startswith(POLICY_PREFIX)
+    """Whether a null policy answered this run (the oracle's answers are no null policy: they know the truth)."""
+    return str(run.summary.get("backend") or "").startswith(POLICY_PREFIX) and not is_oracle(run)
+
+
+def is_model(run: Run) -> bool:
+    """Whether a model answered this run: a backend that is neither a null policy nor the oracle."""
+    return bool(run.summary.get("backend")) and not str(run.summary.get("backend")).startswith(POLICY_PREFIX)
 
 
 def _setting(run: Run) -> tuple[Any, ...]:
@@ -122,7 +137,7 @@ def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     for run in runs:
         if is_policy(run):
             nulls[_setting(run)][str(run.summary.get("backend"))].append(run)
-    model_runs = [r for r in runs if r.summary.get("backend") and not is_policy(r)]
+    model_runs = [r for r in runs if is_model(r)]
     if not nulls or not model_runs:
         return None
     groups: dict[tuple[str, str, tuple[Any, ...]], list[Run]] = defaultdict(list)
