@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from llmnav.metrics import CONDITION_KEYS
 from llmnav.score import (
@@ -34,6 +34,10 @@ from llmnav.stats import mean_sd
 
 POLICY_PREFIX = "policy:"
 ALL_TASKS = "All tasks"
+
+Setting = tuple[Any, ...]
+GroupKey = tuple[str, str, Setting]  # (task or ALL_TASKS, condition label, setting)
+K = TypeVar("K", bound=tuple[Any, ...])
 
 
 def is_policy(run: Run) -> bool:
@@ -111,6 +115,7 @@ class PolicyResult:
     policy: str
     model: Outcomes
     null: Outcomes
+    episodes: frozenset[tuple[Any, ...]]
 
     @property
     def rank(self) -> tuple[float, float]:
@@ -120,7 +125,7 @@ class PolicyResult:
 
 def _against(model_runs: Sequence[Run], policy_runs: Sequence[Run]) -> PolicyResult | None:
     """Model and policy outcomes restricted to the episodes both ran (None when they share none)."""
-    shared = {r.episode for r in model_runs} & {r.episode for r in policy_runs}
+    shared = frozenset({r.episode for r in model_runs} & {r.episode for r in policy_runs})
     if not shared:
         return None
     policy = str(policy_runs[0].summary.get("backend"))
@@ -128,42 +133,63 @@ def _against(model_runs: Sequence[Run], policy_runs: Sequence[Run]) -> PolicyRes
         policy,
         Outcomes.of([r for r in model_runs if r.episode in shared]),
         Outcomes.of([r for r in policy_runs if r.episode in shared]),
+        shared,
     )
+
+
+def _null_policies(runs: Iterable[Run]) -> dict[Setting, dict[str, list[Run]]]:
+    """The null-policy runs by setting, then by policy."""
+    out: dict[Setting, dict[str, list[Run]]] = defaultdict(lambda: defaultdict(list))
+    for run in runs:
+        if is_policy(run):
+            out[_setting(run)][str(run.summary.get("backend"))].append(run)
+    return out
+
+
+def _model_groups(runs: Iterable[Run], keys: Sequence[str]) -> dict[GroupKey, list[Run]]:
+    """The model runs by task × condition × setting, with an 'All tasks' group per condition."""
+    groups: dict[GroupKey, list[Run]] = defaultdict(list)
+    for run in runs:
+        if is_model(run):
+            label = condition_label(run, keys)
+            groups[(run.task, label, _setting(run))].append(run)
+            groups[(ALL_TASKS, label, _setting(run))].append(run)
+    return groups
+
+
+def _on_task(runs: Iterable[Run], task: str) -> list[Run]:
+    """The runs of `task` (every run for the 'All tasks' row)."""
+    return list(runs) if task == ALL_TASKS else [r for r in runs if r.task == task]
+
+
+def _policy_results(subject: Sequence[Run], task: str, policies: Mapping[str, Sequence[Run]]) -> list[PolicyResult]:
+    """Each null policy of `task` against `subject` on the episodes both ran, by policy name."""
+    results = [_against(subject, _on_task(runs, task)) for runs in policies.values()]
+    return sorted((r for r in results if r is not None), key=lambda r: r.policy)
+
+
+def _best(candidates: Sequence[PolicyResult]) -> PolicyResult | None:
+    """The floor: highest success rate, then mean score; ties go to the alphabetically first policy."""
+    return max(candidates, key=lambda c: c.rank) if candidates else None
 
 
 def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     """See the module docstring; None when there is no model run with a matching null-policy run."""
-    nulls: dict[tuple[Any, ...], dict[str, list[Run]]] = defaultdict(lambda: defaultdict(list))
-    for run in runs:
-        if is_policy(run):
-            nulls[_setting(run)][str(run.summary.get("backend"))].append(run)
-    model_runs = [r for r in runs if is_model(r)]
-    if not nulls or not model_runs:
+    nulls = _null_policies(runs)
+    groups = _model_groups(runs, keys)
+    if not nulls or not groups:
         return None
-    groups: dict[tuple[str, str, tuple[Any, ...]], list[Run]] = defaultdict(list)
-    for run in model_runs:
-        label = condition_label(run, keys)
-        groups[(run.task, label, _setting(run))].append(run)
-        groups[(ALL_TASKS, label, _setting(run))].append(run)
     columns = [
         "Task", "Condition", "Model success", "Model score", "Best null policy", "Null success", "Null score",
         "Δ success", "Δ score", "Null ≥ model", "Every null policy (success, score)",
     ]  # fmt: skip
     rows, records = [], []
-    order = sorted(groups, key=lambda k: (k[0] == ALL_TASKS, _task_sort_key(k[0]), k[1]))
-    for task, label, setting in order:
+    for task, label, setting in _ordered(groups):
         group = groups[(task, label, setting)]
-        candidates = []
-        for policy_runs in nulls.get(setting, {}).values():
-            if task != ALL_TASKS:
-                policy_runs = [r for r in policy_runs if r.task == task]
-            result = _against(group, policy_runs) if policy_runs else None
-            if result is not None:
-                candidates.append(result)
-        if not candidates:
+        candidates = _policy_results(group, task, nulls.get(setting, {}))
+        best = _best(candidates)
+        if best is None:
             continue
-        candidates.sort(key=lambda c: c.policy)
-        best = max(candidates, key=lambda c: c.rank)  # ties: the alphabetically first policy
         d_success = _delta(best.model.success_rate, best.null.success_rate)
         d_score = _delta(best.model.score_mean, best.null.score_mean)
         matches = (d_success is not None and d_success <= 0) and (d_score is None or d_score <= 0)
@@ -218,7 +244,8 @@ def _by_wording(runs: Sequence[Run], keys: Sequence[str]) -> dict[tuple[str, str
     return out
 
 
-def _ordered(groups: dict[tuple[str, str], Any]) -> list[tuple[str, str]]:
+def _ordered(groups: Iterable[K]) -> list[K]:
+    """Group keys `(task, label, ...)` in table order: by task number, 'All tasks' last, then by label."""
     return sorted(groups, key=lambda k: (k[0] == ALL_TASKS, _task_sort_key(k[0]), k[1]))
 
 
