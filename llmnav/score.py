@@ -1,11 +1,12 @@
 """`llmnav score`: read run folders, group them by task and condition, and build the sources' tables.
 
 Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
-`build_tables` (stepwise / path / waypoint / FSM tables, plus the null-policy and wording tables of
-`llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A KEY=B`). Rendering
-(rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data (`Table`): formatted
-cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a scenario that does not
-load, an oracle that fails) is noted on its `Run` and listed by `problems`, never silently dropped.
+`build_tables` (stepwise / path / waypoint / FSM tables, plus the null-policy, floor/model/ceiling and
+wording tables of `llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A
+KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data
+(`Table`): formatted cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a
+scenario that does not load, an oracle that fails) is noted on its `Run` and listed by `problems`, never
+silently dropped.
 """
 
 from __future__ import annotations
@@ -542,12 +543,13 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
 
 def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
     """Every table that has data; groups are told apart by `group_keys` (default: the varying keys)."""
-    from llmnav.score_policies import null_policy_table, wording_spread_table, wording_table
+    from llmnav.score_policies import ceiling_table, null_policy_table, wording_spread_table, wording_table
 
     keys = list(group_keys) if group_keys is not None else varying_keys(runs)
     results, aborted = split_aborted(runs)
     builders = (
-        stepwise_table, path_table, waypoint_table, fsm_table, null_policy_table, wording_table, wording_spread_table
+        stepwise_table, path_table, waypoint_table, fsm_table, null_policy_table, ceiling_table, wording_table,
+        wording_spread_table,
     )  # fmt: skip
     tables = [t for t in (b(results, keys) for b in builders) if t is not None]
     table = aborted_table(aborted, keys)

@@ -6,6 +6,9 @@
   episodes they share, the differences (Δ = model − policy) and n beside every mean. A row whose best
   policy does at least as well as the model says so in its own column: a planner that succeeds whatever
   the model answers shows up here, not in a footnote.
+- `ceiling_table`: floor, model and ceiling on the same episodes: the best null policy, the model and the
+  oracle answers (`policy:oracle`, what a perfect model would answer), and the share of the gap between
+  floor and ceiling that the model closes, for success rate and for mean score.
 - `wording_table` and `wording_spread_table`: success and score per task wording (bundled, paraphrase:K,
   free), and their spread across wordings, when runs record the wording.
 """
@@ -34,6 +37,7 @@ from llmnav.stats import mean_sd
 
 POLICY_PREFIX = "policy:"
 ALL_TASKS = "All tasks"
+GAP_EPSILON = 1e-9  # a ceiling no further above the floor than rounding leaves no gap to close
 
 Setting = tuple[Any, ...]
 GroupKey = tuple[str, str, Setting]  # (task or ALL_TASKS, condition label, setting)
@@ -230,6 +234,165 @@ def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         "options); Δ = model − policy; 'Null ≥ model': the policy matched or beat the model"
     )
     return Table("Model vs null policies (same episodes)", columns, rows, records, note, name="null_policies")
+
+
+# --- floor, model and ceiling -------------------------------------------------------------------
+
+
+def _gap_closed(model: float | None, floor: float | None, ceiling: float | None) -> float | None:
+    """(model − floor) / (ceiling − floor); None when a value is missing or the ceiling is not above the floor.
+
+    A ceiling at or below the floor leaves no gap: any share of it would be a division by zero or a sign flip.
+    """
+    if model is None or floor is None or ceiling is None or ceiling - floor <= GAP_EPSILON:
+        return None
+    return (model - floor) / (ceiling - floor)
+
+
+def _share_cell(value: float | None, n: int) -> str:
+    """`50% (n=4)`, or "—" without a share."""
+    return MISSING if value is None else f"{value:.0%} (n={n})"
+
+
+def _cells(tally: Outcomes) -> list[str]:
+    """Success and score cells; "—" for an empty side (no model run, no null policy on these episodes)."""
+    return [tally.success_cell(), tally.score_cell()] if tally.n else [MISSING, MISSING]
+
+
+def _oracle_groups(
+    runs: Iterable[Run], keys: Sequence[str], models: Mapping[GroupKey, Sequence[Run]]
+) -> tuple[dict[Setting, list[Run]], dict[GroupKey, list[Run]]]:
+    """The oracle runs by setting, and the rows' groups.
+
+    The groups are every model group, plus an empty one (labelled by the oracle's condition) for each task,
+    and 'All tasks', of a setting that has oracle runs and no model run there.
+    """
+    oracles: dict[Setting, list[Run]] = defaultdict(list)
+    groups = {key: list(group) for key, group in models.items()}
+    with_model = {(task, setting) for task, _, setting in models}
+    for run in runs:
+        if not is_oracle(run):
+            continue
+        setting = _setting(run)
+        oracles[setting].append(run)
+        for task in (run.task, ALL_TASKS):
+            if (task, setting) not in with_model:
+                groups.setdefault((task, condition_label(run, keys), setting), [])
+    return oracles, groups
+
+
+@dataclass(frozen=True)
+class Span:
+    """Floor, model and ceiling on the episodes all three ran (an empty side: no runs there)."""
+
+    floor_policy: str | None
+    floor: Outcomes
+    model: Outcomes
+    ceiling: Outcomes
+    episodes: int
+    scored_episodes: int  # of those, the ones the model's runs have a score for (explore tasks have none)
+
+    @property
+    def gap_success(self) -> float | None:
+        """Share of the floor-to-ceiling gap in success rate that the model closes."""
+        return _gap_closed(self.model.success_rate, self.floor.success_rate, self.ceiling.success_rate)
+
+    @property
+    def gap_score(self) -> float | None:
+        """Share of the floor-to-ceiling gap in mean score that the model closes."""
+        return _gap_closed(self.model.score_mean, self.floor.score_mean, self.ceiling.score_mean)
+
+
+def _span(
+    task: str, model_runs: Sequence[Run], oracle_runs: Sequence[Run], policies: Mapping[str, Sequence[Run]]
+) -> Span | None:
+    """Floor, model and ceiling of `task` (or 'All tasks') restricted to shared episodes; None when none are.
+
+    Without model runs the oracle's episodes are the subject, and a row needs a floor to say anything.
+    """
+    oracle = _on_task(oracle_runs, task)
+    episodes = {r.episode for r in oracle}
+    if model_runs:
+        episodes &= {r.episode for r in model_runs}
+    subject = [r for r in (model_runs or oracle) if r.episode in episodes]
+    floor = _best(_policy_results(subject, task, policies))  # chosen on the episodes the ceiling has too
+    if floor is not None:
+        episodes &= floor.episodes
+    if not episodes or (floor is None and not model_runs):
+        return None
+    model = [r for r in model_runs if r.episode in episodes]
+    return Span(
+        floor.policy if floor is not None else None,
+        floor.null if floor is not None else Outcomes.of([]),
+        Outcomes.of(model),
+        Outcomes.of([r for r in oracle if r.episode in episodes]),
+        len(episodes),
+        len({r.episode for r in model if _num(r.summary.get("score")) is not None}),
+    )
+
+
+def _ceiling_row(
+    task: str, label: str, span: Span, first: Run, keys: Sequence[str]
+) -> tuple[list[str], dict[str, Any]]:
+    """The displayed row and the raw record of one span; `first` gives the condition's fields."""
+    row = [
+        task,
+        label,
+        span.floor_policy or MISSING,
+        *_cells(span.floor),
+        *_cells(span.model),
+        *_cells(span.ceiling),
+        _share_cell(span.gap_success, span.episodes),
+        _share_cell(span.gap_score, span.scored_episodes),
+    ]
+    record = {
+        "task": task,
+        "condition": label,
+        **condition_fields(first, keys),
+        "floor_policy": span.floor_policy,
+        "floor": span.floor.record(),
+        "model": span.model.record(),
+        "ceiling": span.ceiling.record(),
+        "gap_closed_success": span.gap_success,
+        "gap_closed_score": span.gap_score,
+        "n": span.episodes,
+        "n_score": span.scored_episodes,
+    }
+    return row, record
+
+
+def ceiling_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Floor (best null policy), model and ceiling (oracle answers) on the same episodes; None without oracle runs.
+
+    Rows are the model groups of the null-policy table; a setting with oracle runs and null policies but no
+    model run gets a row of its own (model cells "—"), so the span a model could cover is seen before any ran.
+    """
+    oracles, groups = _oracle_groups(runs, keys, _model_groups(runs, keys))
+    if not oracles:
+        return None
+    nulls = _null_policies(runs)
+    columns = [
+        "Task", "Condition", "Floor: best null policy", "Floor success", "Floor score", "Model success",
+        "Model score", "Oracle answers success", "Oracle answers score", "Gap closed: success", "Gap closed: score",
+    ]  # fmt: skip
+    rows, records = [], []
+    for task, label, setting in _ordered(groups):
+        model_runs, oracle_runs = groups[(task, label, setting)], oracles.get(setting, [])
+        span = _span(task, model_runs, oracle_runs, nulls.get(setting, {}))
+        if span is None:
+            continue
+        row, record = _ceiling_row(task, label, span, (model_runs or oracle_runs)[0], keys)
+        rows.append(row)
+        records.append(record)
+    if not rows:
+        return None
+    note = (
+        "floor: the best null policy; ceiling: oracle answers (policy:oracle, what a perfect model would answer, "
+        "from the ground truth); all three on the episodes they share. Gap closed = (model − floor) / "
+        "(ceiling − floor), n = shared episodes (with a score, for the score); — when the oracle answers do "
+        "no better than the floor (no gap to close) or a side has no runs"
+    )
+    return Table("Floor, model and ceiling (same episodes)", columns, rows, records, note, name="ceiling")
 
 
 def _by_wording(runs: Sequence[Run], keys: Sequence[str]) -> dict[tuple[str, str], dict[str, list[Run]]]:
