@@ -12,7 +12,17 @@ from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, ClassVar
 
-from llmnav.chat import AnswerKey, ChatRequest, ChatResult, ContinuationScore, Image, Message, Role, ScoreRequest, ScoreResult
+from llmnav.chat import (
+    AnswerKey,
+    ChatRequest,
+    ChatResult,
+    ContinuationScore,
+    Image,
+    Message,
+    Role,
+    ScoreRequest,
+    ScoreResult,
+)
 from llmnav.errors import BackendSpecError, ModelError
 
 __all__ = [

@@ -1,5 +1,7 @@
-"""Answers with no model: the null policies `policy:first`, `policy:random[:SEED]`, `policy:keyword`
-(the floor), and `policy:oracle`, the answers a perfect model would give (the ceiling).
+"""Answers with no model: the null policies (the floor) and `policy:oracle` (the ceiling).
+
+`policy:first`, `policy:random[:SEED]` and `policy:keyword` answer from the request alone;
+`policy:oracle` gives the answers a perfect model would give.
 
 A null policy answers any request by reading only its JSON Schema (and, for `keyword`, the texts the
 request shows beside each allowed value). It tells how much of a planner's result the planner itself earns:
@@ -252,9 +254,13 @@ class PolicyBackend(Backend):
 
     @property
     def can_score(self) -> bool:
-        """Every null policy scores; the oracle does when its answer key does."""
-        if self.wants_answer_key:
-            return self.answer_key is not None and self.answer_key.can_score
+        """Every null policy scores; the oracle does when its answer key does.
+
+        Before an episode's key is attached (a planner checks its backend before the world exists) the
+        oracle says it can: a key that cannot score refuses scoring requests with a `ModelError`.
+        """
+        if self.wants_answer_key and self.answer_key is not None:
+            return self.answer_key.can_score
         return True
 
     def _rng(self, logged: dict[str, Any]) -> random.Random:
@@ -263,14 +269,9 @@ class PolicyBackend(Backend):
         return random.Random(self.seed * 2**64 + int.from_bytes(digest[:8], "big"))
 
     def score(self, request: ScoreRequest) -> ScoreResult:
-        """Scores by the policy: position (`first`), a seeded draw (`random`), shared words (`keyword`), or
-        the answer key's (`oracle`)."""
+        """Scores by the policy: position, a seeded draw, shared words, or the answer key's (`oracle`)."""
         if self.wants_answer_key:
-            values = self._key().scores(request)
-            if len(values) != len(request.continuations):
-                raise ModelError(f"{self.spec}: the answer key scored {len(values)} of {len(request.continuations)}")
-            oracle = tuple(ContinuationScore(float(v), 1) for v in values)
-            return ScoreResult(oracle, 0.0, self.spec, {"policy": self.policy, "mode": "score"})
+            return self._oracle_scores(request)
         ctx = _Context((Message("user", request.prefix),), self._rng(request.to_log()))
         task = words(ctx.task())
         values: list[float] = []
@@ -285,9 +286,18 @@ class PolicyBackend(Backend):
         scores = tuple(ContinuationScore(v, max(1, len(words(t)))) for v, t in pairs)
         return ScoreResult(scores, 0.0, self.spec, {"policy": self.policy, "mode": "score"})
 
+    def _oracle_scores(self, request: ScoreRequest) -> ScoreResult:
+        key = self._key()
+        if not key.can_score:
+            raise ModelError(f"{self.spec}: this planner's oracle answers include no scores")
+        values = key.scores(request)
+        if len(values) != len(request.continuations):
+            raise ModelError(f"{self.spec}: the answer key scored {len(values)} of {len(request.continuations)}")
+        scores = tuple(ContinuationScore(float(v), 1) for v in values)
+        return ScoreResult(scores, 0.0, self.spec, {"policy": self.policy, "mode": "score"})
+
     def chat(self, request: ChatRequest) -> ChatResult:
-        """One answer built from `request.json_schema` (free text when the request has no schema), or the
-        answer key's (`oracle`)."""
+        """One answer built from `request.json_schema` (free text without one), or the answer key's (`oracle`)."""
         if self.wants_answer_key:
             text = self._key().answer(request)
             return ChatResult(text=text, latency_s=0.0, model=self.spec, meta={"policy": self.policy})

@@ -38,12 +38,14 @@ class OraclePlanner(Planner):
         scenario = with_added_obstacles(ctx.scenario, ctx.options.obstacles)
         metrics: dict[str, float] = {}
         config = self.config
+        face = (0.0, 0.0)  # what to face at the end: the target of the last plan
         for attempt in range(1 + self.replans_after_veto):
             path = oracle_path(scenario, ctx.task, ctx.world.robot.pose(), config=config)
             if path is None:
                 ctx.log.event("planner", kind="oracle_path", found=False)
                 return EpisodeOutcome("failed", "no collision-free path to any target", metrics=metrics)
             _log_path(ctx, path)
+            face = path.target_point
             if attempt == 0:  # the yardstick is the first plan's, from the start pose
                 metrics["oracle_length_m"] = round(path.length_m, 4)
                 metrics["oracle_grid_length_m"] = round(path.grid_length_m, 4)
@@ -55,12 +57,10 @@ class OraclePlanner(Planner):
             grid = replace(config.grid, margin_m=config.grid.margin_m + self.veto_margin_step_m)
             config = replace(config, grid=grid)
         if drive.ok:
-            face_point(ctx, path.target_point, drive)
+            face_point(ctx, face, drive)
         metrics["travelled_m"] = round(drive.travelled_m, 4)
         if not drive.ok:
-            return EpisodeOutcome(
-                "failed", failure_reason(drive.last), iterations=drive.steps, metrics=metrics
-            )
+            return EpisodeOutcome("failed", failure_reason(drive.last), iterations=drive.steps, metrics=metrics)
         return EpisodeOutcome("completed", "reached target", iterations=drive.steps, metrics=metrics)
 
 

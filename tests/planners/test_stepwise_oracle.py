@@ -68,7 +68,7 @@ def test_a_strict_replay_of_an_oracle_run_reaches_the_same_pose(tmp_path: Path) 
 def test_the_oracle_policy_without_an_answer_key_is_a_model_error() -> None:
     backend = PolicyBackend("oracle")
     request = ChatRequest((Message("user", "Task: anything"),), {"type": "object"})
-    assert backend.wants_answer_key and not backend.can_score
+    assert backend.wants_answer_key
     with pytest.raises(ModelError, match="no answer key"):
         backend.chat(request)
 

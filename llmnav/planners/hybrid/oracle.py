@@ -63,7 +63,10 @@ class HybridAnswerKey:
         """Target names high, others low; the intent the task's kind asks for (see the module docstring)."""
         n = len(request.continuations)
         task = self.truth.task.text
-        if request.prefix in (TARGET_PROMPT.format(task=CONTENT_FREE_TASK), INTENT_PROMPT.format(task=CONTENT_FREE_TASK)):
+        if request.prefix in (
+            TARGET_PROMPT.format(task=CONTENT_FREE_TASK),
+            INTENT_PROMPT.format(task=CONTENT_FREE_TASK),
+        ):
             return (NEUTRAL,) * n
         if request.prefix == INTENT_PROMPT.format(task=task):
             wanted = dict(INTENTS)["go" if self.truth.task.kind == "target" else "turn"]

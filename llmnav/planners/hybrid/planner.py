@@ -63,10 +63,10 @@ FRONTIER_GOAL_BAND_M = 0.25
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
     from llmnav.chat import AnswerKey
-    from llmnav.planners.base import GroundTruth
     from llmnav.guard.schemas import HybridChoice
     from llmnav.mapping.grid import LidarMap, OccupancyGrid
     from llmnav.observe import Observation
+    from llmnav.planners.base import GroundTruth
     from llmnav.scenario import Scenario
     from llmnav.sim.motion import MotionResult
     from llmnav.sim.sensors import Detection
