@@ -49,7 +49,7 @@ def start_of(scenario: Scenario, task: Task) -> Pose2D:
 
 
 def key_for(scenario: Scenario, task: Task, pose: Pose2D) -> WaypointAnswerKey:
-    return WaypointAnswerKey(GroundTruth(scenario, task, lambda: pose, lambda: 0.0))
+    return WaypointAnswerKey(GroundTruth(scenario, task, lambda: pose, lambda: 0.0), keep_clear_m=0.35)
 
 
 def test_every_bundled_corridor_task_is_listed() -> None:
@@ -118,3 +118,29 @@ def test_an_oracle_drive_through_the_junction_succeeds_and_replays_strictly(tmp_
     assert again["outcome"] == "completed" and again["final_pose"] == first["final_pose"]
     calls = [read_run(tmp_path / name).of_type("llm_call") for name in ("oracle", "again")]
     assert [c["request"] for c in calls[1]] == [c["request"] for c in calls[0]]
+
+
+def box_gap(x: float, y: float, box: tuple[float, float], half: float = 0.25) -> float:
+    """Distance [m] from (x, y) to an axis-aligned square box."""
+    return math.hypot(max(abs(x - box[0]) - half, 0.0), max(abs(y - box[1]) - half, 0.0))
+
+
+@pytest.mark.parametrize("box", [(3.5, 0.0), (3.5, 0.55)])
+def test_the_oracle_passes_a_box_beyond_the_emergency_stop(tmp_path: Path, box: tuple[float, float]) -> None:
+    # Planned on the map inflated only by radius + 0.10 m, the oracle passed the box 0.22-0.34 m off:
+    # the guard accepted it, the controller's emergency stop (below 0.35 m) fired, and every replan
+    # from beside the box failed (5 emergency stops, or no valid plan).
+    summary = run_episode(
+        EpisodeSpec(
+            scenario="corridor_a",
+            task_text="Go to room 105",
+            options=DriveOptions(planner="waypoints", obstacles=(box,)),
+            backend="policy:oracle",
+            out_dir=tmp_path / "run",
+        )
+    )
+    assert (summary["outcome"], summary["success"]) == ("completed", True), summary["reason"]
+    metrics = summary["planner_metrics"]
+    assert (metrics["wgsr"], metrics["replans"], metrics["collision_events"]) == (100.0, 0, 0)
+    poses = [e["pose"] for e in read_run(tmp_path / "run").of_type("pose")]
+    assert min(box_gap(p[0], p[1], box) for p in poses) > 0.35

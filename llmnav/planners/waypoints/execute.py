@@ -79,10 +79,10 @@ class WaypointPlanner(Planner):
             )
 
     def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
-        """Plans from the true pose through the junction points to the true target (`oracle`)."""
+        """Plans from the true pose through the junction points to the true target, beyond the emergency stop."""
         from llmnav.planners.waypoints.oracle import WaypointAnswerKey
 
-        return WaypointAnswerKey(truth)
+        return WaypointAnswerKey(truth, keep_clear_m=self.cfg.emergency_m)
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Ground, plan, validate, execute, replan — per leg of the command sequence."""

@@ -9,10 +9,15 @@ wherever the robot stands) to the true target of the requested leg, keeping ever
   and every leg is itself a valid one-point plan (the far end inside the corridor with the margin, the
   segment clear of the inflated true map and of the obstacles the request reports);
 - spacing: every leg but the last is at least the spacing long;
-- at most the environment's number of points, the last one exactly on the target.
+- at most the environment's number of points, the last one exactly on the target;
+- every segment keeps the robot's centre beyond the controller's emergency-stop distance from everything
+  solid (the true map, with any `--obstacle` box): a plan the guard accepts but that passes a box closer
+  than that is stopped every time it is driven, and its replans end the same way.
 
 When obstacles close the junction route, the shortest grid path through the corridors (shrunk by the
-margin, with the reported obstacles cleared by their stated distance) is shortcut into corners instead.
+margin, with the reported obstacles cleared by their stated distance) is cut into corners instead: from
+each corner the farthest point of the path in sight, and from the start the farthest one at least the
+spacing away (a robot stopped beside an obstacle would otherwise aim its first corner too close).
 Grounding requests (free text naming no single object) are answered with the leg's true target, by its
 id (a pick) or by scores (its label 0, every other label -10 nats; the content-free prefix all 0).
 """
@@ -28,8 +33,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from llmnav.mapping.astar import astar, shortcut
-from llmnav.mapping.grid import build_grid, nearest_free_cell
+from llmnav.mapping.astar import astar, line_of_sight
+from llmnav.mapping.grid import GridConfig, build_grid, nearest_free_cell
 from llmnav.planners.waypoints.validate import validate_waypoints
 from llmnav.tasks import sequence_legs
 
@@ -56,6 +61,7 @@ class WaypointOracleConfig:
 
     # The request prints obstacle centres to 0.01 m; the guard checks the unrounded ones.
     obstacle_slack_m: float = 0.05  # [m]
+    clear_slack_m: float = 0.05  # [m] kept beyond `keep_clear_m` (the controller's path is not a line)
 
 
 @dataclass
@@ -63,6 +69,7 @@ class WaypointAnswerKey:
     """The `AnswerKey` of one waypoint episode (see the module docstring)."""
 
     truth: GroundTruth
+    keep_clear_m: float  # [m] the robot centre stays this far from anything solid (the emergency stop)
     config: WaypointOracleConfig = field(default_factory=WaypointOracleConfig)
     _grid: OccupancyGrid | None = None
 
@@ -73,9 +80,14 @@ class WaypointAnswerKey:
 
     @property
     def grid(self) -> OccupancyGrid:
-        """The true map (with any `--obstacle` box), inflated as the planner inflates its own."""
+        """The true map (with any `--obstacle` box), inflated to `keep_clear_m` (and the slack)."""
         if self._grid is None:
-            self._grid = build_grid(self.truth.scenario)
+            from llmnav.robot_specs import ROBOT_SPECS
+
+            scenario = self.truth.scenario
+            # build_grid inflates by the robot radius plus the margin: make the sum the distance to keep
+            margin = self.keep_clear_m + self.config.clear_slack_m - ROBOT_SPECS[scenario.robot].radius_m
+            self._grid = build_grid(scenario, config=GridConfig(margin_m=max(margin, GridConfig().margin_m)))
         return self._grid
 
     def answer(self, request: ChatRequest) -> str:
@@ -258,9 +270,18 @@ def grid_plan(
     path = astar(blocked, first, last, resolution_m=geometry.resolution)
     if path is None:
         return None
-    corners = [geometry.cell_to_world(*cell) for cell in shortcut(path.cells, blocked)][1:-1]
-    points = [p for p in corners if math.dist(p, start) >= rules.spacing_m]  # too close: start from it
-    return [*points, target]
+    cells, points = path.cells, []
+    here, at = start, 0
+    while at < len(cells) - 1:
+        in_sight = [j for j in range(len(cells) - 1, at, -1) if line_of_sight(blocked, cells[at], cells[j])]
+        if not in_sight:  # the snapped start cell touches a blocked one
+            return None
+        far = [j for j in in_sight if math.dist(here, geometry.cell_to_world(*cells[j])) >= rules.spacing_m]
+        spaced = [j for j in in_sight if j == len(cells) - 1 or j in far]
+        at = (spaced or in_sight)[0]
+        here = geometry.cell_to_world(*cells[at])
+        points.append(here)
+    return [*points[:-1], target]
 
 
 def _reported_obstacles(text: str) -> tuple[list[Point], float]:
