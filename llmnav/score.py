@@ -166,7 +166,8 @@ def load_run(run_dir: Path) -> Run:
         if scenario is None:
             problems.append(f"{why}; its targets are scored only where the log records them as points")
         summary = summarize_run(record, scenario)
-    if summary.get("task_kind") == "target" and summary.get("score") is None:
+    # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
+    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_by_infrastructure(summary):
         problems.append("no score: the task's targets could not be resolved")
     return Run(Path(run_dir), summary, record.config, problems)
 
