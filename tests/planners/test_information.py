@@ -35,7 +35,8 @@ class Spy:
         caller = sys._getframe(1)
         code = caller.f_code
         if name in TRUTH.get(self._kind, set()) and "/llmnav/planners/" in code.co_filename.replace("\\", "/"):
-            self._reads.append((f"{self._kind}.{name}", Path(code.co_filename).name, code.co_name))
+            where = code.co_filename.replace("\\", "/").split("/llmnav/planners/", 1)[1]  # e.g. stepwise/planner.py
+            self._reads.append((f"{self._kind}.{name}", where, code.co_name))
         if self._kind == "world" and name == "robot":
             return Spy(value, "robot", self._reads)
         return value
@@ -143,7 +144,7 @@ def test_stepwise_sensed_reads_the_true_pose_only_to_log_it(
     summary = run_episode(spec, backend_obj=replay)
     assert contexts[0].information == "sensed" and contexts[0].scenario.objects == []
     assert summary["information"] == "sensed"
-    assert reads and {(what, where, fn) for what, where, fn in reads} == {("robot.pose", "stepwise.py", "_log_action")}
+    assert reads and {(what, where, fn) for what, where, fn in reads} == {("robot.pose", "stepwise/planner.py", "_log_action")}
 
 
 @pytest.mark.parametrize(
