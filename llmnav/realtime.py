@@ -9,8 +9,10 @@ block at ordinary priority: only the loop itself runs first.
 
 Anything the loop waits for must not run at ordinary priority on a busy core, or the loop waits as long
 as that thread is preempted (priority inversion): the GIL held by another thread of the process, a
-helper thread of a native library. So the simulator casts its rays in the calling thread, and
-`frozen_heap()` keeps the garbage collector from scanning the whole heap during a tick.
+helper thread of a native library. So a model that computes inside the process runs in a process of its
+own below the loop's priority (llmnav.backends.isolated), the simulator casts its rays in the calling
+thread, and `frozen_heap()` keeps the garbage collector from scanning the whole heap during a tick.
+`available_priority()` tells beforehand what the loop will get.
 """
 
 from __future__ import annotations
@@ -52,6 +54,23 @@ def realtime_priority(priority: int = FIFO_PRIORITY) -> Iterator[str]:
             os.sched_setscheduler(0, saved_policy, saved_param)
         elif got != "normal":
             os.setpriority(os.PRIO_PROCESS, tid, saved_nice)
+
+
+def available_priority() -> str:
+    """What `realtime_priority()` would give a thread here ("fifo", "nice-5" or "normal"), changing nothing.
+
+    Probed on a throwaway thread, so a helper process can be placed below the loop before the loop starts.
+    """
+    found: list[str] = []
+
+    def probe() -> None:
+        with realtime_priority() as got:
+            found.append(got)
+
+    thread = threading.Thread(target=probe, name="llmnav-priority-probe")
+    thread.start()
+    thread.join()
+    return found[0] if found else "normal"
 
 
 @contextlib.contextmanager

@@ -1,6 +1,6 @@
 """The control loop's scheduling: SCHED_FIFO for the block where permitted, the nice fallback where not,
-the previous policy back afterwards, and threads started inside at ordinary priority; a heap the collector
-leaves alone; no helper thread for the loop to wait on."""
+the previous policy back afterwards, and threads started inside at ordinary priority; what the loop will
+get, told beforehand; a heap the collector leaves alone; no helper thread for the loop to wait on."""
 
 from __future__ import annotations
 
@@ -64,6 +64,14 @@ def test_without_permission_the_thread_gets_a_nice_boost_or_nothing(monkeypatch:
     monkeypatch.setattr(os, "setpriority", refuse)
     with realtime_priority() as got:
         assert got == "normal"
+
+
+def test_available_priority_tells_what_the_loop_will_get_and_changes_nothing() -> None:
+    before = (os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+    predicted = realtime.available_priority()
+    assert (os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, threading.get_native_id())) == before
+    with realtime_priority() as got:
+        assert got == predicted
 
 
 def test_the_heap_alive_before_the_block_is_left_out_of_collections_inside_it() -> None:
