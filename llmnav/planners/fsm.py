@@ -279,8 +279,8 @@ class _Worker:
 class _ProcessWorker:
     """Realtime mode with an in-process engine (`Backend.engine_in_process`): the model in its own process.
 
-    It runs at a lower priority (llmnav.backends.isolated), and the loop thread itself sends the request
-    and polls for the answer between ticks. No other thread of the loop's process runs Python, so the
+    It runs below the loop's priority (llmnav.backends.isolated), and the loop thread itself sends the
+    request and polls for the answer between ticks. No other thread of the loop's process runs Python, so the
     loop never waits for the GIL; the `llm_call` event goes through `record`.
     """
 
@@ -425,7 +425,7 @@ class FsmPlanner(Planner):
 
         tick = 0
         # Realtime: the loop thread runs ahead of every ordinary process where permitted, so another job on
-        # the same cores cannot make it miss a slot (the model's process or worker thread stays ordinary).
+        # the same cores cannot make it miss a slot (the model's process or worker thread stays below it).
         scheduling = contextlib.ExitStack()
         stats.scheduling = scheduling.enter_context(realtime_priority()) if opts.realtime else "simulated"
         if opts.realtime:
