@@ -1,9 +1,9 @@
-"""A backend run in a process of its own, at a lower priority: for a control loop that must never wait on it.
+"""A backend run in a process of its own, for a control loop that must never wait on it.
 
 An in-process engine (llama.cpp through xllamacpp) runs inside the Python process, and the thread that
 calls it takes the GIL around each call; a 50 Hz loop thread in the same process then waits for the GIL,
 however high its own scheduling priority, for as long as that thread holds it or is preempted holding it
-(measured at load 7 under SCHED_FIFO: a detector call of 8.4 ms CPU took 26.8 ms, a tick started
+(measured under SCHED_FIFO at load 3-7: a detector call of 8.4 ms CPU took 26.8 ms, a tick started
 14.8 ms late). `ModelProcess` runs the backend in a child interpreter instead, so the loop's process
 runs no Python thread but the loop:
 
@@ -15,7 +15,8 @@ runs no Python thread but the loop:
 - the two talk over a private socket pair with `multiprocessing.connection` framing: `submit` and
   `poll` never block on the model, so the loop thread itself can call them between ticks;
 - a failure in the child comes back as the same `LlmnavError` it raised (a `ModelError` when it cannot
-  be sent), and a child that died is a `ModelError` at the next call, never a hang.
+  be sent), and a child that died or stopped answering is a `ModelError` at every later call, never a
+  hang.
 """
 
 from __future__ import annotations
@@ -149,8 +150,8 @@ class ModelProcess:
             if self._dead is None and not self._conn.poll(min(0.5, max(0.0, deadline - time.monotonic()))):
                 if self._process.poll() is not None:
                     self._dead = self._ended()
-                elif time.monotonic() >= deadline:
-                    raise ModelError(f"{self.spec}: the model process gave no answer to {what} in {timeout_s:.0f} s")
+                elif time.monotonic() >= deadline:  # its answer could come any time later: never use it
+                    self._dead = f"the model process gave no answer to {what} in {timeout_s:.0f} s"
                 continue
             reply = self.poll()
             if reply is not None:

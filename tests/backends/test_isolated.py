@@ -68,3 +68,20 @@ def test_a_child_that_died_answers_with_an_error_not_a_hang() -> None:
             process.chat(REQUEST)
     finally:
         process.close()
+
+
+def test_a_child_that_stops_answering_is_given_up_not_waited_for(monkeypatch: pytest.MonkeyPatch) -> None:
+    from llmnav.backends import isolated
+
+    monkeypatch.setattr(isolated, "CALL_TIMEOUT_S", 0.5)
+    process = ModelProcess("policy:first")
+    try:
+        os.kill(process.pid, signal.SIGSTOP)  # alive, but never answers
+        with pytest.raises(ModelError, match="no answer"):
+            process.chat(REQUEST)
+        process.submit(REQUEST)  # no "already in flight": a late answer is never taken for this one
+        result, error, _ = poll_until_answered(process, timeout_s=2.0)
+        assert result is None and isinstance(error, ModelError)
+    finally:
+        os.kill(process.pid, signal.SIGCONT)
+        process.close()
