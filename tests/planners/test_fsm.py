@@ -181,7 +181,7 @@ def test_realtime_runs_an_in_process_model_in_a_process_of_its_own(tmp_path, mon
         return real_pace(self, *args)
 
     monkeypatch.setattr(fsm.FsmPlanner, "_pace", pace)
-    summary, record = run_fsm(tmp_path, "rt", assist="llm", backend=backend, realtime=True, max_ticks=600)
+    summary, record = run_fsm(tmp_path, "rt", assist="llm", backend=backend, realtime=True, max_ticks=300)
     metrics = summary["planner_metrics"]
     assert metrics["model_in"] == "process" and metrics["suggestions"] > 0, metrics
     assert threads == {threading.main_thread().name}, threads
