@@ -2,7 +2,7 @@
 
 `Message` (a role, text and images), `Image` (a base64 JPEG), `ChatRequest` (what a planner asks) and
 `ChatResult` (a model's reply and its cost); `ScoreRequest` and `ScoreResult` (log-probabilities of
-given continuations).
+given continuations); `AnswerKey` (the answers a perfect model would give, which `policy:oracle` returns).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import base64
 import hashlib
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 Role = Literal["system", "user", "assistant"]
 
@@ -149,3 +149,23 @@ class ScoreResult:
             "model": self.model,
             "meta": self.meta,
         }
+
+
+@runtime_checkable
+class AnswerKey(Protocol):
+    """The answers a perfect model would give to one planner's requests in one episode (its ceiling).
+
+    A planner builds it from ground truth (its `oracle_answers` hook) and the `policy:oracle` backend
+    returns its answers: they travel the road of every model's answers (request, guard, veto, log, strict
+    replay), and the backend itself never reads the simulator.
+    """
+
+    @property
+    def can_score(self) -> bool:
+        """Whether `scores` answers scoring requests (planners that decide by scored option texts)."""
+
+    def answer(self, request: ChatRequest) -> str:
+        """The reply text a perfect model would write to `request`."""
+
+    def scores(self, request: ScoreRequest) -> tuple[float, ...]:
+        """A log-probability [nats] per continuation of `request` that ranks them as a perfect model would."""

@@ -58,6 +58,13 @@ class Pose2D:
         """Signed angle [rad] from the heading to the direction of a point (positive = to the left)."""
         return wrap_angle(math.atan2(y - self.y, x - self.x) - self.yaw)
 
+    def carry(self, x: float, y: float, onto: Pose2D) -> tuple[float, float]:
+        """The point lying relative to `onto` as (x, y) lies relative to this pose (a change of frame)."""
+        dx, dy = x - self.x, y - self.y
+        turn = onto.yaw - self.yaw
+        c, s = math.cos(turn), math.sin(turn)
+        return onto.x + c * dx - s * dy, onto.y + s * dx + c * dy
+
     def as_list(self) -> list[float]:
         """[x, y, yaw] rounded for logs (mm and mrad precision is plenty for replay comparisons)."""
         return [round(self.x, 4), round(self.y, 4), round(self.yaw, 4)]

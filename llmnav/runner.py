@@ -33,6 +33,7 @@ from llmnav.scenario import resolve_scenario_path
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
+    from llmnav.backends.policy import PolicyBackend
     from llmnav.geometry import Pose2D
     from llmnav.planners.base import Planner
     from llmnav.runlog import RunLog, RunRecord
@@ -122,6 +123,7 @@ def build_config(
         "start_pose": start.as_list(),
         "planner": spec.options.planner,
         "information": information,
+        "answers": answers_information(backend),
         "backend": redact_userinfo(backend.spec) if backend is not None else None,
         # what the requests carried (replay asks the same): {"modality": "text" | "multimodal", "attachments"}
         **(request_modality(backend, camera) if backend is not None else {"modality": None, "attachments": []}),
@@ -130,6 +132,20 @@ def build_config(
         "prompt_hashes": prompts,
         **({"condition_hash": spec.condition} if spec.condition else {}),
     }
+
+
+def oracle_backend(backend: Backend | None) -> PolicyBackend | None:
+    """`backend` when it answers from the planner's answer key (`policy:oracle`), else None."""
+    from llmnav.backends.policy import PolicyBackend
+
+    return backend if isinstance(backend, PolicyBackend) and backend.wants_answer_key else None
+
+
+def answers_information(backend: Backend | None) -> str | None:
+    """What the answerer knew: "oracle" (ground truth, `policy:oracle`), "request" (only what it was sent)."""
+    if backend is None:
+        return None
+    return "oracle" if oracle_backend(backend) is not None else "request"
 
 
 def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
@@ -184,6 +200,8 @@ def run_episode(
     if backend is not None:
         try:
             planner.check_backend(backend, spec.options)
+            if oracle_backend(backend) is not None and not planner.offers_oracle_answers():
+                raise BadInputError(f"the {spec.options.planner} planner offers no oracle answers ({backend.spec})")
         except BaseException:
             if owns_backend:
                 backend.close()
@@ -246,6 +264,7 @@ def _run_logged(
 
     known = scenario_view(scenario, information)
     ctx = EpisodeContext(known, task, PlannerWorld(world, log), backend, log, spec.options, view, information)
+    _attach_answer_key(planner, world, scenario, task, backend, spec.options)
     crash: BaseException | None = None
     try:
         outcome = planner.run(ctx)
@@ -265,6 +284,9 @@ def _run_logged(
         outcome = EpisodeOutcome("aborted", reason)
     finally:
         world.motion.on_pose = None
+        oracle = oracle_backend(backend)
+        if oracle is not None:
+            oracle.attach_answer_key(None)
     log.sim_time = world.sim_time
     log.event("pose", pose=world.robot.pose().as_list())
     log.event(
@@ -283,6 +305,7 @@ def _run_logged(
         outcome.metrics = {**outcome.metrics, **planner.summarize(record, scenario, task)}
     summary = summarize_run(record, scenario, outcome)
     summary["information"] = information
+    summary["answers"] = answers_information(backend)
     summary["run_dir"] = str(log.run_dir)
     log.write_summary(summary)
     if not spec.plots:
@@ -293,6 +316,22 @@ def _run_logged(
     if crash is not None:
         raise crash
     return summary
+
+
+def _attach_answer_key(
+    planner: Planner, world: World, scenario: Scenario, task: Task, backend: Backend | None, options: DriveOptions
+) -> None:
+    """Hand `policy:oracle` the planner's answer key, built from ground truth the planner's decisions never see."""
+    oracle = oracle_backend(backend)
+    if oracle is None:
+        return
+    from llmnav.mapping.targets import with_added_obstacles
+    from llmnav.planners.base import GroundTruth
+
+    truth = GroundTruth(
+        with_added_obstacles(scenario, options.obstacles), task, world.robot.pose, lambda: world.sim_time
+    )
+    oracle.attach_answer_key(planner.oracle_answers(truth, options))
 
 
 def _planner_figures(planner: Planner, record: RunRecord, log: RunLog, summary: dict[str, Any]) -> None:

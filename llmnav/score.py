@@ -1,11 +1,12 @@
 """`llmnav score`: read run folders, group them by task and condition, and build the sources' tables.
 
 Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
-`build_tables` (stepwise / path / waypoint / FSM tables, plus the null-policy and wording tables of
-`llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A KEY=B`). Rendering
-(rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data (`Table`): formatted
-cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a scenario that does not
-load, an oracle that fails) is noted on its `Run` and listed by `problems`, never silently dropped.
+`build_tables` (stepwise / path / waypoint / FSM tables, plus the null-policy, floor/model/ceiling and
+wording tables of `llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A
+KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data
+(`Table`): formatted cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a
+scenario that does not load, an oracle that fails) is noted on its `Run` and listed by `problems`, never
+silently dropped.
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ if TYPE_CHECKING:
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
 ITERATIVE_PLANNERS = frozenset({"stepwise", "hybrid"})
+ORACLE_BACKEND = "policy:oracle"  # answers computed from the ground truth: a ceiling, neither model nor null policy
+ORACLE_MARK = " (oracle answers)"
 
 
 @dataclass
@@ -163,7 +166,8 @@ def load_run(run_dir: Path) -> Run:
         if scenario is None:
             problems.append(f"{why}; its targets are scored only where the log records them as points")
         summary = summarize_run(record, scenario)
-    if summary.get("task_kind") == "target" and summary.get("score") is None:
+    # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
+    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_by_infrastructure(summary):
         problems.append("no score: the task's targets could not be resolved")
     return Run(Path(run_dir), summary, record.config, problems)
 
@@ -215,11 +219,22 @@ def varying_keys(runs: Sequence[Run]) -> list[str]:
     return keys
 
 
+def is_oracle(run: Run) -> bool:
+    """Whether oracle answers (`policy:oracle`, computed from the ground truth) drove this run."""
+    backend = str(run.summary.get("backend") or "")
+    return backend == ORACLE_BACKEND or backend.startswith(f"{ORACLE_BACKEND}:")
+
+
 def condition_label(run: Run, keys: Sequence[str]) -> str:
-    """`key=value, ...` over the varying keys ("all" when nothing varies)."""
-    if not keys:
-        return "all"
-    return ", ".join(f"{k}={run.condition.get(k)}" for k in keys)
+    """`key=value, ...` over the varying keys ("all" when nothing varies); oracle runs are marked as such.
+
+    The mark is part of the label even when the backend is not a grouping key, so oracle answers are never
+    pooled with a model's and a reader never takes them for one.
+    """
+    oracle = is_oracle(run)
+    parts = [f"{k}={run.condition.get(k)}{ORACLE_MARK if oracle and k == 'backend' else ''}" for k in keys]
+    label = ", ".join(parts) or "all"
+    return label + ORACLE_MARK if oracle and "backend" not in keys else label
 
 
 def condition_fields(run: Run, keys: Sequence[str]) -> dict[str, Any]:
@@ -529,12 +544,13 @@ def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
 
 def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
     """Every table that has data; groups are told apart by `group_keys` (default: the varying keys)."""
-    from llmnav.score_policies import null_policy_table, wording_spread_table, wording_table
+    from llmnav.score_policies import ceiling_table, null_policy_table, wording_spread_table, wording_table
 
     keys = list(group_keys) if group_keys is not None else varying_keys(runs)
     results, aborted = split_aborted(runs)
     builders = (
-        stepwise_table, path_table, waypoint_table, fsm_table, null_policy_table, wording_table, wording_spread_table
+        stepwise_table, path_table, waypoint_table, fsm_table, null_policy_table, ceiling_table, wording_table,
+        wording_spread_table,
     )  # fmt: skip
     tables = [t for t in (b(results, keys) for b in builders) if t is not None]
     table = aborted_table(aborted, keys)

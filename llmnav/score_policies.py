@@ -6,6 +6,9 @@
   episodes they share, the differences (Δ = model − policy) and n beside every mean. A row whose best
   policy does at least as well as the model says so in its own column: a planner that succeeds whatever
   the model answers shows up here, not in a footnote.
+- `ceiling_table`: floor, model and ceiling on the same episodes: the best null policy, the model and the
+  oracle answers (`policy:oracle`, what a perfect model would answer), and the share of the gap between
+  floor and ceiling that the model closes, for success rate and for mean score.
 - `wording_table` and `wording_spread_table`: success and score per task wording (bundled, paraphrase:K,
   free), and their spread across wordings, when runs record the wording.
 """
@@ -14,21 +17,41 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from llmnav.metrics import CONDITION_KEYS
-from llmnav.score import MISSING, Run, Table, _hashable, _num, _task_sort_key, condition_fields, condition_label
+from llmnav.score import (
+    MISSING,
+    Run,
+    Table,
+    _hashable,
+    _num,
+    _task_sort_key,
+    condition_fields,
+    condition_label,
+    is_oracle,
+)
 from llmnav.stats import mean_sd
 
 POLICY_PREFIX = "policy:"
 ALL_TASKS = "All tasks"
+GAP_EPSILON = 1e-9  # a ceiling no further above the floor than rounding leaves no gap to close
+
+Setting = tuple[Any, ...]
+GroupKey = tuple[str, str, Setting]  # (task or ALL_TASKS, condition label, setting)
+K = TypeVar("K", bound=tuple[Any, ...])
 
 
 def is_policy(run: Run) -> bool:
-    """Whether a null policy answered this run."""
-    return str(run.summary.get("backend") or "").startswith(POLICY_PREFIX)
+    """Whether a null policy answered this run (the oracle's answers are no null policy: they know the truth)."""
+    return str(run.summary.get("backend") or "").startswith(POLICY_PREFIX) and not is_oracle(run)
+
+
+def is_model(run: Run) -> bool:
+    """Whether a model answered this run: a backend that is neither a null policy nor the oracle."""
+    return bool(run.summary.get("backend")) and not str(run.summary.get("backend")).startswith(POLICY_PREFIX)
 
 
 def _setting(run: Run) -> tuple[Any, ...]:
@@ -96,6 +119,7 @@ class PolicyResult:
     policy: str
     model: Outcomes
     null: Outcomes
+    episodes: frozenset[tuple[Any, ...]]
 
     @property
     def rank(self) -> tuple[float, float]:
@@ -105,7 +129,7 @@ class PolicyResult:
 
 def _against(model_runs: Sequence[Run], policy_runs: Sequence[Run]) -> PolicyResult | None:
     """Model and policy outcomes restricted to the episodes both ran (None when they share none)."""
-    shared = {r.episode for r in model_runs} & {r.episode for r in policy_runs}
+    shared = frozenset({r.episode for r in model_runs} & {r.episode for r in policy_runs})
     if not shared:
         return None
     policy = str(policy_runs[0].summary.get("backend"))
@@ -113,42 +137,63 @@ def _against(model_runs: Sequence[Run], policy_runs: Sequence[Run]) -> PolicyRes
         policy,
         Outcomes.of([r for r in model_runs if r.episode in shared]),
         Outcomes.of([r for r in policy_runs if r.episode in shared]),
+        shared,
     )
+
+
+def _null_policies(runs: Iterable[Run]) -> dict[Setting, dict[str, list[Run]]]:
+    """The null-policy runs by setting, then by policy."""
+    out: dict[Setting, dict[str, list[Run]]] = defaultdict(lambda: defaultdict(list))
+    for run in runs:
+        if is_policy(run):
+            out[_setting(run)][str(run.summary.get("backend"))].append(run)
+    return out
+
+
+def _model_groups(runs: Iterable[Run], keys: Sequence[str]) -> dict[GroupKey, list[Run]]:
+    """The model runs by task × condition × setting, with an 'All tasks' group per condition."""
+    groups: dict[GroupKey, list[Run]] = defaultdict(list)
+    for run in runs:
+        if is_model(run):
+            label = condition_label(run, keys)
+            groups[(run.task, label, _setting(run))].append(run)
+            groups[(ALL_TASKS, label, _setting(run))].append(run)
+    return groups
+
+
+def _on_task(runs: Iterable[Run], task: str) -> list[Run]:
+    """The runs of `task` (every run for the 'All tasks' row)."""
+    return list(runs) if task == ALL_TASKS else [r for r in runs if r.task == task]
+
+
+def _policy_results(subject: Sequence[Run], task: str, policies: Mapping[str, Sequence[Run]]) -> list[PolicyResult]:
+    """Each null policy of `task` against `subject` on the episodes both ran, by policy name."""
+    results = [_against(subject, _on_task(runs, task)) for runs in policies.values()]
+    return sorted((r for r in results if r is not None), key=lambda r: r.policy)
+
+
+def _best(candidates: Sequence[PolicyResult]) -> PolicyResult | None:
+    """The floor: highest success rate, then mean score; ties go to the alphabetically first policy."""
+    return max(candidates, key=lambda c: c.rank) if candidates else None
 
 
 def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     """See the module docstring; None when there is no model run with a matching null-policy run."""
-    nulls: dict[tuple[Any, ...], dict[str, list[Run]]] = defaultdict(lambda: defaultdict(list))
-    for run in runs:
-        if is_policy(run):
-            nulls[_setting(run)][str(run.summary.get("backend"))].append(run)
-    model_runs = [r for r in runs if r.summary.get("backend") and not is_policy(r)]
-    if not nulls or not model_runs:
+    nulls = _null_policies(runs)
+    groups = _model_groups(runs, keys)
+    if not nulls or not groups:
         return None
-    groups: dict[tuple[str, str, tuple[Any, ...]], list[Run]] = defaultdict(list)
-    for run in model_runs:
-        label = condition_label(run, keys)
-        groups[(run.task, label, _setting(run))].append(run)
-        groups[(ALL_TASKS, label, _setting(run))].append(run)
     columns = [
         "Task", "Condition", "Model success", "Model score", "Best null policy", "Null success", "Null score",
         "Δ success", "Δ score", "Null ≥ model", "Every null policy (success, score)",
     ]  # fmt: skip
     rows, records = [], []
-    order = sorted(groups, key=lambda k: (k[0] == ALL_TASKS, _task_sort_key(k[0]), k[1]))
-    for task, label, setting in order:
+    for task, label, setting in _ordered(groups):
         group = groups[(task, label, setting)]
-        candidates = []
-        for policy_runs in nulls.get(setting, {}).values():
-            if task != ALL_TASKS:
-                policy_runs = [r for r in policy_runs if r.task == task]
-            result = _against(group, policy_runs) if policy_runs else None
-            if result is not None:
-                candidates.append(result)
-        if not candidates:
+        candidates = _policy_results(group, task, nulls.get(setting, {}))
+        best = _best(candidates)
+        if best is None:
             continue
-        candidates.sort(key=lambda c: c.policy)
-        best = max(candidates, key=lambda c: c.rank)  # ties: the alphabetically first policy
         d_success = _delta(best.model.success_rate, best.null.success_rate)
         d_score = _delta(best.model.score_mean, best.null.score_mean)
         matches = (d_success is not None and d_success <= 0) and (d_score is None or d_score <= 0)
@@ -191,6 +236,165 @@ def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     return Table("Model vs null policies (same episodes)", columns, rows, records, note, name="null_policies")
 
 
+# --- floor, model and ceiling -------------------------------------------------------------------
+
+
+def _gap_closed(model: float | None, floor: float | None, ceiling: float | None) -> float | None:
+    """(model − floor) / (ceiling − floor); None when a value is missing or the ceiling is not above the floor.
+
+    A ceiling at or below the floor leaves no gap: any share of it would be a division by zero or a sign flip.
+    """
+    if model is None or floor is None or ceiling is None or ceiling - floor <= GAP_EPSILON:
+        return None
+    return (model - floor) / (ceiling - floor)
+
+
+def _share_cell(value: float | None, n: int) -> str:
+    """`50% (n=4)`, or "—" without a share."""
+    return MISSING if value is None else f"{value:.0%} (n={n})"
+
+
+def _cells(tally: Outcomes) -> list[str]:
+    """Success and score cells; "—" for an empty side (no model run, no null policy on these episodes)."""
+    return [tally.success_cell(), tally.score_cell()] if tally.n else [MISSING, MISSING]
+
+
+def _oracle_groups(
+    runs: Iterable[Run], keys: Sequence[str], models: Mapping[GroupKey, Sequence[Run]]
+) -> tuple[dict[Setting, list[Run]], dict[GroupKey, list[Run]]]:
+    """The oracle runs by setting, and the rows' groups.
+
+    The groups are every model group, plus an empty one (labelled by the oracle's condition) for each task,
+    and 'All tasks', of a setting that has oracle runs and no model run there.
+    """
+    oracles: dict[Setting, list[Run]] = defaultdict(list)
+    groups = {key: list(group) for key, group in models.items()}
+    with_model = {(task, setting) for task, _, setting in models}
+    for run in runs:
+        if not is_oracle(run):
+            continue
+        setting = _setting(run)
+        oracles[setting].append(run)
+        for task in (run.task, ALL_TASKS):
+            if (task, setting) not in with_model:
+                groups.setdefault((task, condition_label(run, keys), setting), [])
+    return oracles, groups
+
+
+@dataclass(frozen=True)
+class Span:
+    """Floor, model and ceiling on the episodes all three ran (an empty side: no runs there)."""
+
+    floor_policy: str | None
+    floor: Outcomes
+    model: Outcomes
+    ceiling: Outcomes
+    episodes: int
+    scored_episodes: int  # of those, the ones the model's runs have a score for (explore tasks have none)
+
+    @property
+    def gap_success(self) -> float | None:
+        """Share of the floor-to-ceiling gap in success rate that the model closes."""
+        return _gap_closed(self.model.success_rate, self.floor.success_rate, self.ceiling.success_rate)
+
+    @property
+    def gap_score(self) -> float | None:
+        """Share of the floor-to-ceiling gap in mean score that the model closes."""
+        return _gap_closed(self.model.score_mean, self.floor.score_mean, self.ceiling.score_mean)
+
+
+def _span(
+    task: str, model_runs: Sequence[Run], oracle_runs: Sequence[Run], policies: Mapping[str, Sequence[Run]]
+) -> Span | None:
+    """Floor, model and ceiling of `task` (or 'All tasks') restricted to shared episodes; None when none are.
+
+    Without model runs the oracle's episodes are the subject, and a row needs a floor to say anything.
+    """
+    oracle = _on_task(oracle_runs, task)
+    episodes = {r.episode for r in oracle}
+    if model_runs:
+        episodes &= {r.episode for r in model_runs}
+    subject = [r for r in (model_runs or oracle) if r.episode in episodes]
+    floor = _best(_policy_results(subject, task, policies))  # chosen on the episodes the ceiling has too
+    if floor is not None:
+        episodes &= floor.episodes
+    if not episodes or (floor is None and not model_runs):
+        return None
+    model = [r for r in model_runs if r.episode in episodes]
+    return Span(
+        floor.policy if floor is not None else None,
+        floor.null if floor is not None else Outcomes.of([]),
+        Outcomes.of(model),
+        Outcomes.of([r for r in oracle if r.episode in episodes]),
+        len(episodes),
+        len({r.episode for r in model if _num(r.summary.get("score")) is not None}),
+    )
+
+
+def _ceiling_row(
+    task: str, label: str, span: Span, first: Run, keys: Sequence[str]
+) -> tuple[list[str], dict[str, Any]]:
+    """The displayed row and the raw record of one span; `first` gives the condition's fields."""
+    row = [
+        task,
+        label,
+        span.floor_policy or MISSING,
+        *_cells(span.floor),
+        *_cells(span.model),
+        *_cells(span.ceiling),
+        _share_cell(span.gap_success, span.episodes),
+        _share_cell(span.gap_score, span.scored_episodes),
+    ]
+    record = {
+        "task": task,
+        "condition": label,
+        **condition_fields(first, keys),
+        "floor_policy": span.floor_policy,
+        "floor": span.floor.record(),
+        "model": span.model.record(),
+        "ceiling": span.ceiling.record(),
+        "gap_closed_success": span.gap_success,
+        "gap_closed_score": span.gap_score,
+        "n": span.episodes,
+        "n_score": span.scored_episodes,
+    }
+    return row, record
+
+
+def ceiling_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Floor (best null policy), model and ceiling (oracle answers) on the same episodes; None without oracle runs.
+
+    Rows are the model groups of the null-policy table; a setting with oracle runs and null policies but no
+    model run gets a row of its own (model cells "—"), so the span a model could cover is seen before any ran.
+    """
+    oracles, groups = _oracle_groups(runs, keys, _model_groups(runs, keys))
+    if not oracles:
+        return None
+    nulls = _null_policies(runs)
+    columns = [
+        "Task", "Condition", "Floor: best null policy", "Floor success", "Floor score", "Model success",
+        "Model score", "Oracle answers success", "Oracle answers score", "Gap closed: success", "Gap closed: score",
+    ]  # fmt: skip
+    rows, records = [], []
+    for task, label, setting in _ordered(groups):
+        model_runs, oracle_runs = groups[(task, label, setting)], oracles.get(setting, [])
+        span = _span(task, model_runs, oracle_runs, nulls.get(setting, {}))
+        if span is None:
+            continue
+        row, record = _ceiling_row(task, label, span, (model_runs or oracle_runs)[0], keys)
+        rows.append(row)
+        records.append(record)
+    if not rows:
+        return None
+    note = (
+        "floor: the best null policy; ceiling: oracle answers (policy:oracle, what a perfect model would answer, "
+        "from the ground truth); all three on the episodes they share. Gap closed = (model − floor) / "
+        "(ceiling − floor), n = shared episodes (with a score, for the score); — when the oracle answers do "
+        "no better than the floor (no gap to close) or a side has no runs"
+    )
+    return Table("Floor, model and ceiling (same episodes)", columns, rows, records, note, name="ceiling")
+
+
 def _by_wording(runs: Sequence[Run], keys: Sequence[str]) -> dict[tuple[str, str], dict[str, list[Run]]]:
     """(task, condition) -> wording -> runs, with an 'All tasks' entry per condition."""
     out: dict[tuple[str, str], dict[str, list[Run]]] = defaultdict(lambda: defaultdict(list))
@@ -203,7 +407,8 @@ def _by_wording(runs: Sequence[Run], keys: Sequence[str]) -> dict[tuple[str, str
     return out
 
 
-def _ordered(groups: dict[tuple[str, str], Any]) -> list[tuple[str, str]]:
+def _ordered(groups: Iterable[K]) -> list[K]:
+    """Group keys `(task, label, ...)` in table order: by task number, 'All tasks' last, then by label."""
     return sorted(groups, key=lambda k: (k[0] == ALL_TASKS, _task_sort_key(k[0]), k[1]))
 
 

@@ -12,10 +12,21 @@ from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, ClassVar
 
-from llmnav.chat import ChatRequest, ChatResult, ContinuationScore, Image, Message, Role, ScoreRequest, ScoreResult
+from llmnav.chat import (
+    AnswerKey,
+    ChatRequest,
+    ChatResult,
+    ContinuationScore,
+    Image,
+    Message,
+    Role,
+    ScoreRequest,
+    ScoreResult,
+)
 from llmnav.errors import BackendSpecError, ModelError
 
 __all__ = [
+    "AnswerKey",
     "Backend",
     "BackendStatus",
     "ChatRequest",

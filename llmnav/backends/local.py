@@ -74,7 +74,9 @@ GGUF_MAGIC = b"GGUF"  # the first four bytes of every GGUF file
 _COMPACT_JSON = {"whitespace_flexible": False, "item_separator": ",", "key_separator": ":"}
 TEXT_CAP_CHARS = 240  # free-text fields of a constrained answer: about 50 tokens, a few sentences
 _JSON_VALUE_STARTS = frozenset('{["-0123456789tfn')  # how any compact JSON value begins
-DEFAULT_N_CTX = 4096  # [tokens] llama.cpp's own default (512) is too small for a stepwise history
+# [tokens] SmolLM2's trained context. llama.cpp's own default (512) is far too small for a stepwise history,
+# and 4096 was too: the full history passed 4,100 tokens by step 18 of 30, ending every factory episode.
+DEFAULT_N_CTX = 8192
 THREADS_ENV = "LLMNAV_LOCAL_THREADS"  # overrides the thread count (e.g. on an idle many-core box)
 PROMPT_CACHE_RAM = 256  # [MiB] host-RAM copies of evicted prompt prefixes (llama.cpp default: 8 GiB)
 
@@ -450,7 +452,7 @@ def _rounded(value: Any) -> float | None:
 class LocalBackend(Backend):
     """An in-process model: the shipped SmolLM2-135M GGUF by default (text only, grammar-constrained JSON).
 
-    Options: `n_ctx` [tokens] (default 4096), `threads` (default: by mode, see `model_threads`, or
+    Options: `n_ctx` [tokens] (default 8192), `threads` (default: by mode, see `model_threads`, or
     $LLMNAV_LOCAL_THREADS), `verbose` (let llama.cpp log to stderr).
 
     Deterministic at temperature 0 with a seed: the same request in the same cache state gives the same

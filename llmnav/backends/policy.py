@@ -1,4 +1,7 @@
-"""Null-policy backends `policy:first`, `policy:random[:SEED]`, `policy:keyword`: answers with no model.
+"""Answers with no model: the null policies (the floor) and `policy:oracle` (the ceiling).
+
+`policy:first`, `policy:random[:SEED]` and `policy:keyword` answer from the request alone;
+`policy:oracle` gives the answers a perfect model would give.
 
 A null policy answers any request by reading only its JSON Schema (and, for `keyword`, the texts the
 request shows beside each allowed value). It tells how much of a planner's result the planner itself earns:
@@ -22,6 +25,10 @@ Scoring requests (a prefix and continuations, see `ScoreRequest`) get the same p
 planner that decides by scores has the same null baselines: `first` scores by position (the first
 continuation highest), `random` draws a seeded score per continuation, `keyword` counts the words each
 continuation shares with the prefix's task line.
+
+`policy:oracle` reads nothing itself: the runner attaches the episode planner's `AnswerKey` (built from
+ground truth by the planner's `oracle_answers` hook) and the backend returns its answers and scores. A
+planner that offers no answer key cannot run on it (bad input, before any run folder exists).
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from llmnav.backends.base import (
+    AnswerKey,
     Backend,
     BackendStatus,
     ChatRequest,
@@ -46,7 +54,8 @@ from llmnav.backends.base import (
 )
 from llmnav.errors import BackendSpecError, ModelError
 
-POLICIES = ("first", "random", "keyword")
+POLICIES = ("first", "random", "keyword", "oracle")
+NULL_POLICIES = ("first", "random", "keyword")  # the floor; "oracle" is the ceiling
 DEFAULT_NUMBER = 1.0  # value of a number the schema leaves unbounded (e.g. FRONT 1 m, a waypoint at 1)
 FILLER_TEXT = "null policy"  # free-text fields (reasoning, goal): say what answered, nothing more
 # Words too common to say anything about which option a task means.
@@ -186,7 +195,7 @@ def parse_policy(arg: str | None) -> tuple[str, int]:
     """`first` | `random[:SEED]` | `keyword` -> (policy, seed); BackendSpecError on anything else."""
     name, _, seed_text = (arg or "").partition(":")
     name = name.strip().lower()
-    known = "policy:first, policy:random[:SEED], policy:keyword"
+    known = "policy:first, policy:random[:SEED], policy:keyword, policy:oracle"
     if name not in POLICIES:
         raise BackendSpecError(f"unknown policy '{arg or ''}' (known: {known})")
     if seed_text and name != "random":
@@ -203,7 +212,10 @@ class PolicyBackend(Backend):
 
     name = "policy"
     default_arg = "first"
-    description = "Null policies, no model: policy:first, policy:random[:SEED], policy:keyword"
+    description = (
+        "No model: null policies policy:first, policy:random[:SEED], policy:keyword; "
+        "policy:oracle answers as a perfect model would (ground truth)"
+    )
     example = "policy:first"
     multimodal = False
     deterministic = True
@@ -213,19 +225,42 @@ class PolicyBackend(Backend):
         if options:
             raise BackendSpecError(f"policy takes no options, got: {', '.join(sorted(options))}")
         self.policy, self.seed = parse_policy(self.arg)
+        self.answer_key: AnswerKey | None = None  # policy:oracle: attached by the runner per episode
+
+    @property
+    def wants_answer_key(self) -> bool:
+        """Whether this backend answers from a planner's answer key (`policy:oracle`)."""
+        return self.policy == "oracle"
+
+    def attach_answer_key(self, key: AnswerKey | None) -> None:
+        """The answer key of the episode about to run (None detaches it)."""
+        self.answer_key = key
+
+    def _key(self) -> AnswerKey:
+        if self.answer_key is None:
+            raise ModelError(f"{self.spec}: no answer key attached (the planner offers no oracle answers)")
+        return self.answer_key
 
     @classmethod
     def status(cls, arg: str | None = None) -> BackendStatus:
         """Always ready: nothing to load or reach."""
         try:
-            parse_policy(arg)
+            policy, _ = parse_policy(arg)
         except BackendSpecError as err:
             return BackendStatus(False, str(err))
+        if policy == "oracle":
+            return BackendStatus(True, "no model: the planner's oracle answers, from ground truth")
         return BackendStatus(True, "no model: answers from the request's JSON Schema")
 
     @property
     def can_score(self) -> bool:
-        """Every policy scores (see the module docstring)."""
+        """Every null policy scores; the oracle does when its answer key does.
+
+        Before an episode's key is attached (a planner checks its backend before the world exists) the
+        oracle says it can: a key that cannot score refuses scoring requests with a `ModelError`.
+        """
+        if self.wants_answer_key and self.answer_key is not None:
+            return self.answer_key.can_score
         return True
 
     def _rng(self, logged: dict[str, Any]) -> random.Random:
@@ -234,7 +269,9 @@ class PolicyBackend(Backend):
         return random.Random(self.seed * 2**64 + int.from_bytes(digest[:8], "big"))
 
     def score(self, request: ScoreRequest) -> ScoreResult:
-        """Scores by the policy: position (`first`), a seeded draw (`random`) or shared words (`keyword`)."""
+        """Scores by the policy: position, a seeded draw, shared words, or the answer key's (`oracle`)."""
+        if self.wants_answer_key:
+            return self._oracle_scores(request)
         ctx = _Context((Message("user", request.prefix),), self._rng(request.to_log()))
         task = words(ctx.task())
         values: list[float] = []
@@ -249,8 +286,21 @@ class PolicyBackend(Backend):
         scores = tuple(ContinuationScore(v, max(1, len(words(t)))) for v, t in pairs)
         return ScoreResult(scores, 0.0, self.spec, {"policy": self.policy, "mode": "score"})
 
+    def _oracle_scores(self, request: ScoreRequest) -> ScoreResult:
+        key = self._key()
+        if not key.can_score:
+            raise ModelError(f"{self.spec}: this planner's oracle answers include no scores")
+        values = key.scores(request)
+        if len(values) != len(request.continuations):
+            raise ModelError(f"{self.spec}: the answer key scored {len(values)} of {len(request.continuations)}")
+        scores = tuple(ContinuationScore(float(v), 1) for v in values)
+        return ScoreResult(scores, 0.0, self.spec, {"policy": self.policy, "mode": "score"})
+
     def chat(self, request: ChatRequest) -> ChatResult:
-        """One answer built from `request.json_schema` (free text when the request has no schema)."""
+        """One answer built from `request.json_schema` (free text without one), or the answer key's (`oracle`)."""
+        if self.wants_answer_key:
+            text = self._key().answer(request)
+            return ChatResult(text=text, latency_s=0.0, model=self.spec, meta={"policy": self.policy})
         rng = self._rng(request.to_log())
         ctx = _Context(request.messages, rng)
         schema = request.json_schema

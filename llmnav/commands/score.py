@@ -44,8 +44,8 @@ def score(
         str | None,
         typer.Option(
             "--table",
-            help="Only this table: episodes, path, waypoints, fsm, null_policies, wording, wording_spread, "
-            "comparison. CSV writes one table (default: the first).",
+            help="Only this table: episodes, path, waypoints, fsm, null_policies, ceiling, wording, "
+            "wording_spread, aborted, comparison. CSV writes one table (default: the first).",
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,

@@ -142,11 +142,14 @@ def check_motion(
     return VetoResult(True, clearance, None)
 
 
+VETO_PREFIX = "Safety check: your action was NOT executed"  # how every veto follow-up begins
+
+
 def veto_message(result: VetoResult) -> str:
     """The follow-up telling the model its action was refused and why."""
     if result.allowed:
         raise ValueError("veto_message needs a blocked result")
     return (
-        f"Safety check: your action was NOT executed, it is dangerous: {result.reason}. "
+        f"{VETO_PREFIX}, it is dangerous: {result.reason}. "
         "Answer again in the same JSON format with a different action (for example a turn or a shorter move)."
     )

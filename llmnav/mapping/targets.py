@@ -57,7 +57,10 @@ class OracleConfig:
     # (within final_tol_m of the approach point) still lies inside the acceptable band
     start_snap_m: float = 0.5  # [m] a start inside the inflation may step this far to the nearest free cell
     waypoint_spacing_m: float = 2.0  # [m] longest straight leg handed to go_to (keeps legs short and logged)
-    waypoint_tol_m: float = 0.1  # [m] go_to tolerance at intermediate waypoints (source B's reach tolerance)
+    # [m] go_to tolerance at intermediate waypoints: a leg starts up to this far off its planned corner and
+    # so can lose that much of the grid's margin; the leg check needs 0.02 m of the 0.10 (0.1 here let
+    # legs past a cylinder be refused)
+    waypoint_tol_m: float = 0.05
     final_tol_m: float = 0.05  # [m] tolerance at the approach point (stay inside the band)
     grid: GridConfig = field(default_factory=GridConfig)
 

@@ -10,13 +10,15 @@ and small hooks, so nothing above it names it:
 - `paces_itself`: it paces its own control loop in `--realtime` (the world then does not);
 - `templates(options)`: the prompt templates it renders (hashed into the run's config line);
 - `summarize(record, scenario, task)`: planner metrics computed from the finished run log;
-- `figures(record, out_dir)`: extra figures, written only when plots are on.
+- `figures(record, out_dir)`: extra figures, written only when plots are on;
+- `oracle_answers(truth, options)`: the answers a perfect model would give to its requests (an
+  `AnswerKey` built from `GroundTruth`), which the `policy:oracle` backend returns: its ceiling.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -28,7 +30,8 @@ from llmnav.errors import BadInputError, redact_secrets
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.chat import ChatRequest, ChatResult, ScoreRequest, ScoreResult
+    from llmnav.chat import AnswerKey, ChatRequest, ChatResult, ScoreRequest, ScoreResult
+    from llmnav.geometry import Pose2D
     from llmnav.guard.view import PlannerWorld
     from llmnav.runlog import RunLog, RunRecord
     from llmnav.scenario import Scenario, Task
@@ -189,6 +192,19 @@ class EpisodeContext:
         self.log.event(kind, **fields)
 
 
+@dataclass(frozen=True)
+class GroundTruth:
+    """What an oracle answer key may read, and only it: the runner builds it for `policy:oracle` runs.
+
+    The planner's own decisions never see it (they get `EpisodeContext`, cut to their information mode).
+    """
+
+    scenario: Scenario  # the full scenario, with the boxes `--obstacle` dropped
+    task: Task
+    pose: Callable[[], Pose2D]  # the robot's true pose now
+    sim_time: Callable[[], float]  # [s] simulated time now
+
+
 @dataclass
 class EpisodeOutcome:
     """How an episode ended; `metrics` holds planner-specific numbers for summary.json."""
@@ -229,6 +245,15 @@ class Planner(ABC):
     def figures(self, record: RunRecord, out_dir: Path) -> list[Path]:
         """Write this planner's own figures into `out_dir` (called only when plots are on)."""
         return []
+
+    def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey | None:
+        """The answers a perfect model would give this episode's requests (None: the planner offers none)."""
+        return None
+
+    @classmethod
+    def offers_oracle_answers(cls) -> bool:
+        """Whether `oracle_answers` is implemented (checked before any run folder exists)."""
+        return cls.oracle_answers is not Planner.oracle_answers
 
     @classmethod
     def unused_options(cls, given: set[str]) -> list[str]:

@@ -55,7 +55,9 @@ from llmnav.realtime import frozen_heap, realtime_priority
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from llmnav.chat import AnswerKey
     from llmnav.guard.parse import GuardResult
+    from llmnav.planners.base import GroundTruth
     from llmnav.runlog import RunRecord
     from llmnav.sim.sensors import Detection
 
@@ -776,24 +778,20 @@ class FsmPlanner(Planner):
     def _stop_point(self, ctx: EpisodeContext) -> tuple[float, float]:
         """p_target of e_pos: where the FSM should stop, d_goal in front of the target sign.
 
-        A sign's board is thin along one axis; its front is the side of that axis with free space.
         A target with an explicit goal point (or a point target) is used as it is.
         """
+        from llmnav.planners.fsm_oracle import sign_stop_point
+
         target = ctx.task.targets[0]
         if target.object is None:
             return ctx.scenario.target_points(ctx.task)[0]
-        obj = ctx.scenario.object(target.object)
-        if obj.goal is not None or obj.size is None:
-            return obj.goal_point
-        thin_yaw = obj.yaw + (math.pi / 2 if obj.size[0] >= obj.size[1] else 0.0)
-        solids = ctx.scenario.solid_shapes()
-        candidates = []
-        for sign in (1.0, -1.0):
-            x = obj.center[0] + sign * self.cfg.d_goal * math.cos(thin_yaw)
-            y = obj.center[1] + sign * self.cfg.d_goal * math.sin(thin_yaw)
-            clearance = min((shape.distance_to(x, y) for shape in solids), default=math.inf)
-            candidates.append((clearance, (x, y)))
-        return max(candidates)[1]
+        return sign_stop_point(ctx.scenario, ctx.scenario.object(target.object), self.cfg.d_goal)
+
+    def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
+        """The velocity a perfect assistant would suggest to each state line (`llmnav.planners.fsm_oracle`)."""
+        from llmnav.planners.fsm_oracle import FsmAnswerKey
+
+        return FsmAnswerKey(truth, self.cfg)
 
     def figures(self, record: RunRecord, out_dir: Path) -> list[Path]:
         """The commanded-velocity profile (`velocity_profile.png`), when plots are on."""

@@ -311,3 +311,14 @@ def test_free_text_is_capped_and_field_order_kept(backend: LocalBackend) -> None
     answer = json.loads(result.text)  # complete JSON: the cap ended the string before max_tokens did
     assert len(answer["story"]) <= local_mod.TEXT_CAP_CHARS
     assert result.text.startswith('{"story":')  # written in the schema's order, not sorted
+
+
+@pytest.mark.slow  # reads ~4,600 prompt tokens: 15 s idle, minutes on a busy machine
+def test_a_thirty_step_stepwise_history_fits_the_default_context(backend: LocalBackend) -> None:
+    # A factory episode re-sends every step (about 250 tokens each); at 4,096 tokens the request of step
+    # 18 was refused and every episode ended as a backend failure. ~4,600 tokens must be answered.
+    step = "LiDAR front 7.7 m; closest m@deg per sector, left to right: 8.8@+34 8.3@+29 7.4@+13 7.7@+1 6.1@-17\n"
+    history = "".join(f"Step {k}: {step * 5}" for k in range(1, 19))
+    schema = _short_strings(response_schema(StepAction), 20)
+    answer = _ask(backend, history + "Task: Go to the pile of pellets", schema, 64)
+    assert set(answer) == {"goal", "reasoning", "scene_description", "action"}

@@ -50,6 +50,7 @@ def test_outages_are_listed_apart_and_in_no_mean(tmp_path: Path) -> None:
     (aborted,) = by_name["aborted"]["records"]
     assert aborted["n"] == 3 and aborted["reasons"] == ["backend: HTTP 503"]
     assert "3 run(s) aborted by a backend or server failure" in err
+    assert "targets could not be resolved" not in err  # an outage has no score by design, not by a fault
 
 
 def test_a_model_failure_stays_a_result(tmp_path: Path) -> None:

@@ -62,9 +62,11 @@ FRONTIER_GOAL_BAND_M = 0.25
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
+    from llmnav.chat import AnswerKey
     from llmnav.guard.schemas import HybridChoice
     from llmnav.mapping.grid import LidarMap, OccupancyGrid
     from llmnav.observe import Observation
+    from llmnav.planners.base import GroundTruth
     from llmnav.scenario import Scenario
     from llmnav.sim.motion import MotionResult
     from llmnav.sim.sensors import Detection
@@ -164,6 +166,12 @@ class HybridPlanner(Planner):
     def templates(options: DriveOptions) -> list[str]:
         """Prompt templates this planner renders (their hashes go into the run config)."""
         return ["hybrid_system", "hybrid_user"]
+
+    def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
+        """Scores and choices a perfect model would give (`llmnav.planners.hybrid.oracle`)."""
+        from llmnav.planners.hybrid.oracle import HybridAnswerKey
+
+        return HybridAnswerKey(truth)
 
     def check_backend(self, backend: Backend, options: DriveOptions) -> None:
         """`--decide score` needs a backend that scores continuations."""
@@ -801,7 +809,8 @@ def _estimate(pose: Pose2D, bearing_deg: float, distance_m: float) -> tuple[floa
 
 
 # Eight 45° sectors of bearing, counter-clockwise from straight ahead.
-_SECTORS = ("ahead", "front-left", "left", "back-left", "behind", "back-right", "right", "front-right")
+# The menu's direction words, counter-clockwise from ahead in 45 deg steps.
+SECTORS = ("ahead", "front-left", "left", "back-left", "behind", "back-right", "right", "front-right")
 
 
 def _where(pose: Pose2D, point: tuple[float, float]) -> str:
@@ -811,6 +820,6 @@ def _where(pose: Pose2D, point: tuple[float, float]) -> str:
     apart, and every digit is a token of its own (whole metres; one decimal below 1 m).
     """
     bearing = math.degrees(pose.bearing_to(*point))
-    sector = _SECTORS[round(bearing / 45.0) % 8]
+    sector = SECTORS[round(bearing / 45.0) % 8]
     distance = pose.distance_to(*point)
     return f"{distance:.1f} m {sector}" if distance < 0.95 else f"{distance:.0f} m {sector}"

@@ -11,7 +11,8 @@ the map lacks is refused before the robot moves, and replanned around. Unlike th
 out-of-bounds points are never dropped silently.
 
 Modules: `validate` (the map rules), `ground` (which object a command means), `plan` (generation, no
-simulator: `llmnav plan` uses it), `execute` (the planner on the simulator).
+simulator: `llmnav plan` uses it), `execute` (the planner on the simulator), `oracle` (its answers from ground
+truth, for `policy:oracle`).
 """
 
 from llmnav.planners.waypoints.execute import WaypointConfig, WaypointPlanner, map_to_odom

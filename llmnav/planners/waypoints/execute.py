@@ -22,6 +22,8 @@ from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, P
 from llmnav.planners.waypoints.validate import validate_waypoints
 
 if TYPE_CHECKING:
+    from llmnav.chat import AnswerKey
+    from llmnav.planners.base import GroundTruth
     from llmnav.scenario import Scenario
     from llmnav.sim.motion import MotionResult
 
@@ -75,6 +77,12 @@ class WaypointPlanner(Planner):
                 f"--planner waypoints: scenario '{scenario.name}' publishes no corridors; the waypoint "
                 "planner needs them"
             )
+
+    def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
+        """Plans from the true pose through the junction points to the true target, beyond the emergency stop."""
+        from llmnav.planners.waypoints.oracle import WaypointAnswerKey
+
+        return WaypointAnswerKey(truth, keep_clear_m=self.cfg.emergency_m)
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Ground, plan, validate, execute, replan — per leg of the command sequence."""

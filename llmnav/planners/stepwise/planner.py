@@ -32,6 +32,8 @@ from llmnav.observe import Observation, observe
 from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Outcome, Planner, StepInfo
 
 if TYPE_CHECKING:
+    from llmnav.chat import AnswerKey
+    from llmnav.planners.base import GroundTruth
     from llmnav.sim.motion import MotionResult
 
 SELF_CHECK_TEMPLATE = "self_check"
@@ -89,6 +91,12 @@ class StepwisePlanner(Planner):
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Drive one episode; see the module docstring."""
         return _Episode(ctx).run()
+
+    def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
+        """The action a perfect model would choose at each step (`llmnav.planners.stepwise.oracle`)."""
+        from llmnav.planners.stepwise.oracle import StepwiseAnswerKey
+
+        return StepwiseAnswerKey(truth, options.max_step_m)
 
 
 def _self_check_on(options: DriveOptions) -> bool:
