@@ -6,6 +6,7 @@ The CLI turns any `LlmnavError` into a one-line message and an exit code; anythi
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from typing import Any
 
 
@@ -89,6 +90,17 @@ _USERINFO = re.compile(r"(?<=://)[^/@\s]+@")
 def redact_userinfo(text: str) -> str:
     """Text with the credentials of every URL in it replaced by `***` (`http://***@host/v1`)."""
     return _USERINFO.sub("***@", text)
+
+
+def redact_secrets(text: str, secrets: Iterable[str]) -> str:
+    """Text with each secret (a key a client holds, URL credentials) and any URL's userinfo as `***`.
+
+    Longest secrets first, so a secret containing another is not left half shown; secrets shorter than
+    4 characters are ignored, as in the run log (one letter would blank out the text).
+    """
+    for secret in sorted({s for s in secrets if len(s) >= 4}, key=len, reverse=True):
+        text = text.replace(secret, "***")
+    return redact_userinfo(text)
 
 
 def one_line(value: BaseException | str, limit: int | None = None) -> str:

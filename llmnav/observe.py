@@ -185,17 +185,33 @@ def call_model(ctx: EpisodeContext, request: ChatRequest, purpose: str, step: in
         with beside_simulation(ctx.options.realtime):
             result = ctx.backend.chat(request)
     except LlmnavError as err:
-        ctx.log.event("llm_call", step=step, purpose=purpose, request=request.to_log(), error=one_line(err))
+        ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, error=err))
         raise
-    ctx.log.event(
-        "llm_call",
-        step=step,
-        purpose=purpose,
-        request=request.to_log(),
-        reply=result.to_log(),
-        new_prompt_tokens=new_prompt_tokens(result),
-    )
+    ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, result))
     return result
+
+
+def llm_call_fields(
+    request: ChatRequest,
+    purpose: str,
+    step: int | None,
+    result: ChatResult | None = None,
+    error: BaseException | str | None = None,
+) -> dict[str, Any]:
+    """The fields of the `llm_call` event for a chat call: its reply, or its error when it failed.
+
+    For a caller that made the call by other means than `call_model` (the FSM's model process) and logs
+    it later, in the same form.
+    """
+    if result is None:
+        return {"step": step, "purpose": purpose, "request": request.to_log(), "error": one_line(error or "")}
+    return {
+        "step": step,
+        "purpose": purpose,
+        "request": request.to_log(),
+        "reply": result.to_log(),
+        "new_prompt_tokens": new_prompt_tokens(result),
+    }
 
 
 def call_scorer(ctx: EpisodeContext, request: ScoreRequest, step: int | None) -> ScoreResult:

@@ -7,14 +7,18 @@ raised instead where that is permitted, else nothing changes; the block learns w
 previous policy is restored on exit. `SCHED_RESET_ON_FORK` keeps processes and threads started inside the
 block at ordinary priority: only the loop itself runs first.
 
-The model's threads are deliberately left at ordinary priority rather than niced: they hold the GIL
-between calls into llama.cpp, and a niced holder on a busy core would make the loop wait for the GIL
-(priority inversion) longer than any preemption it saves.
+Anything the loop waits for must not run at ordinary priority on a busy core, or the loop waits as long
+as that thread is preempted (priority inversion): the GIL held by another thread of the process, a
+helper thread of a native library. So a model that computes inside the process runs in a process of its
+own below the loop's priority (llmnav.backends.isolated), the simulator casts its rays in the calling
+thread, and `frozen_heap()` keeps the garbage collector from scanning the whole heap during a tick.
+`available_priority()` tells beforehand what the loop will get.
 """
 
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
 import threading
 from collections.abc import Iterator
@@ -50,3 +54,36 @@ def realtime_priority(priority: int = FIFO_PRIORITY) -> Iterator[str]:
             os.sched_setscheduler(0, saved_policy, saved_param)
         elif got != "normal":
             os.setpriority(os.PRIO_PROCESS, tid, saved_nice)
+
+
+def available_priority() -> str:
+    """What `realtime_priority()` would give a thread here ("fifo", "nice-5" or "normal"), changing nothing.
+
+    Probed on a throwaway thread, so a helper process can be placed below the loop before the loop starts.
+    """
+    found: list[str] = []
+
+    def probe() -> None:
+        with realtime_priority() as got:
+            found.append(got)
+
+    thread = threading.Thread(target=probe, name="llmnav-priority-probe")
+    thread.start()
+    thread.join()
+    return found[0] if found else "normal"
+
+
+@contextlib.contextmanager
+def frozen_heap() -> Iterator[None]:
+    """Collect now, then exempt every object alive from the garbage collector's scans for the block.
+
+    A full collection over an episode's heap (simulator, model client, modules) took 20-28 ms inside one
+    tick; objects made before the clock starts live on, so scanning them again finds nothing. Objects
+    made inside the block are collected as usual; the exempt ones rejoin the collector afterwards.
+    """
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()

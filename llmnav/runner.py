@@ -20,7 +20,15 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, ConfigDict
 
 from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line, redact_userinfo
-from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Information, NullView, View
+from llmnav.planners.base import (
+    DriveOptions,
+    EpisodeContext,
+    EpisodeOutcome,
+    Information,
+    NullView,
+    RedactedView,
+    View,
+)
 from llmnav.scenario import resolve_scenario_path
 
 if TYPE_CHECKING:
@@ -218,11 +226,10 @@ def run_episode(
                 backend,
                 information,
             )
-            # the key and URL credentials the backend holds are never logged, even when a server echoes them
+            # the key and URL credentials the backend holds are never logged or shown, even when echoed
             with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
-                return _run_logged(
-                    planner, world, scenario, task, backend, log, spec, view or NullView(), information
-                )
+                shown = RedactedView(view or NullView(), getattr(backend, "secrets", ()))
+                return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information)
     finally:
         if owns_backend and backend is not None:
             backend.close()

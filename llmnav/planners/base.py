@@ -18,15 +18,15 @@ and small hooks, so nothing above it names it:
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
 from importlib.metadata import entry_points
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from llmnav.errors import BadInputError
+from llmnav.errors import BadInputError, redact_secrets
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
@@ -129,6 +129,24 @@ class NullView:
 
     def on_step(self, info: StepInfo) -> None:
         """Ignore."""
+
+
+class RedactedView:
+    """A view whose steps show no secret: a model or server may echo the key back in its text."""
+
+    def __init__(self, view: View, secrets: Iterable[str]) -> None:
+        self.view = view
+        self.secrets = tuple(secrets)
+
+    def on_step(self, info: StepInfo) -> None:
+        """Pass the step on with its text redacted (whole, before any view shortens it to a fragment)."""
+        self.view.on_step(
+            replace(
+                info,
+                action=redact_secrets(info.action, self.secrets),
+                reasoning=redact_secrets(info.reasoning, self.secrets),
+            )
+        )
 
 
 @dataclass

@@ -26,8 +26,10 @@ The loop never waits for the model. Two timing modes:
 - virtual (default): simulation time is the only clock. The model is called between ticks while the
   simulation is frozen, and its measured latency is charged to simulation time before the answer can be
   used, so the run is deterministic for a deterministic backend (replay returns the recorded latency).
-- realtime (`--realtime`): ticks are paced to the wall clock and the model runs in a worker thread;
-  answers are used at the tick after they arrive.
+- realtime (`--realtime`): ticks are paced to the wall clock and the model runs in a worker thread, or,
+  when it computes inside this process (the local backend), in a process of its own that the loop
+  thread polls between ticks, so the loop never waits for the GIL (llmnav.backends.isolated); answers
+  are used at the tick after they arrive.
 Tick latency is the controller's own work (tick start -> command published); physics stepping and the
 detector (a separate perception node at `perception_hz`) are the world, not the controller.
 """
@@ -48,7 +50,7 @@ import numpy as np
 from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
-from llmnav.realtime import realtime_priority
+from llmnav.realtime import frozen_heap, realtime_priority
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -127,6 +129,7 @@ class FsmStats:
     ticks_using: int = 0
     missed_deadlines: int = 0
     scheduling: str = "simulated"  # the loop thread's policy under --realtime (llmnav.realtime)
+    model_in: str = "loop"  # where the model runs: called between ticks, a worker "thread" or a "process"
 
 
 def saturate(value: float, low: float, high: float) -> float:
@@ -248,6 +251,13 @@ class _Worker:
     def submit(self, stamp: float, request: ChatRequest) -> None:
         self._requests.put_nowait((stamp, request))
 
+    def poll(self) -> tuple[float, ChatResult | None, str | None, float] | None:
+        """(stamp, result, error, latency [s]) of the next answer, or None when none has arrived."""
+        try:
+            return self.results.get_nowait()
+        except queue.Empty:
+            return None
+
     def _run(self) -> None:
         while True:
             item = self._requests.get()
@@ -266,6 +276,68 @@ class _Worker:
         except queue.Full:
             pass
         self._thread.join(timeout=0.1)  # a call still running is abandoned (daemon thread)
+
+
+class _ProcessWorker:
+    """Realtime mode with an in-process engine (`Backend.engine_in_process`): the model in its own process.
+
+    It runs below the loop's priority (llmnav.backends.isolated), and the loop thread itself sends the
+    request and polls for the answer between ticks. No other thread of the loop's process runs Python, so the
+    loop never waits for the GIL; the `llm_call` event goes through `record`.
+    """
+
+    def __init__(self, process: Any, record: Callable[[ChatRequest, ChatResult | None, str | None], None]) -> None:
+        self._process = process
+        self._record = record
+        self._sent: tuple[float, ChatRequest] | None = None
+
+    @classmethod
+    def start(
+        cls,
+        backend: Any,
+        schema: dict[str, Any],
+        warm_up: ChatRequest,
+        record: Callable[[ChatRequest, ChatResult | None, str | None], None],
+    ) -> _ProcessWorker:
+        """Start the model's process, check the answer schema there and prime its prompt cache.
+
+        All before the first tick. `warm_up` (its answer is dropped, unlogged) puts the system prompt in
+        the new process's prompt cache, as earlier episodes do for a model kept in this process: measured
+        at load 8, the first suggestion of a cold process read 285 prompt tokens in 49-59 s.
+        The model runs below the loop: ordinary beside a loop that runs real-time (more niceness would
+        only make its answers staler, 3-4 s against 0.9 s at load 7), else MODEL_NICE below it.
+        """
+        from llmnav.backends.isolated import MODEL_NICE, ModelProcess
+        from llmnav.realtime import available_priority
+
+        nice = MODEL_NICE if available_priority() == "normal" else 0
+        process = ModelProcess(backend.spec, backend.options, nice=nice)
+        try:
+            process.check_schema(schema)
+            with contextlib.suppress(LlmnavError):  # a model that cannot answer says so at each suggestion
+                process.chat(warm_up)
+        except BaseException:
+            process.close()
+            raise
+        return cls(process, record)
+
+    def submit(self, stamp: float, request: ChatRequest) -> None:
+        self._sent = (stamp, request)
+        self._process.submit(request)
+
+    def poll(self) -> tuple[float, ChatResult | None, str | None, float] | None:
+        """(stamp, result, error, latency [s]) once the answer is there, else None; never waits."""
+        reply = self._process.poll()
+        if reply is None or self._sent is None:
+            return None
+        (stamp, request), self._sent = self._sent, None
+        result, error, latency = reply
+        message = None if error is None else str(error)
+        self._record(request, result, message)
+        return stamp, result, message, latency
+
+    def close(self) -> None:
+        self._process.close()
 
 
 class FsmPlanner(Planner):
@@ -300,9 +372,18 @@ class FsmPlanner(Planner):
         stats = FsmStats()
         system_prompt = self._system_prompt() if use_llm else ""
         schema = self.answer_schema() if use_llm else None
-        if ctx.backend is not None and schema is not None:
-            ctx.backend.check_schema(schema)  # a grammar that cannot compile ends the episode before tick 0
-        worker = _Worker(lambda req: self._call(ctx, req)) if use_llm and opts.realtime else None
+        outbox: list[tuple[str, dict[str, Any]]] = []  # events of a tick, written after its command is out
+        worker: _Worker | _ProcessWorker | None = None
+        if use_llm and opts.realtime and ctx.backend is not None and ctx.backend.engine_in_process:
+            warm_up = self._request(system_prompt, schema or {}, state_message("stop", 1.0, 0.0, 0.0, 0.0), opts)
+            worker = self._process_worker(ctx, schema or {}, warm_up, outbox)  # it checks the schema there
+            stats.model_in = "process"
+        else:
+            if ctx.backend is not None and schema is not None:
+                ctx.backend.check_schema(schema)  # a grammar that cannot compile ends the episode before tick 0
+            if use_llm and opts.realtime:
+                worker = _Worker(lambda req: self._call(ctx, req))
+                stats.model_in = "thread"
 
         state: State = "SEARCH"
         consumed: set[str] = set()
@@ -333,7 +414,6 @@ class FsmPlanner(Planner):
 
                 check_suggestion("[0,0]", 0.0, 0.0, ttl_s, cfg)
                 check_suggestion("```json\n{}\n```", 0.0, 0.0, ttl_s, cfg)
-        wall_start = time.perf_counter()
 
         def log_state(previous: State, new: State) -> None:
             log.event(
@@ -346,11 +426,13 @@ class FsmPlanner(Planner):
             )
 
         tick = 0
-        outbox: list[tuple[str, dict[str, Any]]] = []  # events of a tick, written after its command is out
         # Realtime: the loop thread runs ahead of every ordinary process where permitted, so another job on
-        # the same cores cannot make it miss a slot (the model's worker thread stays ordinary).
+        # the same cores cannot make it miss a slot (the model's process or worker thread stays below it).
         scheduling = contextlib.ExitStack()
         stats.scheduling = scheduling.enter_context(realtime_priority()) if opts.realtime else "simulated"
+        if opts.realtime:
+            scheduling.enter_context(frozen_heap())  # its full collection, too, is paid before the clock starts
+        wall_start = time.perf_counter()
 
         try:
             for tick in range(opts.max_ticks):
@@ -489,7 +571,8 @@ class FsmPlanner(Planner):
                 ):
                     seen = visible[target_id]
                     assert schema is not None
-                    request = sent = self._request(system_prompt, schema, seen, base_v, base_w, opts)
+                    text = state_message(seen.sign, seen.distance_m, seen.offset, base_v, base_w)
+                    request = sent = self._request(system_prompt, schema, text, opts)
                     last_publish, in_flight = now, True
                     if worker is not None:
                         worker.submit(now, request)
@@ -547,12 +630,27 @@ class FsmPlanner(Planner):
             stats.missed_deadlines += 1
 
     @staticmethod
-    def _received(worker: _Worker, now: float, opts: DriveOptions) -> Suggestion | None:
+    def _process_worker(
+        ctx: EpisodeContext,
+        schema: dict[str, Any],
+        warm_up: ChatRequest,
+        outbox: list[tuple[str, dict[str, Any]]],
+    ) -> _ProcessWorker:
+        """Realtime with an in-process engine: the model in a process of its own, its calls logged via `outbox`."""
+        from llmnav.observe import llm_call_fields
+
+        def record(request: ChatRequest, result: ChatResult | None, error: str | None) -> None:
+            outbox.append(("llm_call", llm_call_fields(request, "suggestion", None, result, error)))
+
+        return _ProcessWorker.start(ctx.backend, schema, warm_up, record)
+
+    @staticmethod
+    def _received(worker: _Worker | _ProcessWorker, now: float, opts: DriveOptions) -> Suggestion | None:
         """Realtime: the next answer from the worker; a fixed `--model-latency` holds it until then."""
-        try:
-            stamp, result, error, latency = worker.results.get_nowait()
-        except queue.Empty:
+        polled = worker.poll()
+        if polled is None:
             return None
+        stamp, result, error, latency = polled
         if isinstance(opts.model_latency, float | int):  # cannot be faster than reality: a floor
             latency = max(latency, opts.model_latency / 1000.0)
         return Suggestion(stamp, max(now, stamp + latency), result.text if result else None, latency, error)
@@ -581,16 +679,8 @@ class FsmPlanner(Planner):
             d_goal=cfg.d_goal,
         )
 
-    def _request(
-        self,
-        system_prompt: str,
-        schema: dict[str, Any],
-        seen: Detection,
-        base_v: float,
-        base_w: float,
-        opts: DriveOptions,
-    ) -> ChatRequest:
-        text = state_message(seen.sign, seen.distance_m, seen.offset, base_v, base_w)
+    @staticmethod
+    def _request(system_prompt: str, schema: dict[str, Any], text: str, opts: DriveOptions) -> ChatRequest:
         return ChatRequest(
             messages=(Message("system", system_prompt), Message("user", text)),
             json_schema=schema,
@@ -664,6 +754,7 @@ class FsmPlanner(Planner):
             "ticks": len(stats.tick_latency_ms),
             "missed_deadlines": stats.missed_deadlines,
             "scheduling": stats.scheduling,
+            "model_in": stats.model_in,
             "tick_latency_ms": {
                 "mean": float(lat.mean()),
                 "p50": float(np.percentile(lat, 50)),

@@ -4,12 +4,14 @@ applied to scripted model answers, fusion arithmetic, determinism, and independe
 from __future__ import annotations
 
 import re
+import threading
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
+from llmnav.chat import ChatRequest, ChatResult
 from llmnav.planners.base import DriveOptions
 from llmnav.planners.fsm import FsmConfig, project
 from llmnav.runlog import RunRecord, read_run
@@ -159,3 +161,34 @@ def test_a_strict_replay_charges_the_latency_its_log_recorded(tmp_path):
     assert summary["planner_metrics"]["accepted"] > 10
     assert again["planner_metrics"]["accepted"] == summary["planner_metrics"]["accepted"]
     assert replayed.poses() == record.poses()
+
+
+def test_realtime_runs_an_in_process_model_in_a_process_of_its_own(tmp_path, monkeypatch):
+    """`--realtime` with a model that computes in this process (the local backend): the model runs in a
+    child process and no other Python thread of the loop's process runs (none can hold the GIL); its calls
+    are logged as `call_model` logs them. (`policy:first`, flagged as an in-process engine, stands in.)"""
+    from llmnav.backends.base import get_backend
+    from llmnav.observe import llm_call_fields
+    from llmnav.planners import fsm
+
+    backend = get_backend("policy:first")
+    monkeypatch.setattr(backend, "engine_in_process", True, raising=False)
+    threads: set[str] = set()
+    real_pace = fsm.FsmPlanner._pace
+
+    def pace(self, *args):  # the Python threads alive while the loop ticks
+        threads.update(t.name for t in threading.enumerate())
+        return real_pace(self, *args)
+
+    monkeypatch.setattr(fsm.FsmPlanner, "_pace", pace)
+    summary, record = run_fsm(tmp_path, "rt", assist="llm", backend=backend, realtime=True, max_ticks=300)
+    metrics = summary["planner_metrics"]
+    assert metrics["model_in"] == "process" and metrics["suggestions"] > 0, metrics
+    assert threads == {threading.main_thread().name}, threads
+    calls = record.of_type("llm_call")
+    assert len(calls) == metrics["suggestions"]
+    for call in calls:
+        expected = set(llm_call_fields(ChatRequest(()), "suggestion", None, ChatResult("", 0.0, "m")))
+        assert set(call) - {"type", "t_wall", "t_sim"} == expected and call["purpose"] == "suggestion"
+    verdicts = [e["verdict"] for e in record.of_type("planner") if e.get("kind") == "suggestion"]
+    assert len(verdicts) == len(calls) and "accepted" in verdicts

@@ -7,8 +7,10 @@ import math
 import pytest
 
 from llmnav.geometry import Pose2D
+from llmnav.guard.parse import parse_answer
+from llmnav.guard.schemas import WaypointList
 from llmnav.mapping.grid import build_grid
-from llmnav.planners.waypoints import map_to_odom, validate_waypoints
+from llmnav.planners.waypoints import PlanRules, map_to_odom, validate_waypoints
 from llmnav.scenario import parse_scenario
 
 # An L-shaped pair of corridors: main along x (y in [-2, 2]), side along y (x in [8, 12]).
@@ -73,6 +75,28 @@ def test_obstacle_seen_by_lidar_blocks_segment(world):
         extra_obstacles=[(5.0, 0.0)],
     )
     assert any("crosses an obstacle near" in p for p in problems)
+
+
+@pytest.mark.timeout(20)  # 1e300 made the segment sampling run for hours
+@pytest.mark.parametrize("x", [1e308, -1e308, 1e300])
+def test_a_finite_but_absurd_point_is_a_bounds_error_not_a_parse_error(world, x):
+    # The segment to it used to overflow the sample count, and the guard read that as unreadable JSON.
+    scenario, grid = world
+    rules = PlanRules(scenario, (0.0, 0.0), (10.0, 10.0), grid, [], 0.35)
+    result = parse_answer(f'[{{"x": {x!r}, "y": 0}}, {{"x": 10, "y": 10}}]', WaypointList, bounds=rules)
+    assert result.outcome == "bounds", result.error
+    assert result.error is not None and "outside every corridor" in result.error
+    assert len(result.error) < 500  # the coordinate is written short, not as 309 digits
+
+
+def test_a_far_point_is_checked_quickly_without_a_grid(world):
+    scenario, _ = world
+    problems = validate_waypoints(
+        [(1e308, 1e308), (-1e308, 0.0)], (0.0, 0.0), (10.0, 10.0), scenario, None, scenario.waypoint_rules,
+        extra_obstacles=[(5.0, 5.0)],
+    )  # fmt: skip
+    assert sum("outside every corridor" in p for p in problems) == 2
+    assert any("segment to waypoint 1" in p and "near (5.00, 5.00)" in p for p in problems)
 
 
 def test_map_to_odom_rotation_and_translation():

@@ -193,3 +193,25 @@ def test_an_empty_url_after_the_at_sign_is_bad_input(fault_server: Any, monkeypa
     for command in (["backends", "--check", "openai:m@"], drive):
         result = CliRunner().invoke(app, command)
         assert result.exit_code in (1, 2) and "no server URL after '@'" in result.output, result.output
+
+
+@pytest.mark.parametrize("view", ["live table", "--quiet"])
+def test_the_terminal_view_shows_no_echoed_key(
+    view: str, tmp_path: Path, fault_server: Any, fault_kit: Any, monkeypatch: Any, tally: Any
+) -> None:
+    """The table drawn during a drive (not `--json`) shows the model's reasoning: keys in it are redacted."""
+    tally.add(CATEGORY, tried=1)
+    monkeypatch.setenv("OPENAI_API_KEY", KEYS["OPENAI_API_KEY"])
+    quoting = COMPLETE.replace('"reasoning": "r"', f'"reasoning": "key {KEYS["OPENAI_API_KEY"]} {PASSWORD}"')
+    fault_server.default = fault_kit["Fault"]("ok", 200, good_body("openai", quoting))
+    spec = f"openai:m@http://alice:{PASSWORD}@{fault_server.url.removeprefix('http://')}/v1"
+    flags = ["--quiet"] if view == "--quiet" else []
+    result = CliRunner().invoke(
+        app, ["drive", "--planner", "stepwise", "--backend", spec, "--scenario", SMALL_ROOM, "--task-id", "T1",
+              "--sensing", "lidar", "--out", str(tmp_path / "run"), *flags]
+    )  # fmt: skip
+    assert result.exit_code in (0, 1), result.output
+    assert "reasoning" in result.output or view == "--quiet"  # the table, with its reasoning column, was drawn
+    hit = [w for w in (PASSWORD, *fragments()) if w in result.output]
+    tally.add(CATEGORY, leaked=int(bool(hit)))
+    assert not hit, result.output

@@ -17,6 +17,16 @@ if TYPE_CHECKING:
 
 Point = tuple[float, float]  # [m]
 
+# No map is near this size: a longer segment (a point at 1e308) leaves the map within it, so only its
+# first part is sampled; sampling all of it would overflow the step count or loop for hours.
+MAX_SAMPLED_M = 1_000.0  # [m]
+SAMPLE_STEP_M = 0.05  # [m]
+
+
+def _metres(value: float) -> str:
+    """A coordinate or distance for a message: `12.34`, but `1e+308` rather than 309 digits."""
+    return f"{value:.2f}" if abs(value) < 1e12 else f"{value:.3g}"
+
 
 def validate_waypoints(
     points: list[Point],
@@ -36,7 +46,7 @@ def validate_waypoints(
         problems.append(f"{len(points)} waypoints; at most {rules.max_waypoints} are allowed here")
     previous = start
     for index, (x, y) in enumerate(points, start=1):
-        name = f"waypoint {index} ({x:.2f}, {y:.2f})"
+        name = f"waypoint {index} ({_metres(x)}, {_metres(y)})"
         if not any(c.contains(x, y, margin) for c in scenario.corridors):
             problems.append(f"{name} is outside every corridor with the {margin} m margin")
         gap = math.dist(previous, (x, y))
@@ -54,7 +64,7 @@ def validate_waypoints(
         miss = math.dist(points[-1], target)
         if miss > rules.target_tolerance_m:
             problems.append(
-                f"the final waypoint is {miss:.2f} m from the target ({target[0]:.2f}, {target[1]:.2f}); "
+                f"the final waypoint is {_metres(miss)} m from the target ({target[0]:.2f}, {target[1]:.2f}); "
                 f"it must be within {rules.target_tolerance_m} m"
             )
     return problems
@@ -68,9 +78,7 @@ def _segment_blocked(
     (the first sample inside the inflated map grid, False), or (the centre of an obstacle seen on the
     way that the segment passes within `radius` [m] of, True).
     """
-    steps = max(1, math.ceil(math.dist(a, b) / 0.05))
-    for k in range(steps + 1):
-        x, y = a[0] + (b[0] - a[0]) * k / steps, a[1] + (b[1] - a[1]) * k / steps
+    for x, y in _samples(a, b):
         # the first 0.15 m are exempt: a robot stopped close to a wall may start inside its inflation
         if grid is not None and not grid.is_free(x, y) and math.dist((x, y), a) > 0.15:
             return (x, y), False
@@ -78,6 +86,20 @@ def _segment_blocked(
             if math.dist((x, y), obstacle) < radius:
                 return obstacle, True
     return None
+
+
+def _samples(a: Point, b: Point) -> list[Point]:
+    """Points every `SAMPLE_STEP_M` from a to b, both ends included; at most `MAX_SAMPLED_M` of it."""
+    length = math.dist(a, b)
+    if length <= MAX_SAMPLED_M:
+        steps = max(1, math.ceil(length / SAMPLE_STEP_M))
+        return [(a[0] + (b[0] - a[0]) * k / steps, a[1] + (b[1] - a[1]) * k / steps) for k in range(steps + 1)]
+    # Halves keep the difference finite even from -1e308 to 1e308.
+    half_x, half_y = b[0] / 2 - a[0] / 2, b[1] / 2 - a[1] / 2
+    half = math.hypot(half_x, half_y)
+    ux, uy = half_x / half, half_y / half
+    steps = math.ceil(MAX_SAMPLED_M / SAMPLE_STEP_M)
+    return [(a[0] + ux * SAMPLE_STEP_M * k, a[1] + uy * SAMPLE_STEP_M * k) for k in range(steps + 1)]
 
 
 @dataclass(frozen=True)
