@@ -144,7 +144,8 @@ def test_stepwise_sensed_reads_the_true_pose_only_to_log_it(
     summary = run_episode(spec, backend_obj=replay)
     assert contexts[0].information == "sensed" and contexts[0].scenario.objects == []
     assert summary["information"] == "sensed"
-    assert reads and {(what, where, fn) for what, where, fn in reads} == {("robot.pose", "stepwise/planner.py", "_log_action")}
+    expected = {("robot.pose", "stepwise/planner.py", "_log_action")}
+    assert reads and {(what, where, fn) for what, where, fn in reads} == expected
 
 
 @pytest.mark.parametrize(
