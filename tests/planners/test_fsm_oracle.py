@@ -18,7 +18,6 @@ from llmnav.planners.fsm_oracle import FsmAnswerKey, sign_stop_point
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, run_episode
 from llmnav.scenario import load_scenario
-from llmnav.sim.sensors import Detection
 
 CFG = FsmConfig()
 MAZE = load_scenario("maze_arena")
@@ -36,9 +35,9 @@ def key_at(pose: Pose2D) -> FsmAnswerKey:
 def ask(key: FsmAnswerKey, sign: str, distance: float) -> str:
     """The key's reply to the request the FSM publishes for `sign` seen at `distance`."""
     planner = FsmPlanner(CFG)
-    seen = Detection("x", sign, 0.0, distance, 0.1, 0.0, sign)
-    request = planner._request(planner._system_prompt(), planner.answer_schema(), seen, 0.03, 0.0, OPTIONS)
-    assert request.messages[-1].text == state_message(sign, distance, 0.0, 0.03, 0.0)
+    text = state_message(sign, distance, 0.0, 0.03, 0.0)  # what the FSM publishes in APPROACH
+    request = planner._request(planner._system_prompt(), planner.answer_schema(), text, OPTIONS)
+    assert request.messages[-1].text == text
     return key.answer(request)
 
 
