@@ -205,6 +205,19 @@ class GroundTruth:
     sim_time: Callable[[], float]  # [s] simulated time now
 
 
+class GeneratedAnswers:
+    """Base of an answer key for a planner that only asks for generated answers (never for scores)."""
+
+    @property
+    def can_score(self) -> bool:
+        """No scores: the backend refuses scoring requests for this planner's oracle answers."""
+        return False
+
+    def scores(self, request: ScoreRequest) -> tuple[float, ...]:
+        """Never called (see `can_score`)."""
+        raise NotImplementedError(f"{type(self).__name__} answers no scoring requests")
+
+
 @dataclass
 class EpisodeOutcome:
     """How an episode ended; `metrics` holds planner-specific numbers for summary.json."""

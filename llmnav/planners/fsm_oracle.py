@@ -23,9 +23,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from llmnav.geometry import wrap_angle
+from llmnav.planners.base import GeneratedAnswers
 
 if TYPE_CHECKING:
-    from llmnav.chat import ChatRequest, ScoreRequest
+    from llmnav.chat import ChatRequest
     from llmnav.planners.base import GroundTruth
     from llmnav.planners.fsm import FsmConfig
     from llmnav.scenario import LabelledObject, Scenario
@@ -51,21 +52,12 @@ def sign_stop_point(scenario: Scenario, obj: LabelledObject, d_goal: float) -> t
 
 
 @dataclass
-class FsmAnswerKey:
+class FsmAnswerKey(GeneratedAnswers):
     """The `AnswerKey` of one FSM episode (see the module docstring)."""
 
     truth: GroundTruth
     cfg: FsmConfig
     lookahead_m: float = 0.3  # [m] pursuit point ahead on the normal: short enough to settle before d_goal
-
-    @property
-    def can_score(self) -> bool:
-        """The FSM only asks for generated answers."""
-        return False
-
-    def scores(self, request: ScoreRequest) -> tuple[float, ...]:
-        """Never asked (see `can_score`)."""
-        raise NotImplementedError("the FSM asks for no scores")
 
     def answer(self, request: ChatRequest) -> str:
         """`[v, w]` in whole mm/s and mrad/s for the true state now."""

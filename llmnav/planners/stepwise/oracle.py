@@ -29,9 +29,10 @@ from llmnav.guard.schemas import ActionCommand, step_answer
 from llmnav.guard.veto import VETO_PREFIX
 from llmnav.mapping.grid import GridConfig
 from llmnav.mapping.targets import OracleConfig, oracle_path
+from llmnav.planners.base import GeneratedAnswers
 
 if TYPE_CHECKING:
-    from llmnav.chat import ChatRequest, ScoreRequest
+    from llmnav.chat import ChatRequest
     from llmnav.geometry import Pose2D
     from llmnav.planners.base import GroundTruth
 
@@ -54,7 +55,7 @@ class StepwiseOracleConfig:
 
 
 @dataclass
-class StepwiseAnswerKey:
+class StepwiseAnswerKey(GeneratedAnswers):
     """The `AnswerKey` of one stepwise episode (see the module docstring)."""
 
     truth: GroundTruth
@@ -62,15 +63,6 @@ class StepwiseAnswerKey:
     config: StepwiseOracleConfig = field(default_factory=StepwiseOracleConfig)
     _turned_deg: float = 0.0  # [deg] net true rotation so far (rotate/explore tasks)
     _last_yaw: float | None = None  # [rad] the true heading at the previous answer
-
-    @property
-    def can_score(self) -> bool:
-        """The stepwise planner only asks for generated answers."""
-        return False
-
-    def scores(self, request: ScoreRequest) -> tuple[float, ...]:
-        """Never asked (see `can_score`)."""
-        raise NotImplementedError("the stepwise planner asks for no scores")
 
     def answer(self, request: ChatRequest) -> str:
         """The JSON answer for the true state now; "CONFIRMED" to a self-check question."""
