@@ -172,7 +172,9 @@ def test_run_log_create_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
 
 
 def ablate_cli(out: Path, *extra: str) -> list[str]:
-    return [LLMNAV, "ablate", "--scenario", SMALL_ROOM, "--tasks", "T1", "--poses", "1,2", "--trials", "2",
+    # 24 short episodes: the sweep holds its lock for seconds, longer than the second process takes to start
+    # (8 episodes held it about 1.5 s, and on a loaded machine the second sometimes came after the end).
+    return [LLMNAV, "ablate", "--scenario", SMALL_ROOM, "--tasks", "T1", "--poses", "1,2", "--trials", "6",
             "--planner", "oracle,frontier", "--out", str(out), *extra]
 
 
