@@ -2,7 +2,7 @@
 
 A plan request is answered from the robot's true pose (a replan after an obstacle stop asks again from
 wherever the robot stands) to the true target of the requested leg, keeping every rule of the source
-(`validate.validate_waypoints` judges each candidate, so the rules are the planner's own):
+(`validate.PlanRules`, the guard's bounds, judges each candidate, so the rules are the planner's own):
 
 - corridor changes only through the labelled junction points: a shortest path over the graph of start,
   junction points and target, where a leg joins two points of one corridor (so no segment cuts a wall)
@@ -35,7 +35,7 @@ import numpy as np
 
 from llmnav.mapping.astar import astar, line_of_sight
 from llmnav.mapping.grid import GridConfig, build_grid, nearest_free_cell
-from llmnav.planners.waypoints.validate import validate_waypoints
+from llmnav.planners.waypoints.validate import PlanRules
 from llmnav.tasks import sequence_legs
 
 if TYPE_CHECKING:
@@ -181,17 +181,8 @@ def _problems(
     obstacles: list[Point],
     clearance_m: float,
 ) -> list[str]:
-    """The planner's own rules (`validate_waypoints`) on `points`."""
-    return validate_waypoints(
-        points,
-        start,
-        target,
-        scenario,
-        grid,
-        scenario.waypoint_rules,
-        extra_obstacles=obstacles,
-        obstacle_radius_m=clearance_m,
-    )
+    """The planner's own rules on `points`: the bounds its guard applies to a model's plan (`PlanRules`)."""
+    return PlanRules(scenario, start, target, grid, obstacles, clearance_m).problems(points)
 
 
 def junction_plan(
