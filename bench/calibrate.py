@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 from llmnav.stats import mean_sd, welch_summary
 
@@ -49,7 +49,7 @@ def episode(args: tuple[str, int, str]) -> tuple[str, int, str, float | None, fl
         scenario=SCENARIO,
         task_id=TASK,
         start_pose=START_POSE,
-        options=DriveOptions(planner="fsm", assist=assist, seed=seed),  # type: ignore[arg-type]
+        options=drive_options(planner="fsm", assist=assist, seed=seed),  # type: ignore[arg-type]
         backend="local",  # never created: FSM-only and EMA talk to no model
         out_dir=Path(out_dir) / f"{assist}-{seed}",
     )

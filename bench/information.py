@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 
 TARGET_RATIO = 1.5
@@ -41,7 +41,7 @@ def sweep(information: str, root: Path) -> tuple[float, int]:
     decisions = 0
     start = time.perf_counter()
     for task, pose in EPISODES:
-        options = DriveOptions(
+        options = drive_options(
             planner="hybrid", information=information, sensing=("lidar", "detections"), max_iterations=6
         )  # type: ignore[arg-type]
         spec = EpisodeSpec(

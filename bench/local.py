@@ -24,16 +24,16 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import DriveOptions, drive_options
 
 PROTOCOL_EPISODES = 200  # factory protocol: 10 tasks x 5 start poses x 4 trials
 
 # (label, scenario, task, options, episodes): short runs that still make many decisions.
 CASES: list[tuple[str, str, str, DriveOptions, int]] = [
-    ("stepwise (lidar)", "factory", "T1", DriveOptions(planner="stepwise", sensing=("lidar",), max_iterations=8), 1),
-    ("hybrid (score)", "factory", "T1", DriveOptions(planner="hybrid", decide="score", max_iterations=8), 2),
-    ("hybrid (generate)", "factory", "T1", DriveOptions(planner="hybrid", decide="generate", max_iterations=8), 2),
-    ("fsm + llm", "maze_arena", "M1", DriveOptions(planner="fsm", assist="llm", max_ticks=3000), 1),
+    ("stepwise (lidar)", "factory", "T1", drive_options(planner="stepwise", sensing=("lidar",), max_iterations=8), 1),
+    ("hybrid (score)", "factory", "T1", drive_options(planner="hybrid", decide="score", max_iterations=8), 2),
+    ("hybrid (generate)", "factory", "T1", drive_options(planner="hybrid", decide="generate", max_iterations=8), 2),
+    ("fsm + llm", "maze_arena", "M1", drive_options(planner="fsm", assist="llm", max_ticks=3000), 1),
 ]
 
 # Targets of the fast-decision work (the issue this benchmark answers).
@@ -44,7 +44,7 @@ TARGET_FSM_P95_MS = 250.0  # [ms] FSM suggestion latency, p95
 TARGET_NEW_TOKENS = {"stepwise (lidar)": 120, "hybrid (generate)": 120, "fsm + llm": 30}
 TARGET_PROTOCOL_MIN = 30.0  # [min] 200 factory episodes with the local model
 TARGET_FSM_R_ACC = 0.8  # FSM suggestions accepted (fresh and in bounds)
-DEFAULT_DECISIONS = DriveOptions().max_iterations  # a drive's decision cap when none is given
+DEFAULT_DECISIONS = drive_options().max_iterations  # a drive's decision cap when none is given
 
 
 @dataclass

@@ -23,6 +23,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("score", "score", "score"),
     ("ablate", "ablate", "ablate"),
     ("backends", "backends", "backends"),
+    ("planners", "planners", "planners"),
     ("transcribe", "transcribe", "transcribe"),
     ("view", "view", "view"),
     ("serve", "serve", "serve"),

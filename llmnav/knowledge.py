@@ -18,28 +18,17 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, get_args
 
 from llmnav.errors import BadInputError
-from llmnav.planners.base import Information
+from llmnav.planners.base import Information, planner_class
 
 if TYPE_CHECKING:
     from llmnav.scenario import Scenario
 
 INFORMATION_MODES: tuple[Information, ...] = get_args(Information)
 
-# What each planner can run with, as it is written today. The hybrid plans from a published map, from
-# its sensors, or (like before this model existed) from the true grid and goal points.
-PLANNER_INFORMATION: dict[str, tuple[Information, ...]] = {
-    "hybrid": ("sensed", "map", "oracle"),
-    "stepwise": ("sensed",),  # camera and LiDAR only; the model is never told a position
-    "waypoints": ("map",),  # the corridor rectangles and object positions of the map
-    "fsm": ("oracle",),  # drives on detections, but reads the true target point for its stop check
-    "frontier": ("oracle",),  # explores its own map, then takes the true grid's path to the target
-    "oracle": ("oracle",),
-}
-
 
 def planner_modes(planner: str) -> tuple[Information, ...]:
-    """The information modes a planner can run with."""
-    return PLANNER_INFORMATION.get(planner, ("oracle",))
+    """The information modes a planner can run with: its own declaration (`Planner.information_modes`)."""
+    return planner_class(planner).information_modes
 
 
 def default_information(planner: str, scenario: Scenario) -> Information:

@@ -17,7 +17,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line, redact_userinfo
 from llmnav.planners.base import (
@@ -28,6 +28,8 @@ from llmnav.planners.base import (
     NullView,
     RedactedView,
     View,
+    as_planner_options,
+    drive_options,
 )
 from llmnav.scenario import resolve_scenario_path
 
@@ -55,12 +57,20 @@ class EpisodeSpec(BaseModel):
     task_id: str | None = None
     task_text: str | None = None  # several legs joined by llmnav.tasks.SEQUENCE_JOIN form a sequence
     start_pose: int = 1  # 1-based index into the task's start poses
-    options: DriveOptions = DriveOptions()
+    options: DriveOptions = Field(default_factory=drive_options)  # the planner's own Options model
     backend: str = "local"
     out_dir: Path
     quiet: bool = True
     plots: bool = True  # write trajectory.png (ablations turn it off: it costs more than a short episode)
     condition: str | None = None  # an ablation's hash of the episode's full condition, logged in the config
+
+    @field_validator("options", mode="before")
+    @classmethod
+    def _planner_options(cls, options: Any) -> Any:
+        # a mapping is the planner's own options; a bare DriveOptions takes the planner's defaults for the rest
+        if isinstance(options, dict):
+            return drive_options(**options)
+        return as_planner_options(options) if isinstance(options, DriveOptions) else options
 
 
 def _package_version(name: str) -> str | None:

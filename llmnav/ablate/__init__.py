@@ -1,7 +1,7 @@
 """Ablation sweeps: a grid of conditions → episodes, run resumably and in parallel, with a manifest.
 
-A grid is the cartesian product of the ablated factors (`lidar_sectors`, `prompt`, `history`, `sensing`,
-`backend`, `assist`, `planner`) over tasks × start poses × trials. Each episode has a key naming it
+A grid is the cartesian product of the ablated factors (`planner`, `backend`, `wording`, and any planner
+option such as `lidar_sectors` or `prompt`) over tasks × start poses × trials. Each episode has a key naming it
 (`T8-p1-t2-lidar_sectors=3`: task, start pose, trial and the factors with several values), one run
 folder under the ablation folder named from that key, and a seed derived from (base seed, task, pose,
 trial): every condition sees the same seeds, so differences between conditions come from the factor, not
@@ -19,8 +19,8 @@ workers die with the parent, or as Ray tasks (`executors`); the parent alone wri
 
 from llmnav.ablate.executors import Runner, execute_episode, worker_model_threads
 from llmnav.ablate.grid import (
+    CORE_FACTORS,
     DEFAULT_BACKEND,
-    FACTORS,
     MAX_EPISODES,
     Episode,
     GridSpec,
@@ -46,7 +46,7 @@ from llmnav.ablate.sweep import ProgressCallback, run
 __all__ = [
     "MAX_EPISODES",
     "DEFAULT_BACKEND",
-    "FACTORS",
+    "CORE_FACTORS",
     "MANIFEST_FILE",
     "Ablation",
     "Episode",

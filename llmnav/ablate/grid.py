@@ -13,26 +13,39 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from llmnav.errors import BadInputError, redact_userinfo, validation_message
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import DriveOptions, drive_options, option_names, option_value, planner_class, planner_names
 
 if TYPE_CHECKING:
     from llmnav.runner import EpisodeSpec
 
-# The factors an ablation may vary, in the order they appear in keys and tables.
-FACTORS: tuple[str, ...] = (
-    "planner", "backend", "decide", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording",
-)  # fmt: skip
+# Factors of every grid; any planner option may be a factor too (see `GridSpec`).
+CORE_FACTORS: tuple[str, ...] = ("planner", "backend")
+LAST_FACTORS: tuple[str, ...] = ("wording",)
 DEFAULT_BACKEND = "local"
 _SEED_SPACE = 2**31 - 1  # seeds stay positive 32-bit ints (PyBullet, numpy, model servers)
 
 
+def _factor_values(values: list[Any] | None) -> list[Any] | None:
+    if values is not None and not values:
+        raise ValueError("a factor needs at least one value")
+    if values is not None and len(set(map(str, values))) != len(values):
+        raise ValueError("a factor lists the same value twice")
+    return values
+
+
+def factor_order() -> list[str]:
+    """Option factors in a stable order: each registered planner's declared `grid_factors`, by name."""
+    order: list[str] = []
+    for name in planner_names():
+        order += [f for f in planner_class(name).grid_factors if f not in order]
+    return order
+
+
 class GridSpec(BaseModel):
     """An ablation grid, from CLI flags or a YAML file with the same keys."""
-
-    model_config = ConfigDict(extra="forbid")
 
     name: str | None = None
     scenario: str = "factory"
@@ -40,17 +53,13 @@ class GridSpec(BaseModel):
     poses: list[int] | None = None  # 1-based start-pose indices; None = every start pose of each task
     trials: int = Field(default=1, ge=1)
     seed: int = 0
-    # ablated factors (None = not ablated: the default of DriveOptions, or `backend` below)
+    # ablated factors (None = not ablated: the default of the planner's options, or `backend` below)
     planner: list[str] | None = None
     backend: list[str] | None = None
-    decide: list[str] | None = None  # hybrid: "score", "generate", "auto"
-    sensing: list[str] | None = None  # each "lidar+image", "image", ...
-    lidar_sectors: list[int] | None = None
-    prompt: list[str] | None = None
-    history: list[str] | None = None
-    assist: list[str] | None = None
     wording: list[str] | None = None  # "bundled", "paraphrase:<k>" (llmnav.tasks.worded_text)
-    options: dict[str, Any] = {}  # fixed DriveOptions for every episode (max_iterations, image size, ...)
+    options: dict[str, Any] = {}  # fixed planner options for every episode (max_iterations, image size, ...)
+    # Any other key is an option factor: a planner option and its values, e.g. `lidar_sectors: [3, 8]`.
+    model_config = ConfigDict(extra="allow")
 
     @field_validator("name")
     @classmethod
@@ -79,20 +88,33 @@ class GridSpec(BaseModel):
             out.append(f"{prefix}:{int(number)}" if sep and number.strip().isdigit() else value)
         return out
 
-    @field_validator(
-        "planner", "backend", "decide", "sensing", "lidar_sectors", "prompt", "history", "assist", "wording"
-    )
+    @field_validator("planner", "backend", "wording")
     @classmethod
     def _non_empty(cls, values: list[Any] | None) -> list[Any] | None:
-        if values is not None and not values:
-            raise ValueError("a factor needs at least one value")
-        if values is not None and len(set(map(str, values))) != len(values):
-            raise ValueError("a factor lists the same value twice")
-        return values
+        return _factor_values(values)
+
+    @model_validator(mode="after")
+    def _option_factors(self) -> GridSpec:
+        # each extra key must be an option of some planner (one the grid's planners ignore gets a note)
+        for name, values in (self.model_extra or {}).items():
+            if not any(name in option_names(p) for p in planner_names()):
+                planners = self.planner or [DriveOptions().planner]
+                known = ", ".join(sorted({k for p in planners for k in option_names(p)}))
+                raise ValueError(f"'{name}' is no option of any planner (options of {', '.join(planners)}: {known})")
+            setattr(self, name, _factor_values(values if isinstance(values, list) else [values]))
+        return self
+
+    def option_factors(self) -> dict[str, list[Any]]:
+        """The planner options varied (the extra keys), in `factor_order`."""
+        extra = {k: v for k, v in (self.model_extra or {}).items() if v is not None}
+        order = factor_order()
+        return {k: list(extra[k]) for k in sorted(extra, key=lambda k: order.index(k) if k in order else len(order))}
 
     def factors(self) -> dict[str, list[Any]]:
-        """The ablated factors and their values, in FACTORS order."""
-        return {name: list(getattr(self, name)) for name in FACTORS if getattr(self, name) is not None}
+        """The ablated factors and their values: planner, backend, the option factors, wording."""
+        core = {name: list(getattr(self, name)) for name in CORE_FACTORS if getattr(self, name) is not None}
+        last = {name: list(getattr(self, name)) for name in LAST_FACTORS if getattr(self, name) is not None}
+        return {**core, **self.option_factors(), **last}
 
     def default_name(self) -> str:
         """`<scenario>-<factor>-<factor>` (or `<scenario>-base`)."""
@@ -175,10 +197,25 @@ def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
     """Validate grid data (from a file and/or flags); one-line BadInputError naming the source."""
     try:
         grid = GridSpec.model_validate(data)
-        DriveOptions.model_validate(grid.options)
+        for planner in grid.planner or [DriveOptions().planner]:  # the fixed options one planner takes
+            keys = planner_class(planner).Options.input_keys()
+            drive_options(planner, **{k: v for k, v in grid.options.items() if k in keys})
+        _check_fixed_options(grid)
     except ValidationError as err:
         raise BadInputError(f"{source}: {_validation_message(err)}") from None
     return grid
+
+
+def _check_fixed_options(grid: GridSpec) -> None:
+    """A fixed option no planner takes is a typo: refused, naming what the grid's planners take."""
+    planners = grid.planner or [DriveOptions().planner]
+    known = {k for p in planners for k in option_names(p)}
+    unknown = sorted(k for k in grid.options if not any(k in option_names(p) for p in planner_names()))
+    if unknown:
+        raise BadInputError(
+            f"options {', '.join(unknown)}: no option of planner {', '.join(planners)} "
+            f"(options: {', '.join(sorted(known))})"
+        )
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
@@ -223,8 +260,8 @@ def load_grid_file(path: Path) -> dict[str, Any]:
         data["poses"] = parse_poses(str(data["poses"]))
     if isinstance(data.get("tasks"), str) and data["tasks"].lower() != "all":
         data["tasks"] = split_list(data["tasks"])
-    for name in FACTORS:  # a scalar factor is a one-value list
-        if name in data and data[name] is not None and not isinstance(data[name], list):
+    for name in set(data) - _SCALAR_KEYS:  # a scalar factor is a one-value list
+        if data[name] is not None and not isinstance(data[name], list):
             data[name] = [data[name]]
     return data
 
@@ -250,6 +287,9 @@ def episode_key(task_id: str, start_pose: int, trial: int, factors: dict[str, An
     return "-".join(parts)
 
 
+_SCALAR_KEYS = frozenset({"name", "scenario", "tasks", "poses", "trials", "seed", "options"})
+
+
 def _dir_name(key: str) -> str:
     name = _safe(key)
     if len(name) > 100 or name != key:  # long or rewritten: keep it unique with a short hash
@@ -257,22 +297,12 @@ def _dir_name(key: str) -> str:
     return name
 
 
-def _factor_options(factors: dict[str, Any]) -> dict[str, Any]:
-    """DriveOptions fields set by the factors (backend is not an option)."""
-    options: dict[str, Any] = {}
-    for name, value in factors.items():
-        if name in ("backend", "wording"):
-            continue
-        if name == "sensing":
-            parts = tuple(part for part in str(value).split("+") if part)
-            if len(set(parts)) != len(parts):
-                raise BadInputError(f"sensing {value!r}: lists a sensor more than once")
-            options["sensing"] = parts
-        elif name == "history":
-            options["history"] = str(value)
-        else:
-            options[name] = value
-    return options
+def episode_options(planner: str, fixed: dict[str, Any], factors: dict[str, Any], seed: int) -> DriveOptions:
+    """One episode's options: the fixed options and factor values that `planner` takes (the rest it ignores)."""
+    model = planner_class(planner).Options
+    given = {**fixed, **{k: v for k, v in factors.items() if k not in ("backend", "wording", "planner")}}
+    taken = {k: option_value(model, k, v) for k, v in given.items() if k in model.input_keys()}
+    return drive_options(planner, **{**taken, "seed": seed})
 
 
 def condition(
@@ -317,7 +347,7 @@ def _prompt_hashes_cached(options_json: str) -> tuple[tuple[str, str], ...]:
     from llmnav.planners.base import get_planner
     from llmnav.runner import prompt_hashes
 
-    options = DriveOptions.model_validate_json(options_json)
+    options = drive_options(**json.loads(options_json))
     return tuple(sorted(prompt_hashes(get_planner(options.planner), options).items()))
 
 
@@ -402,8 +432,8 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
         for pose, trial, combo in itertools.product(poses, range(1, grid.trials + 1), combos):
             seed = episode_seed(grid.seed, task_id, pose, trial)
             try:
-                options = DriveOptions.model_validate(
-                    {**grid.options, **_factor_options(combo), "seed": seed}
+                options = episode_options(
+                    str(combo.get("planner", (grid.planner or [DriveOptions().planner])[0])), grid.options, combo, seed
                 )
             except ValidationError as err:
                 raise BadInputError(f"grid value: {_validation_message(err)}") from None

@@ -47,7 +47,7 @@ from llmnav.baselines.drive import (
 from llmnav.mapping.astar import astar, densify, shortcut
 from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, inflate, near_bounds, nearest_free_cell
 from llmnav.mapping.targets import OracleConfig, Point, plan_to_targets, scenario_grid, with_added_obstacles
-from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
+from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner
 
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
@@ -339,6 +339,8 @@ class FrontierPlanner(Planner):
 
     name: ClassVar[str] = "frontier"
     needs_backend: ClassVar[bool] = False
+    # explores its own map, then takes the true grid's path to the target
+    information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
 
     def __init__(self, config: FrontierConfig | None = None) -> None:
         self.config = config or FrontierConfig()

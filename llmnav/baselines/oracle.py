@@ -14,7 +14,7 @@ from typing import ClassVar
 
 from llmnav.baselines.drive import Drive, drive_waypoints, face_point, failure_reason, run_untargeted
 from llmnav.mapping.targets import OracleConfig, OraclePath, oracle_path, with_added_obstacles
-from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
+from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner
 
 
 class OraclePlanner(Planner):
@@ -22,6 +22,7 @@ class OraclePlanner(Planner):
 
     name: ClassVar[str] = "oracle"
     needs_backend: ClassVar[bool] = False
+    information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
 
     replans_after_veto: ClassVar[int] = 2  # plans from the true pose after a leg the motion layer refused
     veto_margin_step_m: ClassVar[float] = 0.1  # [m] more clearance on each such plan

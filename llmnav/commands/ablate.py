@@ -38,7 +38,11 @@ def ablate(
     backend: Annotated[str | None, typer.Option("--backend", help=f"Backend specs ({_LIST}).")] = None,
     assist: Annotated[str | None, typer.Option("--assist", help=f"none, ema, llm ({_LIST}).")] = None,
     decide: Annotated[
-        str | None, typer.Option("--decide", help=f"Hybrid: score, generate, auto ({_LIST}).")
+        str | None, typer.Option("--decide", help=f"Choices: score, generate, auto ({_LIST}).")
+    ] = None,
+    option: Annotated[
+        list[str] | None,
+        typer.Option("-o", "--option", help=f"KEY=V1,V2: any planner option as a factor ({_LIST}; repeatable)."),
     ] = None,
     planner: Annotated[str | None, typer.Option("--planner", help=f"Planners ({_LIST}).")] = None,
     wording: Annotated[
@@ -49,9 +53,9 @@ def ablate(
     ] = False,
     model_latency: Annotated[
         str | None,
-        typer.Option("--model-latency", help="FSM: latency charged to sim time: MS | measured | recorded."),
+        typer.Option("--model-latency", help="Latency charged to sim time: MS | measured | recorded."),
     ] = None,
-    ttl: Annotated[str | None, typer.Option("--ttl", help="FSM: suggestion TTL in ms, or auto.")] = None,
+    ttl: Annotated[str | None, typer.Option("--ttl", help="Suggestion TTL in ms, or auto.")] = None,
     grid: Annotated[
         Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")
     ] = None,
@@ -88,6 +92,7 @@ def ablate(
 ) -> None:
     """Run an ablation grid (resumable: run it again to finish it), then print the tables by factor."""
     from llmnav import ablate as lib
+    from llmnav.commands.drive import parse_option_pairs
 
     data: dict[str, Any] = lib.load_grid_file(grid) if grid is not None else {}
     flags: dict[str, Any] = {"scenario": scenario, "trials": trials, "seed": seed, "name": name}
@@ -102,6 +107,10 @@ def ablate(
     ):  # fmt: skip
         if value is not None:
             flags[key] = lib.split_list(value)
+    for key, value in parse_option_pairs(option).items():
+        if key in lib.GridSpec.model_fields:
+            raise BadInputError(f"-o {key}: give it with --{key.replace('_', '-')}")
+        flags[key] = lib.split_list(value)
     if paraphrases:
         if wording is not None:
             raise BadInputError("give --paraphrases or --wording, not both")
@@ -109,9 +118,7 @@ def ablate(
     data.update({k: v for k, v in flags.items() if v is not None})
     if drop_images:
         data["options"] = {**(data.get("options") or {}), "drop_images": True}
-    from llmnav.planners.fsm import timing_options
-
-    timing = timing_options(model_latency, ttl, backend)
+    timing = {k: v for k, v in (("model_latency", model_latency), ("ttl", ttl)) if v is not None}
     if timing:
         data["options"] = {**data.get("options", {}), **timing}
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
@@ -155,10 +162,9 @@ def _usable_workers(workers: int) -> int:
 
 def _note_inapplicable(spec: Any) -> None:
     """One line on stderr per planner that ignores some of the grid's factors or fixed options."""
-    from llmnav.ablate import FACTORS
     from llmnav.planners.base import DriveOptions, inapplicable_options
 
-    given = set(spec.options) | {f for f in FACTORS if getattr(spec, f, None) and f not in ("planner", "backend")}
+    given = set(spec.options) | set(spec.option_factors())
     for planner in spec.planner or [DriveOptions().planner]:
         unused = inapplicable_options(planner, given)
         if unused:

@@ -19,16 +19,30 @@ if TYPE_CHECKING:
     from llmnav.runner import EpisodeSpec
 
 
-# DriveOptions fields whose flag is not the field's name with dashes
-_FLAGS = {"lidar_fov_deg": "--lidar-fov", "obstacles": "--obstacle"}
+# Option keys whose flag is not the key with dashes
+_FLAGS = {"lidar_fov_deg": "--lidar-fov", "obstacles": "--obstacle", "ttl_ms": "--ttl", "ttl_auto": "--ttl"}
 
 
-def _option_error(err: ValidationError) -> BadInputError:
-    """A pydantic error on DriveOptions as one line naming the flag."""
+def _option_error(err: ValidationError, from_o: set[str]) -> BadInputError:
+    """A pydantic error on the planner's options as one line naming the flag (or `-o KEY`)."""
     first = err.errors()[0]
     field = str(first["loc"][0]) if first["loc"] else "options"
-    flag = _FLAGS.get(field, "--" + field.replace("_", "-"))
+    flag = f"-o {field}" if field in from_o else _FLAGS.get(field, "--" + field.replace("_", "-"))
     return BadInputError(f"{flag}: {first['msg'].removeprefix('Value error, ')} (got {first.get('input')!r})")
+
+
+def parse_option_pairs(pairs: list[str] | None) -> dict[str, str]:
+    """`-o KEY=VALUE` (repeatable) as a mapping; the planner's options model checks keys and values."""
+    given: dict[str, str] = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        key = key.strip().replace("-", "_")
+        if not sep or not key.isidentifier():
+            raise BadInputError(f"-o {pair!r}: expected KEY=VALUE, e.g. -o max_iterations=10")
+        if key == "planner":
+            raise BadInputError("-o planner: give the planner with --planner")
+        given[key] = value.strip()
+    return given
 
 
 def _parse_obstacle(text: str) -> tuple[float, float]:
@@ -76,32 +90,40 @@ def drive(
         str, typer.Option(help="Model backend spec NAME[:ARG], e.g. ollama:llama3.1.")
     ] = "local",
     planner: Annotated[
-        str, typer.Option(help="stepwise | waypoints | fsm | hybrid | oracle | frontier")
+        str, typer.Option(help="A planner registered under llmnav.planners (built in: see `llmnav planners`).")
     ] = "hybrid",
+    option: Annotated[
+        list[str] | None,
+        typer.Option("-o", "--option", help="KEY=VALUE: any option of the planner (repeatable), e.g. -o alpha=0.3."),
+    ] = None,
     information: Annotated[
         str | None,
         typer.Option(help="What the planner may know: map | sensed | oracle (default: map where published)."),
     ] = None,
     menu_order: Annotated[
-        str, typer.Option("--menu-order", help="Hybrid menu order: distance (neutral) | relevance.")
-    ] = "distance",
+        str | None, typer.Option("--menu-order", help="Menu order: distance (neutral) | relevance.")
+    ] = None,
     decide: Annotated[
-        str,
-        typer.Option(help="Hybrid: score option texts | generate an option number | auto (score if the backend can)."),
-    ] = "auto",
-    sensing: Annotated[str, typer.Option(help="Comma list of lidar, image, detections.")] = "lidar,image",
-    lidar_sectors: Annotated[int, typer.Option("--lidar-sectors", help="LiDAR sectors in the summary.")] = 8,
+        str | None,
+        typer.Option(help="Choices: score option texts | generate an answer | auto (score if the backend can)."),
+    ] = None,
+    sensing: Annotated[str | None, typer.Option(help="Comma list of lidar, image, detections.")] = None,
+    lidar_sectors: Annotated[
+        int | None, typer.Option("--lidar-sectors", help="LiDAR sectors in the summary [default: 8].")
+    ] = None,
     lidar_fov: Annotated[
-        float, typer.Option("--lidar-fov", help="LiDAR summary field of view in degrees.")
-    ] = 90.0,
-    prompt: Annotated[str, typer.Option(help="Prompt variant (see prompts/).")] = "full",
-    history: Annotated[str, typer.Option(help="Previous exchanges re-sent: all | 0 | 1 | 2.")] = "all",
+        float | None, typer.Option("--lidar-fov", help="LiDAR summary field of view in degrees [default: 90].")
+    ] = None,
+    prompt: Annotated[str | None, typer.Option(help="Prompt variant (see prompts/) [default: full].")] = None,
+    history: Annotated[
+        str | None, typer.Option(help="Previous exchanges re-sent: all | 0 | 1 | 2 [default: all].")
+    ] = None,
     self_check: Annotated[
         bool, typer.Option("--self-check", help="Ask the model to confirm each answer.")
     ] = False,
     max_iterations: Annotated[
-        int, typer.Option("--max-iterations", help="Decision steps before failing.")
-    ] = 30,
+        int | None, typer.Option("--max-iterations", help="Decision steps before failing [default: 30].")
+    ] = None,
     seed: Annotated[int, typer.Option(help="Simulation and model seed.")] = 0,
     out: Annotated[
         str | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")
@@ -115,12 +137,12 @@ def drive(
     json_output: Annotated[
         bool, typer.Option("--json", help="Print only one JSON summary at the end.")
     ] = False,
-    assist: Annotated[str, typer.Option(help="FSM assist: none | ema | llm.")] = "none",
+    assist: Annotated[str | None, typer.Option(help="Velocity assist: none | ema | llm.")] = None,
     model_latency: Annotated[
         str | None,
-        typer.Option("--model-latency", help="FSM: latency charged to sim time: MS | measured | recorded."),
+        typer.Option("--model-latency", help="Latency charged to sim time: MS | measured | recorded."),
     ] = None,
-    ttl: Annotated[str | None, typer.Option("--ttl", help="FSM: suggestion TTL in ms, or auto.")] = None,
+    ttl: Annotated[str | None, typer.Option("--ttl", help="Suggestion TTL in ms, or auto.")] = None,
     obstacle: Annotated[
         list[str] | None, typer.Option(help="Drop an unexpected box obstacle at X,Y metres (repeatable).")
     ] = None,
@@ -135,8 +157,7 @@ def drive(
     ] = False,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
-    from llmnav.planners.base import DriveOptions
-    from llmnav.planners.fsm import timing_options
+    from llmnav.planners.base import planner_options
     from llmnav.runner import EpisodeSpec, exit_code
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario
 
@@ -155,30 +176,31 @@ def drive(
         raise BadInputError("give exactly one of --task TEXT (repeatable) or --task-id ID")
     if any(SEQUENCE_JOIN in t for t in texts):
         raise BadInputError(f"--task: a task text may not contain {SEQUENCE_JOIN!r}; repeat --task instead")
+    named = {
+        "information": information,
+        "menu_order": menu_order,
+        "decide": decide,
+        "sensing": parse_sensing(sensing) if sensing is not None else None,
+        "lidar_sectors": lidar_sectors,
+        "lidar_fov_deg": lidar_fov,
+        "prompt": prompt,
+        "history": history,
+        "self_check": self_check or None,
+        "max_iterations": max_iterations,
+        "seed": seed,
+        "realtime": realtime or None,
+        "assist": assist,
+        "model_latency": model_latency,
+        "ttl": ttl,
+        "obstacles": tuple(_parse_obstacle(o) for o in obstacle or []) or None,
+        "drop_images": drop_images or None,
+    }
+    from_o = parse_option_pairs(option)
+    given = {**{k: v for k, v in named.items() if v is not None}, **from_o}
     try:
-        options = DriveOptions.model_validate(
-            {
-                "planner": planner,
-                "information": information,
-                "menu_order": menu_order,
-                "decide": decide,
-                "sensing": parse_sensing(sensing),
-                "lidar_sectors": lidar_sectors,
-                "lidar_fov_deg": lidar_fov,
-                "prompt": prompt,
-                "history": history,
-                "self_check": self_check,
-                "max_iterations": max_iterations,
-                "seed": seed,
-                "realtime": realtime,
-                "assist": assist,
-                "obstacles": tuple(_parse_obstacle(o) for o in obstacle or []),
-                "drop_images": drop_images,
-                **timing_options(model_latency, ttl, backend),
-            }
-        )
+        options, ignored = planner_options(planner, given)
     except ValidationError as err:
-        raise _option_error(err) from None
+        raise _option_error(err, set(from_o)) from None
     backend_spec = _with_replay_mode(backend, replay_loose)
     scenario_name = scenario or default_scenario(texts, task_id)
     spec = EpisodeSpec(
@@ -192,7 +214,7 @@ def drive(
         quiet=quiet or json_output,
     )
     summary = _run_with_view(spec, quiet=quiet, json_output=json_output)
-    _note_inapplicable(options)  # after the run: a failure to start stays one error line
+    _note_inapplicable(options.planner, ignored, set(from_o))  # after the run: a failure to start stays one line
     if json_output:
         print_data(json.dumps(summary, default=str))
     else:
@@ -208,14 +230,11 @@ def drive(
     raise typer.Exit(exit_code(summary))
 
 
-def _note_inapplicable(options: Any) -> None:
+def _note_inapplicable(planner: str, ignored: list[str], from_o: set[str]) -> None:
     """One line on stderr naming the given flags the chosen planner ignores."""
-    from llmnav.planners.base import changed_options, inapplicable_options
-
-    unused = inapplicable_options(options.planner, changed_options(options))
-    if unused:
-        flags = ", ".join("--" + name.replace("_", "-") for name in unused)
-        err_console.print(f"note: {flags} do(es) not apply to planner '{options.planner}'", highlight=False)
+    if ignored:
+        flags = ", ".join(f"-o {k}" if k in from_o else _FLAGS.get(k, "--" + k.replace("_", "-")) for k in ignored)
+        err_console.print(f"note: {flags} do(es) not apply to planner '{planner}'", highlight=False)
 
 
 def _with_replay_mode(backend: str, loose: bool) -> str:

@@ -119,12 +119,12 @@ def _execute(
     out: Path | None,
 ) -> None:
     from llmnav.commands.drive import default_out_dir
-    from llmnav.planners.base import DriveOptions
+    from llmnav.planners.base import drive_options
     from llmnav.reporting.live import print_result
     from llmnav.runner import EpisodeSpec, exit_code, run_episode
 
-    options = DriveOptions(
-        planner="waypoints",
+    options = drive_options(
+        "waypoints",
         seed=seed,
         max_generations=max_generations,
         preset_waypoints=tuple(waypoints),

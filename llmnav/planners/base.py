@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol, TypeVar, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -40,54 +40,49 @@ PLANNER_GROUP = "llmnav.planners"
 Outcome = Literal["completed", "failed", "aborted"]
 # What a planner may know (see llmnav.knowledge): a published map, only its own sensors, or ground truth.
 Information = Literal["map", "sensed", "oracle"]
-MenuOrder = Literal["distance", "relevance"]
 # How a model-driven choice is made: scored option texts, generated answers, or scores where the backend can.
 Decide = Literal["auto", "score", "generate"]
 
 
 class DriveOptions(BaseModel):
-    """Every knob of one episode (the `llmnav drive` flags); logged in full in the run's config line."""
+    """The options every episode has: what the runner, the observation and the guard read.
+
+    A planner's own options extend this model: its `Options` class (pydantic, `extra="forbid"`, a unit in
+    every field's description), the way a model in simonw/llm owns its `Options`. `drive_options` builds
+    the right one from a planner name; the run's config line logs it in full.
+    """
 
     model_config = ConfigDict(extra="forbid")
 
-    planner: str = "hybrid"  # a name registered under the `llmnav.planners` entry-point group
-    information: Information | None = None  # None: the planner's default for the scenario (llmnav.knowledge)
-    menu_order: MenuOrder = "distance"  # hybrid: neutral by distance, or "relevance" (task-name matching first)
-    decide: Decide = "auto"  # hybrid: score option texts | generate an option number | auto: score if the backend can
-    sensing: tuple[Literal["lidar", "image", "detections"], ...] = ("lidar", "image")
-    lidar_sectors: int = Field(default=8, ge=1, le=72)
-    lidar_fov_deg: float = Field(default=90.0, gt=0, le=360)
-    prompt: str = "full"
-    history: Literal["all", "0", "1", "2"] = "all"
-    self_check: bool = False
-    max_iterations: int = Field(default=30, ge=1)
-    max_corrections: int = Field(default=3, ge=0)  # guard correction turns per step
-    max_vetoes: int = Field(default=3, ge=0)  # safety-veto negotiation turns per step
-    max_step_m: float = Field(default=5.0, gt=0)  # FRONT/BACK upper bound
-    seed: int = 0
-    realtime: bool = False
-    temperature: float = Field(default=0.0, ge=0, le=2)
-    max_tokens: int = Field(default=512, ge=16)
-    image_width: int = Field(default=640, ge=16, le=640)
-    image_height: int = Field(default=480, ge=16, le=480)
-    drop_images: bool = False  # a model server that rejects images: go on without them instead of stopping
-    # waypoints (source B)
-    max_generations: int = Field(default=5, ge=1)
-    max_replans: int = Field(default=5, ge=0)
-    replan_cooldown_s: float = Field(default=5.0, ge=0)
-    obstacles: tuple[tuple[float, float], ...] = ()
-    preset_waypoints: tuple[tuple[float, float], ...] = ()  # `llmnav plan --execute`: a plan already made
-    # fsm (source C)
-    assist: Literal["none", "ema", "llm"] = "none"
-    alpha: float = Field(default=0.5, ge=0, le=1)
-    beta: float = Field(default=0.5, ge=0, le=1)
-    ttl_ms: float = Field(default=500.0, gt=0)
-    ttl_auto: bool = False  # `--ttl auto`: TTL from the observed model latencies (ttl_ms is the start)
-    # Model latency charged to simulation time: the backend's figure, a replay's record, or fixed [ms].
-    model_latency: Literal["measured", "recorded"] | Annotated[float, Field(ge=0, allow_inf_nan=False)] = (
-        "measured"
+    planner: str = Field(default="hybrid", description="a name registered under the llmnav.planners group")
+    information: Information | None = Field(
+        default=None, description="map | sensed | oracle; None: the planner's default for the scenario"
     )
-    max_ticks: int = Field(default=15000, ge=1)  # [ticks] 300 s of sim time at 50 Hz
+    sensing: tuple[Literal["lidar", "image", "detections"], ...] = Field(
+        default=("lidar", "image"), description="what each observation holds"
+    )
+    lidar_sectors: int = Field(default=8, ge=1, le=72, description="[sectors] in the LiDAR summary")
+    lidar_fov_deg: float = Field(default=90.0, gt=0, le=360, description="[deg] LiDAR summary field of view")
+    max_iterations: int = Field(default=30, ge=1, description="[decisions] before the episode fails")
+    max_corrections: int = Field(default=3, ge=0, description="[turns] guard corrections per model answer")
+    seed: int = Field(default=0, description="simulation and model seed")
+    realtime: bool = Field(default=False, description="pace the simulation to the wall clock")
+    temperature: float = Field(default=0.0, ge=0, le=2, description="model sampling temperature")
+    max_tokens: int = Field(default=512, ge=16, description="[tokens] per model answer")
+    image_width: int = Field(default=640, ge=16, le=640, description="[px] camera image width")
+    image_height: int = Field(default=480, ge=16, le=480, description="[px] camera image height")
+    drop_images: bool = Field(default=False, description="a server that rejects images: go on without them")
+    obstacles: tuple[tuple[float, float], ...] = Field(
+        default=(), description="[m] unexpected box obstacles dropped at X,Y"
+    )
+
+    # Input keys beyond the fields that a before-validator maps onto fields (e.g. `ttl=auto`).
+    input_aliases: ClassVar[frozenset[str]] = frozenset()
+
+    @classmethod
+    def input_keys(cls) -> frozenset[str]:
+        """Every key `-o KEY=VALUE`, a grid or `drive_options` may give this model."""
+        return frozenset(cls.model_fields) | cls.input_aliases
 
     @field_validator("planner")
     @classmethod
@@ -98,10 +93,80 @@ class DriveOptions(BaseModel):
         return name
 
 
+class ChoiceOptions(DriveOptions):
+    """Options of a planner whose model chooses among options: by scores or by generated answers."""
+
+    decide: Decide = Field(
+        default="auto", description="score option texts | generate an answer | auto: score if the backend can"
+    )
+
+
+OptionsT = TypeVar("OptionsT", bound=DriveOptions)
+
 # Options every planner honours (or that describe the episode rather than the planner).
-COMMON_OPTIONS: frozenset[str] = frozenset({"planner", "seed", "realtime", "obstacles"})
+COMMON_OPTIONS: frozenset[str] = frozenset({"planner", "seed", "realtime", "obstacles", "information"})
 # The options of a model-driven planner that asks once per decision.
 MODEL_OPTIONS: frozenset[str] = frozenset({"temperature", "max_tokens", "max_corrections"})
+
+
+def drive_options(planner: str = "hybrid", **fields: Any) -> DriveOptions:
+    """The options of one episode of `planner`: its own `Options` model, validated (pydantic errors)."""
+    return planner_class(planner).Options.model_validate({"planner": planner, **fields})
+
+
+def as_planner_options(options: DriveOptions) -> DriveOptions:
+    """`options` as its planner's own `Options` model (a bare `DriveOptions` takes the planner's defaults)."""
+    cls = planner_class(options.planner).Options
+    if isinstance(options, cls):
+        return options
+    return cls.model_validate(options.model_dump(exclude_unset=True) | {"planner": options.planner})
+
+
+def option_value(model: type[DriveOptions], name: str, value: Any) -> Any:
+    """A value from a flag or a grid as option `name` takes it.
+
+    A tuple of words is written `lidar+image` (or `lidar,image` on `-o`); a number where the option takes
+    words like "0" is that word (YAML reads `history: [0, 2]` as numbers). Anything else goes to pydantic.
+    """
+    field = model.model_fields.get(name)
+    if field is None or isinstance(value, bool):
+        return value
+    annotation = field.annotation
+    args = get_args(annotation)
+    if get_origin(annotation) is tuple and isinstance(value, str) and args and get_origin(args[0]) is not tuple:
+        parts = tuple(part.strip() for part in value.replace(",", "+").split("+") if part.strip())
+        if len(set(parts)) != len(parts):
+            raise BadInputError(f"{name} {value!r}: lists a value (a sensor, a word) more than once")
+        return parts
+    if get_origin(annotation) is Literal and all(isinstance(a, str) for a in args) and isinstance(value, int):
+        return str(value)
+    return value
+
+
+def planner_options(planner: str, given: dict[str, Any]) -> tuple[DriveOptions, list[str]]:
+    """`planner`'s options from the keys a user gave, and the given keys it ignores (for a note).
+
+    A key that no registered planner takes is a typo: `BadInputError` naming what this planner takes.
+    Values are validated by pydantic (a `ValidationError` names the key).
+    """
+    cls = planner_class(planner)
+    ignored = cls.unused_options(set(given))
+    if ignored:
+        everyone = {key for name in planner_names() for key in option_names(name)}
+        unknown = [key for key in ignored if key not in everyone]
+        if unknown:
+            raise BadInputError(
+                f"option {unknown[0]!r}: no planner takes it; planner '{planner}' takes: "
+                + ", ".join(option_names(planner))
+            )
+    keys = cls.Options.input_keys()
+    values = {k: option_value(cls.Options, k, v) for k, v in given.items() if k in keys}
+    return cls.Options.model_validate({**values, "planner": planner}), ignored
+
+
+def option_names(planner: str) -> list[str]:
+    """Every option key `planner` takes (its `Options` fields and input aliases), sorted."""
+    return sorted(planner_class(planner).Options.input_keys())
 
 
 @dataclass
@@ -150,7 +215,7 @@ class RedactedView:
 
 
 @dataclass
-class EpisodeContext:
+class EpisodeContext(Generic[OptionsT]):
     """Everything a planner may use during one episode.
 
     `world` is the planner's view (`llmnav.guard.view.PlannerWorld`): sensors to read and the guarded
@@ -163,7 +228,7 @@ class EpisodeContext:
     world: PlannerWorld
     backend: Backend | None
     log: RunLog
-    options: DriveOptions
+    options: OptionsT  # the planner's own `Options` model
     view: View = field(default_factory=NullView)
     # What the planner may know (llmnav.knowledge); with "sensed", `scenario` is a view without positions.
     information: Information = "oracle"
@@ -173,12 +238,6 @@ class EpisodeContext:
         from llmnav.observe import call_model
 
         return call_model(self, request, purpose, step)
-
-    def decides_by_scores(self) -> bool:
-        """Whether `--decide` asks for scored choices with this episode's backend (`auto`: if it can score)."""
-        if self.options.decide == "generate" or self.backend is None:
-            return False
-        return self.options.decide == "score" or self.backend.can_score
 
     def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
         """Score continuations with the backend, logged as an `llm_call` event (`llmnav.observe.call_scorer`)."""
@@ -228,27 +287,38 @@ class EpisodeOutcome:
     metrics: dict[str, Any] = field(default_factory=dict)
 
 
-class Planner(ABC):
+def decides_by_scores(options: ChoiceOptions, backend: Backend | None) -> bool:
+    """Whether `decide` asks for scored choices with this backend (`auto`: if the backend can score)."""
+    if options.decide == "generate" or backend is None:
+        return False
+    return options.decide == "score" or backend.can_score
+
+
+class Planner(ABC, Generic[OptionsT]):
     """One navigation strategy. Stateless between episodes; all state lives in `run`."""
 
     name: ClassVar[str]
     needs_backend: ClassVar[bool] = True
-    options: ClassVar[frozenset[str]] = frozenset()  # DriveOptions fields that apply, beyond COMMON_OPTIONS
+    Options: ClassVar[type[DriveOptions]] = DriveOptions  # its own options model (a DriveOptions subclass)
+    options: ClassVar[frozenset[str]] = frozenset()  # the shared DriveOptions fields it reads, beyond COMMON_OPTIONS
+    # What it can run with (llmnav.knowledge); the first is its default where no map is published.
+    information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
+    grid_factors: ClassVar[tuple[str, ...]] = ()  # option keys worth varying in an ablation (its own first)
     paces_itself: ClassVar[bool] = False  # paces its own loop under --realtime (the world does not)
 
-    def requires_backend(self, options: DriveOptions) -> bool:
+    def requires_backend(self, options: OptionsT) -> bool:
         """Whether this episode needs a model (the runner creates no backend otherwise)."""
         return self.needs_backend
 
-    def templates(self, options: DriveOptions) -> list[str]:
+    def templates(self, options: OptionsT) -> list[str]:
         """Prompt templates this planner renders (their hashes go into the config line)."""
         return []
 
-    def check_backend(self, backend: Backend, options: DriveOptions) -> None:  # noqa: B027 - most need nothing
+    def check_backend(self, backend: Backend, options: OptionsT) -> None:  # noqa: B027 - most need nothing
         """Raise `BadInputError` when this episode cannot run on `backend` (before any run folder exists)."""
 
     @abstractmethod
-    def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
+    def run(self, ctx: EpisodeContext[OptionsT]) -> EpisodeOutcome:
         """Drive one episode to its end; log every event through `ctx.log`; never print."""
 
     def summarize(self, record: RunRecord, scenario: Scenario, task: Task) -> dict[str, Any]:
@@ -259,7 +329,7 @@ class Planner(ABC):
         """Write this planner's own figures into `out_dir` (called only when plots are on)."""
         return []
 
-    def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey | None:
+    def oracle_answers(self, truth: GroundTruth, options: OptionsT) -> AnswerKey | None:
         """The answers a perfect model would give this episode's requests (None: the planner offers none)."""
         return None
 
@@ -270,8 +340,9 @@ class Planner(ABC):
 
     @classmethod
     def unused_options(cls, given: set[str]) -> list[str]:
-        """The options among `given` (DriveOptions field names) that this planner ignores."""
-        applies = COMMON_OPTIONS | cls.options
+        """The option keys among `given` that this planner ignores (shared ones it does not read, or unknown)."""
+        own = cls.Options.input_keys() - set(DriveOptions.model_fields)
+        applies = COMMON_OPTIONS | cls.options | own
         return sorted(name for name in given if name not in applies)
 
 
@@ -284,7 +355,7 @@ def planner_names() -> list[str]:
     return sorted(_registered_points())
 
 
-def planner_class(name: str) -> type[Planner]:
+def planner_class(name: str) -> type[Planner[Any]]:
     """The planner class registered as `name` (only its module is imported)."""
     points = _registered_points()
     if name not in points:
@@ -303,12 +374,6 @@ def inapplicable_options(planner: str, given: set[str]) -> list[str]:
     return planner_class(planner).unused_options(given)
 
 
-def changed_options(options: DriveOptions) -> set[str]:
-    """The fields of `options` that differ from their defaults (what the user actually set)."""
-    defaults = DriveOptions.model_construct()
-    return {name for name in DriveOptions.model_fields if getattr(options, name) != getattr(defaults, name)}
-
-
-def get_planner(name: str) -> Planner:
+def get_planner(name: str) -> Planner[Any]:
     """Instantiate a planner by its registered name."""
     return planner_class(name)()

@@ -50,11 +50,13 @@ import numpy as np
 from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+from llmnav.planners.fsm_options import FsmOptions
 from llmnav.realtime import frozen_heap, realtime_priority
 
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from llmnav.backends.base import Backend
     from llmnav.chat import AnswerKey
     from llmnav.guard.parse import GuardResult
     from llmnav.planners.base import GroundTruth
@@ -345,22 +347,29 @@ class FsmPlanner(Planner):
 
     name = "fsm"
     needs_backend = True
-    options = frozenset(
-        {"assist", "alpha", "beta", "ttl_ms", "ttl_auto", "model_latency", "max_ticks", "temperature", "max_tokens"}
-    )
+    Options = FsmOptions
+    options = frozenset({"temperature", "max_tokens"})
+    grid_factors = ("assist",)
     paces_itself = True  # its 50 Hz ticks follow the wall clock under --realtime, not the physics steps
 
     def __init__(self, config: FsmConfig | None = None) -> None:
         self.cfg = config or FsmConfig()
 
     @staticmethod
-    def templates(options: DriveOptions) -> list[str]:
+    def templates(options: FsmOptions) -> list[str]:
         """Prompt templates this planner renders (their hashes go into the run config)."""
         return ["fsm_velocity"] if options.assist == "llm" else []
 
-    def requires_backend(self, options: DriveOptions) -> bool:
+    def requires_backend(self, options: FsmOptions) -> bool:
         """Only `--assist llm` talks to a model."""
         return options.assist == "llm"
+
+    def check_backend(self, backend: Backend, options: FsmOptions) -> None:
+        """A recorded latency exists only in a replayed run."""
+        from llmnav.errors import BadInputError
+
+        if options.model_latency == "recorded" and not backend.spec.lower().startswith("replay:"):
+            raise BadInputError("--model-latency recorded needs a replay backend (--backend replay:RUN_DIR)")
 
     # --- the episode --------------------------------------------------------------------------
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
@@ -645,7 +654,7 @@ class FsmPlanner(Planner):
         return _ProcessWorker.start(ctx.backend, schema, warm_up, record)
 
     @staticmethod
-    def _received(worker: _Worker | _ProcessWorker, now: float, opts: DriveOptions) -> Suggestion | None:
+    def _received(worker: _Worker | _ProcessWorker, now: float, opts: FsmOptions) -> Suggestion | None:
         """Realtime: the next answer from the worker; a fixed `--model-latency` holds it until then."""
         polled = worker.poll()
         if polled is None:

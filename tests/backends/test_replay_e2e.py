@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 
 from llmnav.guard.schemas import step_answer
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import DriveOptions, drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 
 ANSWERS = [
@@ -21,7 +21,7 @@ RUN_SPECIFIC = {"backend", "condition", "wall_time_s", "run_dir", "trajectory"}
 
 
 def options(**changes: object) -> DriveOptions:
-    return DriveOptions(planner="stepwise", max_iterations=4, image_width=160, image_height=120, **changes)
+    return drive_options(planner="stepwise", max_iterations=4, image_width=160, image_height=120, **changes)
 
 
 def _answer_server(server) -> None:

@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 from llmnav.backends.base import ChatRequest, Message
 from llmnav.backends.policy import PolicyBackend
 from llmnav.cli import app
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 
@@ -76,7 +76,7 @@ def _episode(planner: str, backend: str, out: Path) -> dict[str, Any]:
         scenario=setup["scenario"],
         task_id=setup.get("task_id"),
         task_text=setup.get("task_text"),
-        options=DriveOptions(planner=setup.get("planner", planner), **setup["options"]),  # type: ignore[arg-type]
+        options=drive_options(planner=setup.get("planner", planner), **setup["options"]),  # type: ignore[arg-type]
         backend=backend,
         out_dir=out,
         plots=False,

@@ -11,7 +11,7 @@ from llmnav.baselines.frontier import FrontierConfig, FrontierPlanner
 from llmnav.geometry import Pose2D
 from llmnav.guard.view import PlannerWorld
 from llmnav.mapping.grid import GridGeometry, LidarMap
-from llmnav.planners.base import DriveOptions, EpisodeContext
+from llmnav.planners.base import EpisodeContext, drive_options
 from llmnav.runlog import RunLog, read_run
 from llmnav.scenario import Scenario, load_scenario, parse_scenario
 from llmnav.sim.world import World
@@ -23,7 +23,7 @@ def run(sc: Scenario, task_id: str, tmp_path: Path, config: FrontierConfig | Non
         world.reset(sc.start_poses(task)[0].pose())
         with RunLog(tmp_path, {"test": True}) as log:
             world.motion.on_pose = lambda pose, t: log.event("pose", pose=pose.as_list())
-            ctx = EpisodeContext(sc, task, PlannerWorld(world, log), None, log, DriveOptions(planner="frontier"))
+            ctx = EpisodeContext(sc, task, PlannerWorld(world, log), None, log, drive_options(planner="frontier"))
             outcome = FrontierPlanner(config).run(ctx)
         final = world.robot.pose()
         collisions = world.motion.collisions

@@ -127,7 +127,7 @@ def test_every_factory_start_pose_has_a_plausible_oracle_path() -> None:
 
 def run_planner(sc: Scenario, task_id: str, tmp_path: Path, planner: object) -> tuple[object, object, object]:
     from llmnav.guard.view import PlannerWorld
-    from llmnav.planners.base import DriveOptions, EpisodeContext
+    from llmnav.planners.base import EpisodeContext, drive_options
     from llmnav.runlog import RunLog, read_run
     from llmnav.sim.world import World
 
@@ -136,7 +136,7 @@ def run_planner(sc: Scenario, task_id: str, tmp_path: Path, planner: object) -> 
         world.reset(sc.start_poses(task)[0].pose())
         with RunLog(tmp_path, {"test": True}) as log:
             world.motion.on_pose = lambda pose, t: log.event("pose", pose=pose.as_list())
-            ctx = EpisodeContext(sc, task, PlannerWorld(world, log), None, log, DriveOptions(planner="oracle"))
+            ctx = EpisodeContext(sc, task, PlannerWorld(world, log), None, log, drive_options(planner="oracle"))
             outcome = planner.run(ctx)  # type: ignore[attr-defined]
             final = world.robot.pose()
     return outcome, final, read_run(tmp_path)
@@ -186,14 +186,14 @@ def test_oracle_planner_rotate_task(tmp_path: Path) -> None:
 def test_the_oracle_baseline_ends_inside_the_success_radius_in_the_factory(
     tmp_path: Path, task: str, pose: int, seed: int
 ) -> None:
-    from llmnav.planners.base import DriveOptions
+    from llmnav.planners.base import drive_options
     from llmnav.runner import EpisodeSpec, run_episode
 
     spec = EpisodeSpec(
         scenario="factory",
         task_id=task,
         start_pose=pose,
-        options=DriveOptions(planner="oracle", seed=seed),  # the seeds of the sweep that found them
+        options=drive_options(planner="oracle", seed=seed),  # the seeds of the sweep that found them
         out_dir=tmp_path / "run",
         plots=False,
     )

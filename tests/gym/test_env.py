@@ -18,7 +18,7 @@ from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.cli import app
 from llmnav.errors import BadInputError
 from llmnav.gym import FactoryEnv, RunLog, SafetyVeto, TextObservation, VelocityEnv
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
@@ -168,7 +168,7 @@ def test_runlog_episode_scores_like_the_planners_episode(tmp_path: Path) -> None
     spec = EpisodeSpec(
         scenario=SMALL,
         task_id="T1",
-        options=DriveOptions(planner="stepwise", sensing=("lidar",), seed=0),
+        options=drive_options(planner="stepwise", sensing=("lidar",), seed=0),
         backend="replay",
         out_dir=tmp_path / "planner",
         plots=False,

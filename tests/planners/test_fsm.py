@@ -12,7 +12,7 @@ import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.chat import ChatRequest, ChatResult
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.planners.fsm import FsmConfig, project
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, run_episode
@@ -38,7 +38,7 @@ def run_fsm(
         scenario=scenario,
         task_id="M1",
         start_pose=1,
-        options=DriveOptions(planner="fsm", assist=assist, **options),  # type: ignore[arg-type]
+        options=drive_options(planner="fsm", assist=assist, **options),  # type: ignore[arg-type]
         backend=backend.spec if backend else "local",
         out_dir=tmp_path / name,
     )

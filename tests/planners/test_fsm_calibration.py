@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 
 PUBLISHED_E_POS = 0.246  # [m]
@@ -38,7 +38,7 @@ def stop_errors(tmp_path: Path, seeds: range) -> tuple[list[float], list[float],
                 scenario="maze_arena",
                 task_id="M1",
                 start_pose=1,
-                options=DriveOptions(planner="fsm", assist="none", seed=seed),
+                options=drive_options(planner="fsm", assist="none", seed=seed),
                 out_dir=tmp_path / f"seed-{seed}",
             )
         )

@@ -12,7 +12,7 @@ import pytest
 from llmnav.backends.policy import PolicyBackend
 from llmnav.backends.replay import ReplayBackend
 from llmnav.geometry import Pose2D
-from llmnav.planners.base import DriveOptions, GroundTruth
+from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.fsm import FsmConfig, FsmPlanner, check_suggestion, state_message
 from llmnav.planners.fsm_oracle import FsmAnswerKey, sign_stop_point
 from llmnav.runlog import RunRecord, read_run
@@ -22,7 +22,7 @@ from llmnav.scenario import load_scenario
 CFG = FsmConfig()
 MAZE = load_scenario("maze_arena")
 STOP = MAZE.object("STOP")  # board at (4.45, 4.96) on the north wall: its stop point is 0.45 m south
-OPTIONS = DriveOptions(planner="fsm", assist="llm")
+OPTIONS = drive_options(planner="fsm", assist="llm")
 
 
 def key_at(pose: Pose2D) -> FsmAnswerKey:
@@ -78,7 +78,7 @@ def run_oracle(tmp_path: Path, name: str, backend: Any, **options: Any) -> tuple
         scenario="maze_arena",
         task_id="M1",
         start_pose=1,
-        options=DriveOptions(planner="fsm", assist="llm", **options),  # type: ignore[arg-type]
+        options=drive_options(planner="fsm", assist="llm", **options),  # type: ignore[arg-type]
         backend=backend.spec,
         out_dir=tmp_path / name,
     )

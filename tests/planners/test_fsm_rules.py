@@ -59,39 +59,58 @@ def test_state_line_is_class_distance_offset_and_baseline_in_milli_units():
 
 
 @pytest.mark.parametrize(
-    ("latency", "ttl", "expected"),
+    ("given", "expected"),
     [
-        ("measured", None, {"model_latency": "measured"}),
-        ("186", "auto", {"model_latency": 186.0, "ttl_auto": True}),
-        (None, "250", {"ttl_ms": 250.0}),
-        ("0", None, {"model_latency": 0.0}),
+        ({"model_latency": "measured"}, {"model_latency": "measured"}),
+        ({"model_latency": "186", "ttl": "auto"}, {"model_latency": 186.0, "ttl_auto": True}),
+        ({"ttl": "250"}, {"ttl_ms": 250.0, "ttl_auto": False}),
+        ({"model_latency": "0"}, {"model_latency": 0.0}),
+        ({"model_latency": " Recorded "}, {"model_latency": "recorded"}),
     ],
 )
-def test_timing_options_parse(latency, ttl, expected):
-    from llmnav.planners.fsm import timing_options
+def test_timing_options_parse(given, expected):
+    from llmnav.planners.base import planner_options
 
-    assert timing_options(latency, ttl, "local") == expected
+    options, ignored = planner_options("fsm", given)
+    assert ignored == []
+    assert {key: getattr(options, key) for key in expected} == expected
 
 
 @pytest.mark.parametrize(
-    ("latency", "ttl", "backend", "flag"),
+    ("latency", "ttl", "flag"),
     [
-        ("-5", None, "local", "--model-latency"),
-        ("fast", None, "local", "--model-latency"),
-        ("nan", None, "local", "--model-latency"),
-        ("recorded", None, "local", "--model-latency"),  # only a replay has a record
-        (None, "soon", "local", "--ttl"),
-        (None, "0", "local", "--ttl"),
-        (None, "-1", "local", "--ttl"),
+        ("-5", None, "--model-latency"),
+        ("fast", None, "--model-latency"),
+        ("nan", None, "--model-latency"),
+        (None, "soon", "--ttl"),
+        (None, "0", "--ttl"),
+        (None, "-1", "--ttl"),
     ],
 )
-def test_timing_options_reject_bad_values(latency, ttl, backend, flag):
-    from llmnav.errors import BadInputError
-    from llmnav.planners.fsm import timing_options
+def test_timing_options_reject_bad_values(latency, ttl, flag, tmp_path):
+    from typer.testing import CliRunner
 
-    with pytest.raises(BadInputError, match=flag) as err:
-        timing_options(latency, ttl, backend)
-    assert err.value.exit_code == 2 and "\n" not in str(err.value)
+    from llmnav.cli import app
+
+    args = ["drive", "--planner", "fsm", "--task", "go to the stop sign", "--out", str(tmp_path / "run")]
+    args += ["--model-latency", latency] if latency is not None else ["--ttl", ttl]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and flag in lines[0], result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_recorded_latency_needs_a_replay_backend(tmp_path):
+    from typer.testing import CliRunner
+
+    from llmnav.cli import app
+
+    args = ["drive", "--planner", "fsm", "--assist", "llm", "--model-latency", "recorded", "--backend", "policy:first"]
+    result = CliRunner().invoke(app, [*args, "--task", "go to the stop sign", "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2, result.output
+    assert "--model-latency recorded needs a replay backend" in result.output
+    assert not (tmp_path / "run").exists()
 
 
 def test_adaptive_ttl_is_p95_times_factor_bounded():

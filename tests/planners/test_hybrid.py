@@ -17,7 +17,7 @@ from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import hybrid_choice_model
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.planners.hybrid import HybridConfig
 from llmnav.resources import resource_dir
 from llmnav.runlog import RunRecord, read_run
@@ -86,7 +86,7 @@ def drive(
         task_id=task_id,
         task_text=task_text,
         start_pose=pose,
-        options=DriveOptions(planner="hybrid", **options),
+        options=drive_options(planner="hybrid", **options),
         backend=backend.spec,
         out_dir=tmp_path / name,
     )

@@ -9,7 +9,7 @@ from llmnav.chat import ChatRequest, Message, ScoreRequest
 from llmnav.geometry import Pose2D
 from llmnav.guard.parse import parse_answer
 from llmnav.guard.schemas import hybrid_choice_model, response_schema
-from llmnav.planners.base import DriveOptions, GroundTruth
+from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.hybrid.oracle import HybridAnswerKey
 from llmnav.planners.hybrid.scoring import INTENT_PROMPT
 from llmnav.relevance import TARGET_PROMPT
@@ -71,7 +71,7 @@ def test_with_nothing_known_it_looks_once_then_explores_toward_the_target() -> N
 
 
 def test_the_readme_run_with_oracle_answers_succeeds_and_replays(tmp_path: Path) -> None:
-    options = DriveOptions(planner="hybrid", image_width=160, image_height=120)
+    options = drive_options(planner="hybrid", image_width=160, image_height=120)
     first = run_episode(
         EpisodeSpec(
             scenario="", task_text="Go to room 101", options=options, backend="policy:oracle", out_dir=tmp_path / "a"

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from llmnav.backends.replay import write_script
 from llmnav.chat import ContinuationScore, ScoreRequest, ScoreResult
 from llmnav.cli import app
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.planners.hybrid.scoring import (
     CONTENT_FREE_TASK,
     Candidate,
@@ -110,7 +110,7 @@ def _drive(tmp_path: Path, name: str, backend: str, **options: Any) -> dict[str,
     spec = EpisodeSpec(
         scenario="corridor_a",
         task_text="Go to room 104",
-        options=DriveOptions(max_iterations=6, **options),
+        options=drive_options(max_iterations=6, **options),
         backend=backend,
         out_dir=tmp_path / name,
         plots=False,
@@ -190,7 +190,7 @@ def test_a_leg_the_motion_layer_refuses_is_a_veto_and_near_the_target_counts_as_
         scenario="factory",
         task_id="T8",
         start_pose=3,
-        options=DriveOptions(max_iterations=30),
+        options=drive_options(max_iterations=30),
         backend="policy:keyword",
         out_dir=tmp_path / "t8",
         plots=False,

@@ -11,7 +11,7 @@ import pytest
 
 from llmnav.errors import BadInputError
 from llmnav.knowledge import PLANNER_INFORMATION, resolve_information, scenario_view
-from llmnav.planners.base import DriveOptions, EpisodeContext
+from llmnav.planners.base import EpisodeContext, drive_options
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 from llmnav.scenario import load_scenario
@@ -107,7 +107,7 @@ def test_hybrid_sensed_finds_the_boxes_without_reading_ground_truth(
         scenario="factory",
         task_id="T8",
         start_pose=4,
-        options=DriveOptions(planner="hybrid", sensing=("lidar", "detections"), max_iterations=12),
+        options=drive_options(planner="hybrid", sensing=("lidar", "detections"), max_iterations=12),
         backend=reader.spec,
         out_dir=tmp_path / "run",
         plots=False,
@@ -136,7 +136,7 @@ def test_stepwise_sensed_reads_the_true_pose_only_to_log_it(
     spec = EpisodeSpec(
         scenario="factory",
         task_id="T7",
-        options=DriveOptions(planner="stepwise", sensing=("lidar",), max_iterations=2),
+        options=drive_options(planner="stepwise", sensing=("lidar",), max_iterations=2),
         backend=replay.spec,
         out_dir=tmp_path / "run",
         plots=False,

@@ -19,7 +19,7 @@ from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import ActionBounds, StepAction, response_schema, step_answer
 from llmnav.metrics import summarize_run
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
 from llmnav.scenario import load_scenario
@@ -53,7 +53,7 @@ def drive(
         task_id="T1",
         task_text=None,
         start_pose=pose,
-        options=DriveOptions(planner="stepwise", **options),
+        options=drive_options(planner="stepwise", **options),
         backend=replay.spec,
         out_dir=tmp_path / name,
     )
@@ -79,7 +79,7 @@ def test_malformed_json_gets_a_correction_turn_with_the_exact_error(tmp_path: Pa
         (1, "ok", 3),
         (2, "ok", 1),
     ]
-    bounds = ActionBounds(max_step_m=DriveOptions().max_step_m)
+    bounds = ActionBounds(max_step_m=drive_options().max_step_m)
     schema = response_schema(StepAction)
     first = calls(record)[1]["request"]["messages"]
     assert first[-2] == {"role": "assistant", "text": "I think we should go left"}
@@ -198,7 +198,7 @@ _KILL_SCRIPT = """
 import sys, time
 from pathlib import Path
 from llmnav.backends.base import Backend, ChatResult
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 
 class Slow(Backend):
@@ -210,7 +210,7 @@ class Slow(Backend):
         return ChatResult(text=text, latency_s=0.2, model="slow")
 
 spec = EpisodeSpec(scenario=sys.argv[1], task_id="T1", task_text=None, start_pose=1,
-                   options=DriveOptions(planner="stepwise", sensing=("lidar",), max_iterations=500),
+                   options=drive_options(planner="stepwise", sensing=("lidar",), max_iterations=500),
                    backend="slow", out_dir=Path(sys.argv[2]))
 run_episode(spec, backend_obj=Slow())
 """
@@ -255,7 +255,7 @@ def test_a_collision_the_lidar_cannot_see_is_reported_with_the_next_observation(
         task_id="T1",
         task_text=None,
         start_pose=1,
-        options=DriveOptions(planner="stepwise", sensing=("lidar",)),
+        options=drive_options(planner="stepwise", sensing=("lidar",)),
         backend=replay.spec,
         out_dir=tmp_path / "run",
     )

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 
@@ -21,7 +21,7 @@ def test_stepwise_with_the_real_local_model(tmp_path: Path) -> None:
         task_id="T1",
         task_text=None,
         start_pose=1,
-        options=DriveOptions(
+        options=drive_options(
             planner="stepwise", sensing=("lidar",), prompt="short", history="1", max_iterations=2
         ),
         backend="local",

@@ -10,7 +10,7 @@ import pytest
 from llmnav.backends.policy import PolicyBackend
 from llmnav.chat import ChatRequest, Message
 from llmnav.errors import ModelError
-from llmnav.planners.base import DriveOptions, Planner, planner_class
+from llmnav.planners.base import Planner, drive_options, planner_class
 from llmnav.runner import EpisodeSpec, run_episode
 
 SMALL_IMAGE = {"image_width": 160, "image_height": 120}
@@ -22,7 +22,7 @@ def _events(run_dir: Path, kind: str) -> list[dict]:
 
 
 def _drive(tmp_path: Path, name: str, task: str, pose: int, backend: str = "policy:oracle") -> dict:
-    options = DriveOptions(planner="stepwise", **SMALL_IMAGE)
+    options = drive_options(planner="stepwise", **SMALL_IMAGE)
     spec = EpisodeSpec(
         scenario="factory", task_id=task, start_pose=pose, options=options, backend=backend, out_dir=tmp_path / name
     )

@@ -14,7 +14,7 @@ import pytest
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import WaypointList, response_schema, target_choice_model
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.prompting import render
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
@@ -48,7 +48,7 @@ def drive(
     spec = EpisodeSpec(
         scenario=scenario,
         task_text=SEQUENCE_JOIN.join(tasks),
-        options=DriveOptions(planner="waypoints", **options),
+        options=drive_options(planner="waypoints", **options),
         backend=replay.spec,
         out_dir=tmp_path / name,
     )
@@ -352,7 +352,7 @@ def test_strict_replay_of_a_replanning_run_reproduces_it(tmp_path: Path) -> None
     spec = EpisodeSpec(
         scenario="corridor_a",
         task_text="Go to room 105",
-        options=DriveOptions(planner="waypoints", obstacles=(box,)),
+        options=drive_options(planner="waypoints", obstacles=(box,)),
         backend=replay.spec,
         out_dir=tmp_path / "again",
     )

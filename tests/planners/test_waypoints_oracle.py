@@ -14,7 +14,7 @@ from llmnav.chat import ChatRequest, ChatResult, Message, ScoreRequest
 from llmnav.geometry import Pose2D
 from llmnav.guard.schemas import response_schema, target_choice_model
 from llmnav.mapping.grid import build_grid
-from llmnav.planners.base import DriveOptions, GroundTruth
+from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.waypoints import WaypointPlanner, generate_plan
 from llmnav.planners.waypoints.oracle import OTHER_LOGPROB, WaypointAnswerKey
 from llmnav.runlog import read_run
@@ -94,7 +94,7 @@ def test_an_oracle_drive_through_the_junction_succeeds_and_replays_strictly(tmp_
     spec = EpisodeSpec(
         scenario="corridor_b",
         task_id="B3",
-        options=DriveOptions(planner="waypoints"),
+        options=drive_options(planner="waypoints"),
         backend="policy:oracle",
         out_dir=tmp_path / "oracle",
     )
@@ -110,7 +110,7 @@ def test_an_oracle_drive_through_the_junction_succeeds_and_replays_strictly(tmp_
         EpisodeSpec(
             scenario="corridor_b",
             task_id="B3",
-            options=DriveOptions(planner="waypoints"),
+            options=drive_options(planner="waypoints"),
             backend=f"replay:{tmp_path / 'oracle' / 'run.jsonl'}",
             out_dir=tmp_path / "again",
         )
@@ -134,7 +134,7 @@ def test_the_oracle_passes_a_box_beyond_the_emergency_stop(tmp_path: Path, box: 
         EpisodeSpec(
             scenario="corridor_a",
             task_text="Go to room 105",
-            options=DriveOptions(planner="waypoints", obstacles=(box,)),
+            options=drive_options(planner="waypoints", obstacles=(box,)),
             backend="policy:oracle",
             out_dir=tmp_path / "run",
         )

@@ -30,7 +30,7 @@ import pytest
 
 import llmnav
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 
@@ -93,7 +93,7 @@ def realtime_episode(tmp_path: Path, name: str, ticks: int, backend: Backend) ->
     spec = EpisodeSpec(
         scenario="maze_arena",
         task_id="M1",
-        options=DriveOptions(planner="fsm", assist="llm", realtime=True, max_ticks=ticks),
+        options=drive_options(planner="fsm", assist="llm", realtime=True, max_ticks=ticks),
         backend=backend.spec,
         out_dir=tmp_path / name,
     )

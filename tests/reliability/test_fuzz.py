@@ -28,7 +28,7 @@ from llmnav.guard.parse import parse_answer
 from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, step_answer
 from llmnav.guard.veto import check_motion
 from llmnav.metrics import summarize_run
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.robot_specs import PR2
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
@@ -373,7 +373,7 @@ def fuzz_episode(tmp_path: Path, seed: int, tally: Any) -> dict[str, int]:
         scenario=SMALL_ROOM,
         task_id="T1",
         start_pose=1 + seed % 2,
-        options=DriveOptions(planner="stepwise", sensing=("lidar",), max_iterations=10, seed=seed),
+        options=drive_options(planner="stepwise", sensing=("lidar",), max_iterations=10, seed=seed),
         backend="fuzz",
         out_dir=out,
     )
@@ -488,7 +488,7 @@ def test_disable_safety_text_cannot_loosen_the_veto(tmp_path: Path, tally: Any) 
         scenario=SMALL_ROOM,
         task_id="T1",
         start_pose=2,
-        options=DriveOptions(planner="stepwise", sensing=("lidar",), max_vetoes=10),
+        options=drive_options(planner="stepwise", sensing=("lidar",), max_vetoes=10),
         backend="scripted",
         out_dir=tmp_path / "hostile",
     )

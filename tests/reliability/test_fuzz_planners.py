@@ -28,7 +28,7 @@ from llmnav.guard.schemas import VelocitySuggestion, WaypointList, hybrid_choice
 from llmnav.guard.view import PlannerWorld
 from llmnav.mapping.grid import build_grid
 from llmnav.mapping.targets import with_added_obstacles
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.planners.waypoints import PlanRules
 from llmnav.robot_specs import ROBOT_SPECS
 from llmnav.runlog import read_run
@@ -73,7 +73,7 @@ def episode(
         task_id=task,
         task_text=text,
         start_pose=options.pop("start_pose", 1),
-        options=DriveOptions(**options),
+        options=drive_options(**options),
         backend=backend.spec if backend is not None else "local",
         out_dir=tmp_path / name,
         plots=False,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from llmnav.planners.base import DriveOptions, StepInfo
+from llmnav.planners.base import StepInfo, drive_options
 from llmnav.reporting.live import LiveView, ProgressView, print_result
 from llmnav.runner import EpisodeSpec
 
@@ -22,7 +22,7 @@ def test_live_view_shows_each_step_and_only_filled_columns() -> None:
         scenario="factory",
         task_id="T1",
         task_text=None,
-        options=DriveOptions(planner="stepwise"),
+        options=drive_options(planner="stepwise"),
         backend="local",
         out_dir=Path("x"),
     )

@@ -13,7 +13,15 @@ from pydantic import ValidationError
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.planners.base import DriveOptions, changed_options, inapplicable_options, planner_names
+from llmnav.errors import BadInputError
+from llmnav.planners.base import (
+    DriveOptions,
+    drive_options,
+    inapplicable_options,
+    planner_class,
+    planner_names,
+    planner_options,
+)
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
 
@@ -25,6 +33,8 @@ def test_the_entry_point_group_lists_all_six() -> None:
     assert BUILT_IN <= {ep.name for ep in entry_points(group="llmnav.planners")}
     with pytest.raises(ValidationError, match="unknown planner 'teleport'"):
         DriveOptions(planner="teleport")
+    with pytest.raises(BadInputError, match="unknown planner 'teleport'"):
+        drive_options(planner="teleport")
 
 
 THIRD_PARTY = '''
@@ -71,11 +81,29 @@ def test_a_third_party_planner_installs_by_entry_point_and_gets_the_guarded_laye
 
 
 def test_options_a_planner_ignores_are_named() -> None:
-    options = DriveOptions(planner="oracle", history="1", lidar_sectors=5, seed=3)
-    assert changed_options(options) == {"planner", "history", "lidar_sectors", "seed"}
-    assert inapplicable_options("oracle", changed_options(options)) == ["history", "lidar_sectors"]
+    options, ignored = planner_options("oracle", {"history": "1", "lidar_sectors": 5, "seed": 3})
+    assert ignored == ["history", "lidar_sectors"]
+    assert options.seed == 3 and "history" not in type(options).model_fields  # not applied: not its option
     assert inapplicable_options("stepwise", {"history", "lidar_sectors", "assist"}) == ["assist"]
     assert inapplicable_options("fsm", {"assist", "alpha", "prompt"}) == ["prompt"]
+
+
+def test_an_option_no_planner_takes_is_refused_naming_what_it_takes() -> None:
+    with pytest.raises(BadInputError, match="'asist': no planner takes it") as err:
+        planner_options("fsm", {"asist": "llm"})
+    assert "assist" in str(err.value).split("takes:")[1]
+
+
+def test_each_planner_owns_its_options_model() -> None:
+    for name in planner_names():
+        model = planner_class(name).Options
+        assert issubclass(model, DriveOptions) and model.model_config.get("extra") == "forbid"
+        with pytest.raises(ValidationError):
+            model.model_validate({"planner": name, "no_such_option": 1})
+    shared = set(DriveOptions.model_fields)
+    own = {name: set(planner_class(name).Options.model_fields) - shared for name in planner_names()}
+    assert "assist" in own["fsm"] and "assist" not in own["hybrid"]
+    assert "prompt" in own["stepwise"] and "prompt" not in own["waypoints"]
 
 
 def test_drive_and_ablate_say_which_flags_do_not_apply(tmp_path: Path) -> None:

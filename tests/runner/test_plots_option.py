@@ -8,7 +8,7 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).with_name("small_room.yaml"))
@@ -18,7 +18,7 @@ def test_episode_without_plot_is_complete_and_scored(tmp_path: Path) -> None:
     spec = EpisodeSpec(
         scenario=SMALL,
         task_id="T1",
-        options=DriveOptions(planner="oracle"),
+        options=drive_options(planner="oracle"),
         out_dir=tmp_path / "run",
         plots=False,
     )

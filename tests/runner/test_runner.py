@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 import llmnav.planners.base as planners_base
 from llmnav.cli import app
 from llmnav.errors import ModelError
-from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner
+from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, drive_options
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
 
@@ -25,7 +25,7 @@ def _spec(tmp_path: Path, planner: str = "oracle", **kw: Any) -> EpisodeSpec:
         task_id="T1",
         task_text=None,
         start_pose=1,
-        options=DriveOptions(planner=planner, **kw),
+        options=drive_options(planner=planner, **kw),
         backend="local",
         out_dir=tmp_path / "run",
     )
@@ -52,7 +52,7 @@ def test_oracle_episode_writes_a_complete_run_folder(tmp_path: Path) -> None:
     assert config["information"] == "oracle" and summary["information"] == "oracle"
     assert config["start_pose_index"] == 1 and config["start_pose"] == [1.5, 3.0, 0.0]
     assert config["backend"] is None  # the oracle needs no model: none is created
-    assert config["options"] == DriveOptions(planner="oracle").model_dump(mode="json")
+    assert config["options"] == drive_options(planner="oracle").model_dump(mode="json")
     assert set(config["versions"]) == {"llmnav", "python", "pybullet", "numpy"}
     poses = record.poses()
     assert poses[0] == [1.5, 3.0, 0.0] and len(poses) > 10

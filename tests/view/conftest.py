@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import DriveOptions, drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
@@ -56,7 +56,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         ],
         SMALL,
         task_id="T1",
-        options=DriveOptions(planner="stepwise", sensing=("lidar", "image"), image_width=320, image_height=240),
+        options=drive_options(planner="stepwise", sensing=("lidar", "image"), image_width=320, image_height=240),
     )
     out["hybrid"] = _drive(
         root,
@@ -69,7 +69,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         "corridor_a",
         purpose="choice",
         task_text="Go to room 101",
-        options=DriveOptions(planner="hybrid", sensing=("lidar",)),
+        options=drive_options(planner="hybrid", sensing=("lidar",)),
     )
     mixed = [  # the FSM's answer: [v mm/s, w mrad/s]
         "[50,100]",
@@ -83,7 +83,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         "maze_arena",
         purpose="suggestion",
         task_id="M1",
-        options=DriveOptions(planner="fsm", assist="llm", max_ticks=1500),
+        options=drive_options(planner="fsm", assist="llm", max_ticks=1500),
     )
     room_105 = (6.5, 1.1)
     straight = json.dumps([{"x": 5.0, "y": 0.0}, {"x": room_105[0], "y": room_105[1]}])
@@ -96,7 +96,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         "corridor_a",
         purpose="waypoints",
         task_text="Go to room 105",
-        options=DriveOptions(planner="waypoints", obstacles=((3.5, 0.0),)),
+        options=drive_options(planner="waypoints", obstacles=((3.5, 0.0),)),
     )
     # A killed run: the stepwise log cut inside its third step, the last line torn, no summary.
     killed = root / "killed"

@@ -49,12 +49,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from llmnav.chat import ChatRequest, Message
 from llmnav.errors import BadInputError
 from llmnav.geometry import Pose2D
-from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+from llmnav.planners.base import (
+    MODEL_OPTIONS,
+    DriveOptions,
+    EpisodeContext,
+    EpisodeOutcome,
+    Information,
+    Planner,
+    StepInfo,
+    decides_by_scores,
+)
+from llmnav.planners.hybrid.options import HybridOptions
 
 # [m] goals for a frontier lie within the grid's inflation plus this of one of its cells (sensed mode:
 # unknown space is inflated, so the frontier cells themselves are never free)
@@ -149,6 +159,10 @@ class HybridPlanner(Planner):
 
     name = "hybrid"
     needs_backend = True
+    Options = HybridOptions
+    # from a published map, from its sensors, or (as before the information model) the true grid
+    information_modes: ClassVar[tuple[Information, ...]] = ("sensed", "map", "oracle")
+    grid_factors = ("decide", "menu_order", "sensing", "lidar_sectors")
     options = MODEL_OPTIONS | {
         "sensing",
         "lidar_sectors",
@@ -156,7 +170,6 @@ class HybridPlanner(Planner):
         "max_iterations",
         "image_width",
         "image_height",
-        "decide",
     }
 
     def __init__(self, config: HybridConfig | None = None) -> None:
@@ -173,7 +186,7 @@ class HybridPlanner(Planner):
 
         return HybridAnswerKey(truth)
 
-    def check_backend(self, backend: Backend, options: DriveOptions) -> None:
+    def check_backend(self, backend: Backend, options: HybridOptions) -> None:
         """`--decide score` needs a backend that scores continuations."""
         if options.decide == "score" and not backend.can_score:
             raise BadInputError(
@@ -184,7 +197,7 @@ class HybridPlanner(Planner):
     @staticmethod
     def decision_mode(ctx: EpisodeContext) -> str:
         """`score` or `generate`: what `--decide` means with this episode's backend."""
-        return "score" if ctx.decides_by_scores() else "generate"
+        return "score" if decides_by_scores(ctx.options, ctx.backend) else "generate"
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""

@@ -29,7 +29,8 @@ from llmnav.guard.ask import GuardedAnswer, ask_guarded
 from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, response_schema
 from llmnav.guard.veto import VetoResult, veto_message
 from llmnav.observe import Observation, observe
-from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Outcome, Planner, StepInfo
+from llmnav.planners.base import MODEL_OPTIONS, EpisodeContext, EpisodeOutcome, Information, Outcome, Planner, StepInfo
+from llmnav.planners.stepwise.options import StepwiseOptions
 
 if TYPE_CHECKING:
     from llmnav.chat import AnswerKey
@@ -65,41 +66,39 @@ class _Counters:
     collisions: int = 0
 
 
-class StepwisePlanner(Planner):
+class StepwisePlanner(Planner[StepwiseOptions]):
     """Source A's stepwise planner, with the guard, veto and history done as specified."""
 
     name: ClassVar[str] = "stepwise"
     needs_backend: ClassVar[bool] = True
+    Options: ClassVar[type[StepwiseOptions]] = StepwiseOptions
     options: ClassVar[frozenset[str]] = MODEL_OPTIONS | {
         "sensing",
         "lidar_sectors",
         "lidar_fov_deg",
-        "prompt",
-        "history",
-        "self_check",
         "max_iterations",
-        "max_vetoes",
-        "max_step_m",
         "image_width",
         "image_height",
     }
+    information_modes: ClassVar[tuple[Information, ...]] = ("sensed",)  # camera and LiDAR; never a position
+    grid_factors: ClassVar[tuple[str, ...]] = ("sensing", "lidar_sectors", "prompt", "history", "self_check")
 
-    def templates(self, options: DriveOptions) -> list[str]:
+    def templates(self, options: StepwiseOptions) -> list[str]:
         """Prompt templates this episode uses (their hashes go into the config line)."""
         return [options.prompt, *([SELF_CHECK_TEMPLATE] if _self_check_on(options) else [])]
 
-    def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
+    def run(self, ctx: EpisodeContext[StepwiseOptions]) -> EpisodeOutcome:
         """Drive one episode; see the module docstring."""
         return _Episode(ctx).run()
 
-    def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
+    def oracle_answers(self, truth: GroundTruth, options: StepwiseOptions) -> AnswerKey:
         """The action a perfect model would choose at each step (`llmnav.planners.stepwise.oracle`)."""
         from llmnav.planners.stepwise.oracle import StepwiseAnswerKey
 
         return StepwiseAnswerKey(truth, options.max_step_m)
 
 
-def _self_check_on(options: DriveOptions) -> bool:
+def _self_check_on(options: StepwiseOptions) -> bool:
     return options.self_check or options.prompt in ("self-check", "self_check")
 
 
@@ -131,7 +130,7 @@ def describe_action(action: StepAction) -> str:
 class _Episode:
     """The state of one stepwise episode."""
 
-    def __init__(self, ctx: EpisodeContext) -> None:
+    def __init__(self, ctx: EpisodeContext[StepwiseOptions]) -> None:
         from llmnav import prompting
 
         self.ctx = ctx

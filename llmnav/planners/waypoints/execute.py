@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from llmnav.chat import ChatRequest, ChatResult
 from llmnav.errors import BadInputError, InvalidActionError
 from llmnav.geometry import Pose2D
-from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner, StepInfo, decides_by_scores
 from llmnav.planners.waypoints.ground import ground_target
+from llmnav.planners.waypoints.options import WaypointOptions
 from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, Point, generate_plan
 from llmnav.planners.waypoints.validate import validate_waypoints
 
@@ -57,15 +58,16 @@ class WaypointPlanner(Planner):
 
     name = "waypoints"
     needs_backend = True
-    options = frozenset(
-        {"temperature", "max_generations", "max_replans", "replan_cooldown_s", "preset_waypoints", "decide"}
-    )
+    Options = WaypointOptions
+    options = frozenset({"temperature"})
+    information_modes: ClassVar[tuple[Information, ...]] = ("map",)  # the corridor rectangles and object positions
+    grid_factors = ("decide",)
 
     def __init__(self, config: WaypointConfig | None = None) -> None:
         self.cfg = config or WaypointConfig()
 
     @staticmethod
-    def templates(options: DriveOptions) -> list[str]:
+    def templates(options: WaypointOptions) -> list[str]:
         """Prompt templates this planner renders (their hashes go into the run config)."""
         return ["ground_system", "ground_user", "waypoints_system", "waypoints_user", "waypoints_feedback"]
 
@@ -78,7 +80,7 @@ class WaypointPlanner(Planner):
                 "planner needs them"
             )
 
-    def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
+    def oracle_answers(self, truth: GroundTruth, options: WaypointOptions) -> AnswerKey:
         """Plans from the true pose through the junction points to the true target, beyond the emergency stop."""
         from llmnav.planners.waypoints.oracle import WaypointAnswerKey
 
@@ -115,7 +117,7 @@ class WaypointPlanner(Planner):
             return call_model(ctx, request, purpose=purpose, step=step)
 
         # Free text that names no object is grounded by scores where the backend can (`--decide`).
-        score = (lambda request: ctx.score(request, step)) if ctx.decides_by_scores() else None
+        score = (lambda request: ctx.score(request, step)) if decides_by_scores(ctx.options, ctx.backend) else None
 
         def note(kind: str, **fields: Any) -> None:
             ctx.log.sim_time = world.sim_time

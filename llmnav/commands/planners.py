@@ -1,0 +1,77 @@
+"""`llmnav planners`: the registered planners, what each may know, and the options `-o KEY=VALUE` sets."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from llmnav.commands.common import cli_errors, console, esc, print_data
+from llmnav.errors import BadInputError
+
+
+def _default(value: Any) -> str:
+    if isinstance(value, tuple):
+        return "+".join(map(str, value)) or "()"
+    return str(value)
+
+
+def describe(name: str) -> dict[str, Any]:
+    """One planner's declarations: information modes, ablation factors, and every option with its default."""
+    from llmnav.planners.base import DriveOptions, planner_class
+
+    cls = planner_class(name)
+    own = set(cls.Options.model_fields) - set(DriveOptions.model_fields)
+    options = [
+        {
+            "key": key,
+            "default": _default(field.default),
+            "description": field.description or "",
+            "own": key in own,
+        }
+        for key, field in cls.Options.model_fields.items()
+        if key != "planner"
+    ]
+    return {
+        "planner": name,
+        "model": cls.needs_backend,
+        "information": list(cls.information_modes),
+        "grid_factors": list(cls.grid_factors),
+        "oracle_answers": cls.offers_oracle_answers(),
+        "options": options,
+    }
+
+
+@cli_errors
+def planners(
+    name: Annotated[str | None, typer.Argument(help="Show this planner's options (default: list all).")] = None,
+    output_format: Annotated[str, typer.Option("--format", help="table | json")] = "table",
+) -> None:
+    """List the registered planners, or one planner's options (what `drive -o KEY=VALUE` may set)."""
+    from llmnav.planners.base import planner_names
+
+    if output_format not in ("table", "json"):
+        raise BadInputError(f"--format {output_format!r}: expected table or json")
+    described = [describe(n) for n in ([name] if name else planner_names())]
+    if output_format == "json":
+        print_data(json.dumps(described if name is None else described[0]))
+        return
+    if name is None:
+        table = Table(title="Registered planners (llmnav.planners entry points)")
+        for column in ("planner", "information", "own options", "oracle answers"):
+            table.add_column(column)
+        for d in described:
+            own = ", ".join(o["key"] for o in d["options"] if o["own"]) or "-"
+            oracle = "yes" if d["oracle_answers"] else "no"
+            table.add_row(esc(d["planner"]), ", ".join(d["information"]), esc(own), oracle)
+        console.print(table)
+        return
+    d = described[0]
+    table = Table(title=esc(f"{d['planner']}: options (-o KEY=VALUE); information: {', '.join(d['information'])}"))
+    for column in ("key", "default", "description [unit]"):
+        table.add_column(column)
+    for o in sorted(d["options"], key=lambda o: (not o["own"], o["key"])):
+        table.add_row(esc(o["key"]) + ("" if o["own"] else " (shared)"), esc(o["default"]), esc(o["description"]))
+    console.print(table)

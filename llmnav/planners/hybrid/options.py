@@ -1,0 +1,17 @@
+"""The hybrid planner's own options, beyond the shared `DriveOptions` and `decide`."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from llmnav.planners.base import ChoiceOptions
+
+
+class HybridOptions(ChoiceOptions):
+    """What `-o KEY=VALUE` (or the named flags) may set for the hybrid planner."""
+
+    menu_order: Literal["distance", "relevance"] = Field(
+        default="distance", description="menu order: neutral by distance, or task-name matches first"
+    )
