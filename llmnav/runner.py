@@ -177,9 +177,16 @@ def _check_obstacles(scenario: Scenario, start: Pose2D, options: DriveOptions) -
 
 
 def run_episode(
-    spec: EpisodeSpec, *, view: View | None = None, backend_obj: Backend | None = None
+    spec: EpisodeSpec,
+    *,
+    view: View | None = None,
+    backend_obj: Backend | None = None,
+    planner_obj: Planner[Any] | None = None,
 ) -> dict[str, Any]:
-    """Run one episode and return its summary (also written to `summary.json`)."""
+    """Run one episode and return its summary (also written to `summary.json`).
+
+    `planner_obj`: an instance of the planner `spec.options.planner` names (a probe; see llmnav.testing).
+    """
     from llmnav.knowledge import resolve_information
     from llmnav.planners.base import get_planner
     from llmnav.runlog import RunLog
@@ -190,7 +197,7 @@ def run_episode(
     scenario, task = resolved.scenario, resolved.task
     start = resolved.start.pose()
     _check_obstacles(scenario, start, spec.options)
-    planner = get_planner(spec.options.planner)
+    planner = planner_obj if planner_obj is not None else get_planner(spec.options.planner)
     prompts = prompt_hashes(planner, spec.options)  # an unknown --prompt fails here, before anything loads
     check_scenario = getattr(planner, "check_scenario", None)  # a planner that cannot run here: bad input
     if check_scenario is not None:

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from llmnav.errors import BadInputError
-from llmnav.knowledge import PLANNER_INFORMATION, resolve_information, scenario_view
+from llmnav.knowledge import planner_modes, resolve_information, scenario_view
 from llmnav.planners.base import EpisodeContext, drive_options
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
@@ -66,7 +66,13 @@ def test_defaults_follow_whether_a_map_is_published() -> None:
     assert resolve_information("hybrid", corridor, None) == "map"
     assert resolve_information("hybrid", factory, "oracle") == "oracle"
     assert resolve_information("oracle", factory, None) == "oracle"
-    assert set(PLANNER_INFORMATION) == {"stepwise", "waypoints", "fsm", "hybrid", "oracle", "frontier"}
+    declared = {name: planner_modes(name) for name in ("stepwise", "waypoints", "fsm", "hybrid", "oracle", "frontier")}
+    assert declared == {
+        "stepwise": ("sensed",), "waypoints": ("map",), "fsm": ("oracle",), "hybrid": ("sensed", "map", "oracle"),
+        "oracle": ("oracle",), "frontier": ("oracle",),
+    }  # fmt: skip
+    with pytest.raises(BadInputError, match="unknown planner 'teleport'"):
+        planner_modes("teleport")  # once silently "oracle"
 
 
 @pytest.mark.parametrize(
