@@ -103,6 +103,7 @@ def _run_probe(
     cls: type[Planner[Any]], scenario: str, task_id: str | None, backend: str, options: dict[str, Any], run_dir: Path
 ) -> tuple[dict[str, Any], list[tuple[str, str]]]:
     """One short episode through the real runner, the context walked when the planner starts."""
+    from llmnav.planners.base import drive_options
     from llmnav.runner import EpisodeSpec, run_episode
     from llmnav.scenario import load_scenario
 
@@ -116,7 +117,7 @@ def _run_probe(
     task = task_id or load_scenario(scenario).tasks[0].id
     settings = {"max_iterations": 3, "seed": 0, **options}
     spec = EpisodeSpec(
-        scenario=scenario, task_id=task, options={"planner": cls.name, **settings}, backend=backend,
+        scenario=scenario, task_id=task, options=drive_options(cls.name, **settings), backend=backend,
         out_dir=run_dir, plots=False,
     )  # fmt: skip
     return run_episode(spec, planner_obj=Probe()), seen

@@ -16,7 +16,15 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from llmnav.errors import BadInputError, redact_userinfo, validation_message
-from llmnav.planners.base import DriveOptions, drive_options, option_names, option_value, planner_class, planner_names
+from llmnav.planners.base import (
+    DriveOptions,
+    check_option_value,
+    drive_options,
+    option_names,
+    option_value,
+    planner_class,
+    planner_names,
+)
 
 if TYPE_CHECKING:
     from llmnav.runner import EpisodeSpec
@@ -197,10 +205,14 @@ def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
     """Validate grid data (from a file and/or flags); one-line BadInputError naming the source."""
     try:
         grid = GridSpec.model_validate(data)
-        for planner in grid.planner or [DriveOptions().planner]:  # the fixed options one planner takes
+        planners = grid.planner or [DriveOptions().planner]
+        for planner in planners:  # the fixed options one planner takes
             keys = planner_class(planner).Options.input_keys()
             drive_options(planner, **{k: v for k, v in grid.options.items() if k in keys})
         _check_fixed_options(grid)
+        for key, values in grid.option_factors().items():  # every value, also where a planner ignores it
+            for value in values:
+                check_option_value(key, value, planners[0])
     except ValidationError as err:
         raise BadInputError(f"{source}: {_validation_message(err)}") from None
     return grid

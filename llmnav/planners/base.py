@@ -151,17 +151,26 @@ def planner_options(planner: str, given: dict[str, Any]) -> tuple[DriveOptions, 
     """
     cls = planner_class(planner)
     ignored = cls.unused_options(set(given))
-    if ignored:
-        everyone = {key for name in planner_names() for key in option_names(name)}
-        unknown = [key for key in ignored if key not in everyone]
-        if unknown:
-            raise BadInputError(
-                f"option {unknown[0]!r}: no planner takes it; planner '{planner}' takes: "
-                + ", ".join(option_names(planner))
-            )
+    for key in ignored:  # ignored, but a bad value is still bad input (and a typo of a key an error)
+        check_option_value(key, given[key], planner)
     keys = cls.Options.input_keys()
     values = {k: option_value(cls.Options, k, v) for k, v in given.items() if k in keys}
     return cls.Options.model_validate({**values, "planner": planner}), ignored
+
+
+def check_option_value(key: str, value: Any, planner: str) -> None:
+    """Validate one option with a planner that takes it (`planner` first); a key none takes is refused.
+
+    Raises `BadInputError` for an unknown key and pydantic's `ValidationError` for a bad value.
+    """
+    takers = [planner, *planner_names()]
+    for name in takers:
+        model = planner_class(name).Options
+        if key in model.input_keys():
+            model.model_validate({"planner": name, key: option_value(model, key, value)})
+            return
+    takes = ", ".join(option_names(planner))
+    raise BadInputError(f"option {key!r}: no planner takes it; planner '{planner}' takes: {takes}")
 
 
 def option_names(planner: str) -> list[str]:

@@ -79,7 +79,7 @@ def test_malformed_json_gets_a_correction_turn_with_the_exact_error(tmp_path: Pa
         (1, "ok", 3),
         (2, "ok", 1),
     ]
-    bounds = ActionBounds(max_step_m=drive_options().max_step_m)
+    bounds = ActionBounds(max_step_m=drive_options("stepwise").max_step_m)
     schema = response_schema(StepAction)
     first = calls(record)[1]["request"]["messages"]
     assert first[-2] == {"role": "assistant", "text": "I think we should go left"}
