@@ -14,6 +14,7 @@ from pydantic import ValidationError
 
 from llmnav.commands.common import cli_errors, console, err_console, esc, fail, parse_sensing, path_option, print_data
 from llmnav.errors import BadInputError
+from llmnav.planners.base import DEFAULT_PLANNER
 
 if TYPE_CHECKING:
     from llmnav.runner import EpisodeSpec
@@ -91,7 +92,7 @@ def drive(
     ] = "local",
     planner: Annotated[
         str, typer.Option(help="A planner registered under llmnav.planners (built in: see `llmnav planners`).")
-    ] = "hybrid",
+    ] = DEFAULT_PLANNER,
     option: Annotated[
         list[str] | None,
         typer.Option("-o", "--option", help="KEY=VALUE: any option of the planner (repeatable), e.g. -o alpha=0.3."),

@@ -44,6 +44,9 @@ Information = Literal["map", "sensed", "oracle"]
 Decide = Literal["auto", "score", "generate"]
 
 
+DEFAULT_PLANNER = "hybrid"
+
+
 class DriveOptions(BaseModel):
     """The options every episode has: what the runner, the observation and the guard read.
 
@@ -54,7 +57,7 @@ class DriveOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    planner: str = Field(default="hybrid", description="a name registered under the llmnav.planners group")
+    planner: str = Field(default=DEFAULT_PLANNER, description="a name registered under the llmnav.planners group")
     information: Information | None = Field(
         default=None, description="map | sensed | oracle; None: the planner's default for the scenario"
     )
@@ -109,7 +112,7 @@ COMMON_OPTIONS: frozenset[str] = frozenset({"planner", "seed", "realtime", "obst
 MODEL_OPTIONS: frozenset[str] = frozenset({"temperature", "max_tokens", "max_corrections"})
 
 
-def drive_options(planner: str = "hybrid", **fields: Any) -> DriveOptions:
+def drive_options(planner: str = DEFAULT_PLANNER, **fields: Any) -> DriveOptions:
     """The options of one episode of `planner`: its own `Options` model, validated (pydantic errors)."""
     return planner_class(planner).Options.model_validate({"planner": planner, **fields})
 
