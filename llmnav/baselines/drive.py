@@ -11,12 +11,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from llmnav.geometry import Point
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, StepInfo
 
 if TYPE_CHECKING:
     from llmnav.sim.motion import MotionResult
-
-Point = tuple[float, float]  # [m]
 
 
 @dataclass

@@ -44,9 +44,10 @@ from llmnav.baselines.drive import (
     rotate_by,
     run_untargeted,
 )
+from llmnav.geometry import Point
 from llmnav.mapping.astar import astar, densify, shortcut
 from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, inflate, near_bounds, nearest_free_cell
-from llmnav.mapping.targets import OracleConfig, Point, plan_to_targets, scenario_grid, with_added_obstacles
+from llmnav.mapping.targets import OracleConfig, plan_to_targets, scenario_grid, with_added_obstacles
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
 
 if TYPE_CHECKING:

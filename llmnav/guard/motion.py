@@ -134,7 +134,7 @@ class GuardedMotion:
             robot_radius_m=spec.radius_m,
             margin_m=self.__cfg.leg_margin_m,
             stop_margin_m=self.__cfg.leg_stop_margin_m,
-            direction_rad=math.remainder(math.atan2(y - pose.y, x - pose.x) - pose.yaw, math.tau),
+            direction_rad=pose.bearing_to(x, y),
             footprint="disc",
         )
 

@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.chat import ChatRequest, ChatResult
 from llmnav.errors import BadInputError, InvalidActionError
-from llmnav.geometry import Pose2D
+from llmnav.geometry import Point, Pose2D
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 from llmnav.planners.waypoints.ground import ground_target
-from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, Point, generate_plan
+from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, generate_plan
 from llmnav.planners.waypoints.validate import validate_waypoints
 
 if TYPE_CHECKING:
@@ -297,10 +297,8 @@ class WaypointPlanner(Planner):
         """Estimated centre of what a veto saw: the blocking return pushed back by the assumed radius."""
         if hit is None:
             return None
-        pose = ctx.world.robot.pose()
-        heading = pose.yaw + math.atan2(hit[1], hit[0])
         depth = math.hypot(*hit) + self.cfg.obstacle_radius_m  # [m] from the robot to the assumed centre
-        return (pose.x + depth * math.cos(heading), pose.y + depth * math.sin(heading))
+        return ctx.world.robot.pose().point_at(math.atan2(hit[1], hit[0]), depth)
 
     def _obstacle_ahead(self, ctx: EpisodeContext, *, wide: bool = False) -> Point | None:
         """Estimated centre of what stopped the robot; None when the LiDAR sees nothing there.
@@ -319,8 +317,7 @@ class WaypointPlanner(Planner):
         if not math.isfinite(r):
             return None
         depth = r + self.cfg.obstacle_radius_m  # [m] from the robot to the assumed centre
-        heading = pose.yaw + float(scan.angles[i])
-        return (pose.x + depth * math.cos(heading), pose.y + depth * math.sin(heading))
+        return pose.point_at(float(scan.angles[i]), depth)
 
     @staticmethod
     def _count(metrics: dict[str, Any], plan: PlanResult) -> None:
