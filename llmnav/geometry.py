@@ -6,6 +6,8 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+Point = tuple[float, float]  # [m] a world point (x, y)
+
 
 def wrap_angle(angle_rad: float) -> float:
     """Wrap an angle to [-pi, pi)."""
@@ -57,6 +59,11 @@ class Pose2D:
     def bearing_to(self, x: float, y: float) -> float:
         """Signed angle [rad] from the heading to the direction of a point (positive = to the left)."""
         return wrap_angle(math.atan2(y - self.y, x - self.x) - self.yaw)
+
+    def point_at(self, bearing_rad: float, range_m: float) -> Point:
+        """The world point seen `range_m` [m] away at `bearing_rad` [rad] from the heading (+ = left)."""
+        heading = self.yaw + bearing_rad
+        return (self.x + range_m * math.cos(heading), self.y + range_m * math.sin(heading))
 
     def carry(self, x: float, y: float, onto: Pose2D) -> tuple[float, float]:
         """The point lying relative to `onto` as (x, y) lies relative to this pose (a change of frame)."""

@@ -21,7 +21,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from llmnav.geometry import Pose2D, logged_pose, path_length, wrap_angle
+from llmnav.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeOutcome
@@ -46,8 +46,6 @@ CONDITION_KEYS: tuple[str, ...] = (
     "self_check",
     "assist",
 )
-
-Point = tuple[float, float]
 
 
 def distance_score(distance_m: float) -> float:

@@ -1,7 +1,8 @@
 """Driving a planned path in the simulator, shared by the oracle and frontier baselines.
 
-Each helper commands the guarded motion layer (`ctx.world.motion`), logs one `action` event per motion
-and keeps a running `Drive` tally. A leg the layer vetoes ends the drive like any failed motion.
+Each helper commands the guarded motion layer (`ctx.world.motion`; legs through `llmnav.guard.legs`),
+logs one `action` event per motion and keeps a running `Drive` tally. A leg the layer vetoes ends the
+drive like any failed motion.
 """
 
 from __future__ import annotations
@@ -11,12 +12,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from llmnav.geometry import Point
+from llmnav.guard.legs import Action, drive_leg
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, StepInfo
 
 if TYPE_CHECKING:
     from llmnav.sim.motion import MotionResult
-
-Point = tuple[float, float]  # [m]
 
 
 @dataclass
@@ -36,18 +37,7 @@ class Drive:
 def log_action(ctx: EpisodeContext, step: int, command: str, parameters: object, result: MotionResult) -> None:
     """One `action` event for a motion (and a line in the live view)."""
     ctx.log.sim_time = ctx.world.sim_time
-    ctx.log.event(
-        "action",
-        step=step,
-        command=command,
-        parameters=parameters,
-        pose_before=result.start.as_list(),
-        pose_after=result.end.as_list(),
-        collided=result.collided,
-        collision_with=result.collision_with,
-        stopped_reason=result.stopped_reason,
-        **({"veto": result.veto} if result.veto is not None else {}),
-    )
+    Action.of(step, command, parameters, result).log(ctx.log)
     ctx.view.on_step(StepInfo(step=step, action=f"{command} {parameters}"))
 
 
@@ -70,11 +60,21 @@ def drive_waypoints(
     for i, (x, y) in enumerate(waypoints):
         tol = final_tol_m if i == len(waypoints) - 1 else tol_m
         gx, gy = robot.pose().carry(x, y, robot.odom())
-        result = ctx.world.motion.go_to(gx, gy, tol_m=tol, obstacle_stop_m=obstacle_stop_m)
         drive.steps += 1
+        parameters = [round(x, 3), round(y, 3)]
+        result = drive_leg(
+            ctx.world,
+            gx,
+            gy,
+            step=drive.steps,
+            log=ctx.log,
+            parameters=parameters,
+            tol_m=tol,
+            obstacle_stop_m=obstacle_stop_m,
+        )
         drive.travelled_m += result.distance_m
         drive.last = result
-        log_action(ctx, drive.steps, "GO_TO", [round(x, 3), round(y, 3)], result)
+        ctx.view.on_step(StepInfo(step=drive.steps, action=f"GO_TO {parameters}"))
         if not result.ok:
             break
     return drive

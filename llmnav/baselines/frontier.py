@@ -6,8 +6,9 @@ The robot starts knowing nothing but the extent of the world. It keeps a `grid.L
 1. *Look*: integrate a scan, then turn in place in steps of ~90 % of the camera's horizontal field of view
    and run `Detector.detect()` after each turn, until an acceptable target of the task is detected
    (a `point` target counts as found once its cell is observed free in the map).
-2. *Frontiers*: free cells next to unknown ones (4-neighbourhood), clustered 8-connected; clusters smaller
-   than `min_cluster_cells` are noise; cells near earlier frontier goals are struck off.
+2. *Frontiers* (`llmnav.mapping.frontiers`): free cells next to unknown ones (4-neighbourhood), clustered
+   8-connected; clusters smaller than `min_cluster_cells` are noise; cells near earlier frontier goals
+   are struck off.
 3. *Nearest*: one A* (Dijkstra, heuristic 0) from the robot over the known map settles the goal cell
    with the shortest path. Unknown cells are treated as *blocked* and inflated like obstacles (robot
    radius + margin): the robot plans only through space it has seen free and keeps its clearance from
@@ -44,9 +45,11 @@ from llmnav.baselines.drive import (
     rotate_by,
     run_untargeted,
 )
+from llmnav.geometry import Point
 from llmnav.mapping.astar import astar, densify, shortcut
-from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, inflate, near_bounds, nearest_free_cell
-from llmnav.mapping.targets import OracleConfig, Point, plan_to_targets, scenario_grid, with_added_obstacles
+from llmnav.mapping.frontiers import frontier_clusters, goal_cells, sensed_grid
+from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, OccupancyGrid, nearest_free_cell
+from llmnav.mapping.targets import OracleConfig, plan_to_targets, scenario_grid, with_added_obstacles
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner
 
 if TYPE_CHECKING:
@@ -146,40 +149,26 @@ class _Explorer:
         return None
 
     # --- planning -----------------------------------------------------------------------------
-    def planning_grid(self) -> np.ndarray:
-        """Blocked cells of the known map: occupied *and unknown* cells inflated, plus the bounds margin.
+    def planning_grid(self) -> OccupancyGrid:
+        """The known map as a planning grid: occupied *and unknown* cells inflated, plus the bounds margin.
 
-        Unknown space is inflated like an obstacle: whatever hides there, the robot keeps the same
-        clearance from it as from a seen wall.
+        (`llmnav.mapping.frontiers.sensed_grid`.)
         """
-        unseen_or_solid = self.map.occupied | self.map.unknown
-        blocked = inflate(unseen_or_solid, self.inflation_m, self.geometry.resolution)
-        return np.asarray(blocked | near_bounds(self.geometry, self.ctx.scenario.bounds, self.inflation_m))
+        return sensed_grid(self.map, self.ctx.scenario.bounds, self.inflation_m)
 
-    def frontier_goals(self, blocked: np.ndarray, pose: Pose2D) -> np.ndarray:
+    def frontier_goals(self, grid: OccupancyGrid, pose: Pose2D) -> np.ndarray:
         """Cells the robot may drive to in order to look past a frontier.
 
-        Frontier cells are known-free cells 4-adjacent to unknown ones, clustered 8-connected; small
-        clusters and cells near earlier goals are dropped. Since unknown space is inflated, the robot
-        cannot stand on a frontier cell itself: its goals are the free cells within inflation +
-        `goal_band_m` of a kept frontier cell (and not right under the robot).
+        Frontier clusters of `llmnav.mapping.frontiers` less the cells near earlier goals; since unknown
+        space is inflated, the robot cannot stand on a frontier cell itself: its goals are the free cells
+        within inflation + `goal_band_m` of a kept frontier cell (and not right under the robot).
         """
-        from scipy.ndimage import binary_dilation, distance_transform_edt, label
-
-        cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool)
-        frontier = self.map.free & binary_dilation(self.map.unknown, structure=cross)
-        labels, count = label(frontier, structure=np.ones((3, 3), dtype=bool))
-        if count == 0:
-            return np.zeros(self.geometry.shape, dtype=bool)
-        big = np.bincount(labels.ravel()) >= self.config.min_cluster_cells
-        big[0] = False
-        kept = big[labels] & ~self.visited
-        if not kept.any():
-            return np.zeros(self.geometry.shape, dtype=bool)
-        reach_m = distance_transform_edt(~kept) * self.geometry.resolution
+        labels = frontier_clusters(self.map, self.config.min_cluster_cells)
+        labels[self.visited] = 0
+        goals = goal_cells(labels, grid, self.inflation_m + self.config.goal_band_m) > 0
         xs, ys = self.geometry.centres()
         near = np.hypot(xs - pose.x, ys - pose.y) < self.config.min_goal_distance_m
-        return np.asarray((reach_m <= self.inflation_m + self.config.goal_band_m) & ~blocked & ~near)
+        return np.asarray(goals & ~near)
 
     def mark_visited(self, point: Point) -> None:
         """Strike off frontier cells around a goal the robot has been sent to (it looked from there)."""
@@ -189,8 +178,9 @@ class _Explorer:
     def next_frontier(self) -> tuple[Point, list[Point]] | None:
         """The nearest frontier goal by path length on the known map and the waypoints to it."""
         pose = self.robot.pose()
-        blocked = self.planning_grid()
-        goals = self.frontier_goals(blocked, pose)
+        grid = self.planning_grid()
+        blocked = grid.blocked
+        goals = self.frontier_goals(grid, pose)
         if not goals.any():
             return None
         start = nearest_free_cell(blocked, self.geometry, pose.x, pose.y, self.config.start_snap_m)

@@ -9,7 +9,9 @@ so no planner can step around these checks, whoever asks:
 - `go_to(x, y)` (waypoint segments, hybrid legs, the baselines' legs): the same veto on the straight leg
   from the robot to (x, y), turned toward the leg, with the round base's own swept disc and small margins
   (legs are planned on grids already clear of known walls); a leg through something the map lacks is
-  vetoed before the robot starts it. Its LiDAR stops keep watching while the leg runs.
+  vetoed before the robot starts it. Its LiDAR stops keep watching while the leg runs. A planner that
+  checks a leg first (`check_leg`, as `llmnav.guard.legs.drive_leg` does) records a refusal with
+  `refuse_leg`, so it is counted and logged the same way.
 - `velocity_tick(v, w)` (the FSM and any continuous planner): the command is first clipped onto the
   robot's kinematic box (`VelocityLimits`), then its time to collision is checked: the round base moving
   on the commanded arc must be able to travel one tick plus its braking distance plus a stop margin
@@ -134,7 +136,7 @@ class GuardedMotion:
             robot_radius_m=spec.radius_m,
             margin_m=self.__cfg.leg_margin_m,
             stop_margin_m=self.__cfg.leg_stop_margin_m,
-            direction_rad=math.remainder(math.atan2(y - pose.y, x - pose.x) - pose.yaw, math.tau),
+            direction_rad=pose.bearing_to(x, y),
             footprint="disc",
         )
 
@@ -154,8 +156,16 @@ class GuardedMotion:
         """P-control to (x, y) [m] (see `Motion.go_to` for the options) unless the leg is vetoed."""
         verdict = self.check_leg(x, y)
         if not verdict.allowed:
-            return self.__refuse("GO_TO", [round(x, 3), round(y, 3)], verdict)
+            return self.refuse_leg(x, y, verdict)
         return self.__motion.go_to(x, y, **options)
+
+    def refuse_leg(self, x: float, y: float, verdict: VetoResult, *, step: int | None = None) -> MotionResult:
+        """Record a leg to (x, y) [m] that `check_leg` refused, without moving; its vetoed result.
+
+        For a planner that checked the leg first: the refusal is counted and logged (naming the planner's
+        `step`) exactly as `go_to` would have done it.
+        """
+        return self.__refuse("GO_TO", [round(x, 3), round(y, 3)], verdict, step=step)
 
     def velocity_tick(self, v: float, w: float, dt: float = 0.02) -> MotionResult:
         """Hold (v [m/s], w [rad/s]) for `dt` [s] after the kinematic box and the time-to-collision check."""
@@ -176,12 +186,12 @@ class GuardedMotion:
         return self.__motion.collisions
 
     # --- machinery ------------------------------------------------------------------------------
-    def __refuse(self, command: str, parameters: Any, verdict: VetoResult) -> MotionResult:
+    def __refuse(self, command: str, parameters: Any, verdict: VetoResult, *, step: int | None = None) -> MotionResult:
         from llmnav.sim.motion import MotionResult
 
         self.vetoes += 1
         self.__log.event(
-            "guard", step=None, attempt=1, outcome="veto", error=verdict.reason, motion=command, parameters=parameters
+            "guard", step=step, attempt=1, outcome="veto", error=verdict.reason, motion=command, parameters=parameters
         )
         here = self.__robot.pose()
         return MotionResult(

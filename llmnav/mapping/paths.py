@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from llmnav.geometry import path_length
+from llmnav.geometry import Point, path_length
 from llmnav.mapping.astar import astar, shortcut
 from llmnav.mapping.grid import nearest_free_cell
 
@@ -17,7 +17,6 @@ if TYPE_CHECKING:
     from llmnav.mapping.grid import OccupancyGrid
     from llmnav.scenario import Scenario
 
-Point = tuple[float, float]
 SNAP_M = 0.5  # [m] how far an end point may move to the nearest free cell (a pose inside the inflation)
 
 

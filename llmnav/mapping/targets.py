@@ -35,14 +35,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from llmnav.errors import BadInputError
-from llmnav.geometry import Pose2D, path_length
+from llmnav.geometry import Point, Pose2D, path_length
 from llmnav.mapping.astar import GridPath, astar, densify, shortcut
 from llmnav.mapping.grid import Cell, GridConfig, OccupancyGrid, build_grid, nearest_free_cell
 
 if TYPE_CHECKING:
     from llmnav.scenario import Scenario, Target, Task
 
-Point = tuple[float, float]  # [m]
 SQRT2 = math.sqrt(2.0)
 OCTILE_STRETCH = math.sqrt(4.0 - 2.0 * SQRT2)  # max octile / Euclidean ratio (at 22.5 deg), ~1.082
 

@@ -294,3 +294,40 @@ def test_the_neutral_menu_is_short_lines_and_the_spot_the_robot_stands_on_takes_
         r"Go to room \d+, \d+ m (ahead|front-left|left|back-left|behind|back-right|right|front-right)(, visited)?"
     )
     assert all(line.fullmatch(text) for text in places), places
+
+
+def test_a_leg_the_motion_layer_refuses_is_a_veto_of_that_decision(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The layer's own leg check refuses the first leg (as it would for something only it sees): the hybrid
+    # must take the layer's word, name the veto in that decision, and plan the next leg from where the
+    # robot really stands (it did not move).
+    from llmnav.guard.motion import GuardedMotion
+    from llmnav.guard.veto import VetoResult
+
+    check = GuardedMotion.check_leg
+    calls: list[int] = []
+
+    def refuse_first(self: GuardedMotion, x: float, y: float) -> VetoResult:
+        calls.append(1)
+        if len(calls) == 1:
+            return VetoResult(False, 0.3, "scripted: an obstacle only the layer sees", (0.4, 0.0))
+        return check(self, x, y)
+
+    monkeypatch.setattr(GuardedMotion, "check_leg", refuse_first)
+    replay = ReplayBackend(script(tmp_path / "script", [choice(1), choice(1), choice(1)]))
+    summary, record = drive(tmp_path, replay, task_text="Go to the window")
+    vetoes = [g for g in record.of_type("guard") if g["outcome"] == "veto"]
+    assert len(vetoes) == 1 and vetoes[0]["step"] == 1  # counted in the decision that chose the leg
+    assert vetoes[0]["error"] == "scripted: an obstacle only the layer sees"
+    actions = record.of_type("action")
+    assert [(a["step"], a["command"], bool(a.get("vetoed"))) for a in actions] == [
+        (1, "GOTO", True),
+        (2, "GOTO", False),
+        (3, "COMPLETE", False),
+    ]
+    refused, replanned = actions[0], actions[1]
+    assert refused["pose_after"] == refused["pose_before"]  # the refused leg did not move the robot
+    assert replanned["pose_before"] == refused["pose_after"]  # the next leg starts where the robot stands
+    assert "Last: safety stop (scripted: an obstacle only the layer sees)" in user_turns(record)[1]
+    assert summary["safety_vetoes"] == 1 and summary["outcome"] == "completed" and summary["success"]

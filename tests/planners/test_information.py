@@ -137,12 +137,14 @@ def test_stepwise_sensed_reads_the_true_pose_only_to_log_it(
     reads, contexts = spied
     from .test_stepwise import answer
 
-    answers = [answer("ROTATE_LEFT", 90), answer("ROTATE_LEFT", 90)]
+    # A motion's action is logged from the poses its result carries; COMPLETE moves nothing, so its
+    # action reads the pose once.
+    answers = [answer("ROTATE_LEFT", 90), answer("ROTATE_LEFT", 90), answer("COMPLETE", 0)]
     replay = ReplayBackend(write_script(tmp_path / "script", answers, purpose="action", latency_s=0.1))
     spec = EpisodeSpec(
         scenario="factory",
         task_id="T7",
-        options=drive_options(planner="stepwise", sensing=("lidar",), max_iterations=2),
+        options=drive_options(planner="stepwise", sensing=("lidar",), max_iterations=3),
         backend=replay.spec,
         out_dir=tmp_path / "run",
         plots=False,

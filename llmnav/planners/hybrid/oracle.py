@@ -24,7 +24,7 @@ import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from llmnav.planners.hybrid.planner import SECTORS
+from llmnav.planners.hybrid.menu import SECTORS
 from llmnav.planners.hybrid.scoring import INTENT_PROMPT, INTENTS
 from llmnav.relevance import CONTENT_FREE_TASK, TARGET_PROMPT
 

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from llmnav.chat import ChatRequest, Message
 from llmnav.guard.ask import GuardedAnswer, ask_guarded
+from llmnav.guard.legs import Action
 from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, response_schema
 from llmnav.guard.veto import VetoResult, veto_message
 from llmnav.observe import Observation, observe
@@ -309,20 +310,13 @@ class _Episode:
         return result
 
     def _log_action(self, step: int, answer: StepAction, result: MotionResult | None) -> None:
-        pose = self.ctx.world.robot.pose().as_list()
-        self.ctx.log.event(
-            "action",
-            step=step,
-            command=answer.action.command.value,
-            parameters=answer.action.parameters,
-            pose_before=result.start.as_list() if result else pose,
-            pose_after=result.end.as_list() if result else pose,
-            collided=bool(result and result.collided),
-            collision_with=result.collision_with if result else None,
-            distance_m=round(result.distance_m, 4) if result else 0.0,
-            rotated_deg=round(math.degrees(result.rotated_rad), 3) if result else 0.0,
-            stopped_reason=result.stopped_reason if result else None,
-        )
+        command, parameters = answer.action.command.value, answer.action.parameters
+        if result is not None:
+            action = Action.of(step, command, parameters, result)
+        else:  # COMPLETE: nothing moved
+            pose = self.ctx.world.robot.pose()
+            action = Action(step, command, parameters, pose, pose, distance_m=0.0, rotated_deg=0.0)
+        action.log(self.ctx.log)
 
     def _show(self, step: int, answer: StepAction, obs: Observation, state: _StepState) -> None:
         self.ctx.view.on_step(

@@ -15,11 +15,12 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from llmnav.chat import ChatRequest, ChatResult
 from llmnav.errors import BadInputError, InvalidActionError
-from llmnav.geometry import Pose2D
+from llmnav.geometry import Point, Pose2D
+from llmnav.guard.legs import drive_leg
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner, StepInfo, decides_by_scores
 from llmnav.planners.waypoints.ground import ground_target
 from llmnav.planners.waypoints.options import WaypointOptions
-from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, Point, generate_plan
+from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, generate_plan
 from llmnav.planners.waypoints.validate import validate_waypoints
 
 if TYPE_CHECKING:
@@ -251,8 +252,8 @@ class WaypointPlanner(Planner):
     ) -> tuple[str | None, MotionResult | None]:
         """Follow the waypoints; (None, last result) when all are reached, else (the stop reason, its result).
 
-        Every segment goes through the guarded motion layer, which vetoes it before the robot moves when
-        the LiDAR sees something on it (the map-based validation cannot know what the map lacks).
+        Every segment is a leg of `llmnav.guard.legs.drive_leg`: the motion layer vetoes it before the robot
+        moves when the LiDAR sees something on it (the map-based validation cannot know what the map lacks).
         """
         world, cfg = ctx.world, self.cfg
         start_odom = world.robot.odom()
@@ -260,32 +261,22 @@ class WaypointPlanner(Planner):
         result: MotionResult | None = None
         try:
             for index, point in enumerate(waypoints, start=1):
-                before = world.robot.pose()
                 x, y = map_to_odom(point, start_map, start_odom)
-                result = world.motion.go_to(
+                result = drive_leg(
+                    world,
                     x,
                     y,
+                    step=step,
+                    log=ctx.log,
+                    command="WAYPOINT",
+                    parameters=[round(point[0], 3), round(point[1], 3)],
+                    index=index,
                     tol_m=cfg.reach_tol_m,
                     ang_tol=cfg.angle_tol_rad,
                     v_max=cfg.linear_speed,
                     w_max=cfg.angular_speed,
                     obstacle_stop_m=cfg.critical_m,
                     emergency_stop_m=cfg.emergency_m,
-                )
-                ctx.log.sim_time = world.sim_time
-                ctx.log.event(
-                    "action",
-                    step=step,
-                    command="WAYPOINT",
-                    parameters=[round(point[0], 3), round(point[1], 3)],
-                    index=index,
-                    pose_before=before.as_list(),
-                    pose_after=result.end.as_list(),
-                    duration_s=round(result.duration_s, 3),
-                    collided=result.collided,
-                    collision_with=result.collision_with,
-                    stopped_reason=result.stopped_reason,
-                    **({"veto": result.veto} if result.veto is not None else {}),
                 )
                 if result.collided:
                     return "collision", result
@@ -299,10 +290,8 @@ class WaypointPlanner(Planner):
         """Estimated centre of what a veto saw: the blocking return pushed back by the assumed radius."""
         if hit is None:
             return None
-        pose = ctx.world.robot.pose()
-        heading = pose.yaw + math.atan2(hit[1], hit[0])
         depth = math.hypot(*hit) + self.cfg.obstacle_radius_m  # [m] from the robot to the assumed centre
-        return (pose.x + depth * math.cos(heading), pose.y + depth * math.sin(heading))
+        return ctx.world.robot.pose().point_at(math.atan2(hit[1], hit[0]), depth)
 
     def _obstacle_ahead(self, ctx: EpisodeContext, *, wide: bool = False) -> Point | None:
         """Estimated centre of what stopped the robot; None when the LiDAR sees nothing there.
@@ -321,8 +310,7 @@ class WaypointPlanner(Planner):
         if not math.isfinite(r):
             return None
         depth = r + self.cfg.obstacle_radius_m  # [m] from the robot to the assumed centre
-        heading = pose.yaw + float(scan.angles[i])
-        return (pose.x + depth * math.cos(heading), pose.y + depth * math.sin(heading))
+        return pose.point_at(float(scan.angles[i]), depth)
 
     @staticmethod
     def _count(metrics: dict[str, Any], plan: PlanResult) -> None:

@@ -12,8 +12,9 @@ from llmnav.guard.ask import CallContext, GuardedAnswer, ask_guarded
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from llmnav.geometry import Point
     from llmnav.guard.schemas import TargetChoice
-    from llmnav.planners.waypoints.plan import ModelCall, Point
+    from llmnav.planners.waypoints.plan import ModelCall
     from llmnav.relevance import Scorer
     from llmnav.scenario import LabelledObject, Scenario, Task
 

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from llmnav.geometry import Point
 from llmnav.mapping.astar import astar, line_of_sight
 from llmnav.mapping.grid import GridConfig, build_grid, nearest_free_cell
 from llmnav.planners.waypoints.validate import PlanRules
@@ -43,8 +44,6 @@ if TYPE_CHECKING:
     from llmnav.mapping.grid import OccupancyGrid
     from llmnav.planners.base import GroundTruth
     from llmnav.scenario import Scenario, Task
-
-Point = tuple[float, float]  # [m]
 
 _NUMBER = r"(-?\d+(?:\.\d+)?)"
 _TARGET = re.compile(rf'Target "[^"]*": x = {_NUMBER}, y = {_NUMBER}')

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from llmnav.chat import ChatRequest, ChatResult, Message
+from llmnav.geometry import Point
 from llmnav.guard.ask import CallContext, ask_guarded
 from llmnav.planners.waypoints.validate import PlanRules
 
@@ -23,7 +24,6 @@ if TYPE_CHECKING:
     from llmnav.mapping.grid import OccupancyGrid
     from llmnav.scenario import LabelledObject, Scenario, WaypointRules
 
-Point = tuple[float, float]  # [m]
 ModelCall = Callable[[ChatRequest, str], ChatResult]  # (request, purpose) -> reply
 
 

@@ -1,0 +1,71 @@
+"""Frontier detection on the robot's own LiDAR map, and the planning grid it explores on.
+
+A *frontier cell* is a known-free cell 4-adjacent to an unknown one: across a shared edge, the only
+neighbour a LiDAR ray can actually reach. (Diagonal contact also counts free cells whose unknown
+neighbour lies behind a wall's corner: looking from there shows nothing new.) Frontier cells are
+clustered 8-connected, and clusters smaller than a minimum are noise.
+
+The planning grid of a robot that knows only its own map (`sensed_grid`) blocks occupied *and unknown*
+cells, inflated alike: whatever hides in the unknown, the robot keeps the same clearance from it as from
+a seen wall. So no frontier cell is free in that grid, and the place to look past a frontier from is a
+free cell near it: `goal_cells` gives each free cell within reach of a frontier cell the cluster of its
+nearest frontier cell.
+
+Reference: B. Yamauchi, "A frontier-based approach for autonomous exploration", IEEE CIRA 1997.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy import ndimage
+
+from llmnav.mapping.grid import LidarMap, OccupancyGrid, inflate, near_bounds
+
+if TYPE_CHECKING:
+    from llmnav.scenario import Bounds
+
+# Edge neighbours: the unknown cells a free cell's frontier status depends on.
+_EDGE_NEIGHBOURS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool)
+# Clusters join across corners too: a diagonal run of frontier cells is one opening.
+_ALL_NEIGHBOURS = np.ones((3, 3), dtype=bool)
+
+
+def sensed_grid(lidar_map: LidarMap, bounds: Bounds, inflation_m: float) -> OccupancyGrid:
+    """The planning grid of the robot's own map.
+
+    Occupied and unknown cells and the world's extent are inflated by `inflation_m` [m] (the robot's
+    radius plus its clearance).
+    """
+    geometry = lidar_map.geometry
+    blocked = inflate(lidar_map.occupied | lidar_map.unknown, inflation_m, geometry.resolution)
+    blocked |= near_bounds(geometry, bounds, inflation_m)
+    return OccupancyGrid(geometry, lidar_map.occupied, blocked, inflation_m)
+
+
+def frontier_clusters(lidar_map: LidarMap, min_cells: int, free: np.ndarray | None = None) -> np.ndarray:
+    """Frontier cells labelled by cluster (0: no frontier, or a cluster under `min_cells` cells).
+
+    `free` narrows the known-free cells that may be frontier cells (default: all of the map's).
+    """
+    known_free = lidar_map.free if free is None else free
+    frontier = known_free & ndimage.binary_dilation(lidar_map.unknown, structure=_EDGE_NEIGHBOURS)
+    labels, count = ndimage.label(frontier, structure=_ALL_NEIGHBOURS)
+    if count == 0:
+        return np.asarray(labels)
+    big = np.bincount(labels.ravel()) >= min_cells
+    big[0] = False
+    return np.where(big[labels], labels, 0)
+
+
+def goal_cells(labels: np.ndarray, grid: OccupancyGrid, reach_m: float) -> np.ndarray:
+    """Free cells of `grid` within `reach_m` [m] of a labelled frontier cell.
+
+    Each is labelled by the cluster of its nearest labelled frontier cell (0 elsewhere).
+    """
+    if not labels.any():
+        return np.zeros_like(labels)
+    distance, (near_r, near_c) = ndimage.distance_transform_edt(labels == 0, return_indices=True)
+    within = (distance * grid.geometry.resolution <= reach_m) & ~grid.blocked
+    return np.where(within, labels[near_r, near_c], 0)

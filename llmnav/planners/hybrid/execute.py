@@ -1,0 +1,203 @@
+"""Carrying out the hybrid planner's chosen option: A* legs through the shared leg driver, or a full turn.
+
+Paths are planned on the roomiest planning grid that has one (falling back to the plain grid). A robot
+standing inside the wall clearance first steps out to the nearest free cell. Each straight leg, at most
+`leg_max_m` long, is turned toward first (so the LiDAR sees it), then driven by
+`llmnav.guard.legs.drive_leg`: the motion layer's own check judges it, and a refused leg ends the option
+(the robot has not moved; the model is told, and the same option then plans around what was seen from
+where the robot really stands). Exploring ends early when something the task names comes into view, so
+the model decides again with the new information. Each option is logged as one `action` event.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+from llmnav.geometry import Point, Pose2D
+from llmnav.guard.legs import Action, drive_leg
+from llmnav.mapping.astar import densify
+from llmnav.planners.hybrid.memory import Memory, believed_pose, look
+
+if TYPE_CHECKING:
+    from llmnav.mapping.grid import LidarMap, OccupancyGrid
+    from llmnav.planners.base import EpisodeContext
+    from llmnav.planners.hybrid.menu import Option
+    from llmnav.planners.hybrid.planner import HybridConfig
+    from llmnav.sim.motion import MotionResult
+
+
+@dataclass(frozen=True)
+class Executed:
+    """What carrying out one option did."""
+
+    result: str  # the result line the model reads next
+    vetoes: int = 0  # legs the motion layer refused
+    collided: bool = False
+
+
+@dataclass(frozen=True)
+class Executor:
+    """Carries out options in one episode."""
+
+    ctx: EpisodeContext
+    cfg: HybridConfig
+    lidar_map: LidarMap
+    memory: Memory
+
+    def run(self, grids: list[OccupancyGrid], option: Option, step: int) -> Executed:
+        """Carry out `option` (not Finish); `grids` are the planning grids, roomiest first."""
+        if option.kind == "scan":
+            return self._scan(option, step)
+        assert option.goal is not None
+        before = believed_pose(self.ctx)
+        plans = (plan_legs(grid, before, option.goal, self.cfg.leg_max_m) for grid in grids)
+        legs = next((plan for plan in plans if plan is not None), None)
+        if legs is None:
+            return Executed(f"no collision-free path ({option.goal_name})")
+        for x, y in legs:
+            result = self._leg(x, y, step)
+            if result.collided:
+                self._log(step, option, before, result)
+                return Executed(f"collided with {result.collision_with or 'an obstacle'}", collided=True)
+            if result.veto is not None:
+                self._log(step, option, before, result)
+                return Executed(self._refused(option, result.veto), vetoes=1)
+            came = look(self.ctx, self.memory)
+            # Exploring stops for what the task names (relevance order), or for anything new (neutral order,
+            # where nothing is matched against the task): the model then decides with the new information.
+            wanted = self.memory.wanted
+            if option.kind == "frontier" and (came & wanted or (came and not wanted)):
+                self._log(step, option, before, result)
+                return Executed("stopped exploring: new objects in view")
+        return self._arrive(option, before, step)
+
+    # --- the steps ----------------------------------------------------------------------------------
+    def _scan(self, option: Option, step: int) -> Executed:
+        """Four quarter turns, looking after each."""
+        world = self.ctx.world
+        before = believed_pose(self.ctx)
+        new = False
+        for _ in range(4):
+            result = world.motion.rotate(math.pi / 2)
+            new |= bool(look(self.ctx, self.memory))
+            if result.collided:
+                break
+        self.memory.scans += 1
+        self.memory.scanned_at = (before.x, before.y)
+        self._log(step, option, before, result, command="SCAN", parameters=360.0)
+        return Executed("looked around, " + ("new objects in view" if new else "nothing new"), collided=result.collided)
+
+    def _leg(self, x: float, y: float, step: int) -> MotionResult:
+        """Turn toward the leg (the LiDAR then sees it), map the scan it is checked on, drive it."""
+        world = self.ctx.world
+        turn = believed_pose(self.ctx).bearing_to(x, y)
+        if abs(turn) > self.cfg.turn_first_rad:
+            world.motion.rotate(turn)
+        # What the leg is checked on goes into the map, so a plan after a refusal routes around it.
+        self.lidar_map.integrate(believed_pose(self.ctx), world.lidar.scan())
+        return drive_leg(world, x, y, step=step, obstacle_stop_m=self.cfg.obstacle_stop_m)
+
+    def _arrive(self, option: Option, before: Pose2D, step: int) -> Executed:
+        """Face what the option went to, note the visit, say how close the robot got."""
+        memory = self.memory
+        if option.face is not None:
+            self.ctx.world.motion.rotate(believed_pose(self.ctx).bearing_to(*option.face))
+        if option.landmark_id is not None:
+            memory.visited.add(option.landmark_id)
+        if option.kind == "frontier" and option.goal is not None:
+            memory.explored.append(option.goal)
+        after = believed_pose(self.ctx)
+        self._log(step, option, before, None)
+        if option.goal is not None and after.distance_to(*option.goal) > self.cfg.arrived_m:
+            return Executed(f"stopped {after.distance_to(*option.goal):.1f} m short ({option.goal_name})")
+        return Executed(f"reached {option.goal_name}")
+
+    def _refused(self, option: Option, reason: str) -> str:
+        """What a vetoed leg means for the menu, as the result line says it.
+
+        Near the landmark the refused spot is as close as the robot may safely get (its goal point hugs
+        the object): it counts as arrival. Elsewhere the next plan avoids what the LiDAR saw; a landmark
+        refused twice from the same spot is dropped from the menu, since the detour did not help.
+        """
+        memory, here = self.memory, believed_pose(self.ctx)
+        landmark = option.landmark_id
+        near = option.face is not None and here.distance_to(*option.face) <= self.cfg.stop_within_m
+        if landmark is not None and near:
+            memory.closest[landmark] = (here.x, here.y)
+            memory.visited.add(landmark)
+            return f"as close to {option.goal_name} as is safe"
+        if landmark is not None:
+            again = memory.refused.get(landmark)
+            if again is not None and here.distance_to(*again) <= 0.1:
+                memory.unreachable.add(landmark)
+            memory.refused[landmark] = (here.x, here.y)
+        # The model is told that retrying is meaningful: the next plan avoids what blocked this one.
+        return f"safety stop ({reason}); obstacle mapped, same choice detours"
+
+    def _log(
+        self,
+        step: int,
+        option: Option,
+        before: Pose2D,
+        result: MotionResult | None,
+        *,
+        command: str = "GOTO",
+        parameters: float | None = None,
+    ) -> None:
+        """The option as one `action` event: from where it started to where the planner believes it ended."""
+        after = believed_pose(self.ctx)
+        travelled = round(before.distance_to(after.x, after.y), 3)
+        Action(
+            step,
+            command,
+            travelled if parameters is None else parameters,
+            before,
+            after,
+            collided=bool(result and result.collided),
+            collision_with=result.collision_with if result else None,
+            stopped_reason=result.stopped_reason if result else None,
+            veto=result.veto if result else None,
+            option=option.text,
+        ).log(self.ctx.log)
+
+
+def plan_legs(grid: OccupancyGrid, start: Pose2D, goal: Point, leg_max_m: float) -> list[Point] | None:
+    """A* legs from the robot to the goal, no longer than `leg_max_m` [m] each.
+
+    A robot standing inside the inflation (beside a wall) first steps out to the nearest free cell:
+    a long leg along the wall from there would graze it, and the veto would refuse it every time.
+    """
+    from llmnav.mapping.grid import nearest_free_cell
+    from llmnav.mapping.paths import SNAP_M, plan_path
+
+    first: list[Point] = []
+    origin = (start.x, start.y)
+    if not grid.is_free(*origin):
+        cell = nearest_free_cell(grid.blocked, grid.geometry, start.x, start.y, SNAP_M)
+        if cell is None:
+            return None
+        origin = grid.geometry.cell_to_world(*cell)
+        first = [origin]
+    path = plan_path(grid, origin, goal)
+    if path is None:
+        return None
+    return first + densify([origin, *path[1:]], leg_max_m)[1:]
+
+
+def with_seen_obstacles(grid: OccupancyGrid, lidar_map: LidarMap, near_known: Any, depth_m: float) -> OccupancyGrid:
+    """The grid plus the LiDAR hits away from every known solid (`near_known`), inflated alike.
+
+    The extra `depth_m` [m] stands for the obstacle's back, which the LiDAR has not seen.
+    """
+    from llmnav.mapping.grid import inflate
+
+    unexpected = lidar_map.occupied & ~near_known
+    if not unexpected.any():
+        return grid
+    return replace(
+        grid,
+        occupied=grid.occupied | unexpected,
+        blocked=grid.blocked | inflate(unexpected, grid.inflation_m + depth_m, grid.geometry.resolution),
+    )

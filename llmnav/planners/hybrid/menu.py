@@ -1,0 +1,300 @@
+"""The hybrid planner's option menu: which choices a decision offers, in which order, in which words.
+
+Each decision offers landmarks to go to (the nearest `max_landmarks` places; every known one for scored
+decisions, which read no prompt), frontier clusters of the robot's own LiDAR map to explore (the nearest
+`max_frontiers`; none when the map is published), one full turn to look around (not twice on one spot)
+and Finish.
+
+Each option is one short line (`3. Go to oil barrel, 8 m front-right, visited`): whole metres and one of
+eight directions, because the navigation stack does the driving and every digit is a token.
+
+The order (`--menu-order`): `distance` is neutral (places by distance, ties by kind then name, then the
+full turn, then Finish; the place the robot stands at only names itself in the Finish line).
+`relevance` is ordered for a weak model that favours the first and the last entry, using name matching
+of the task against object names: while nothing the task names is known, looking around and exploring
+come first; a named landmark comes first once known; at it, the menu shrinks to Finish (and one more
+look); an unfinished task never lists Finish last.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from llmnav.geometry import Point, Pose2D
+from llmnav.mapping.frontiers import frontier_clusters, goal_cells
+from llmnav.planners.hybrid.memory import Memory, relevance_order
+
+if TYPE_CHECKING:
+    from llmnav.mapping.grid import LidarMap, OccupancyGrid
+    from llmnav.planners.base import EpisodeContext
+    from llmnav.planners.hybrid.planner import HybridConfig
+
+OptionKind = Literal["landmark", "frontier", "scan", "complete"]
+
+# [m] goals for a frontier lie within the grid's inflation plus this of one of its cells (sensed mode:
+# unknown space is inflated, so the frontier cells themselves are never free)
+FRONTIER_GOAL_BAND_M = 0.25
+
+# The menu's direction words, counter-clockwise from ahead in 45 deg steps.
+SECTORS = ("ahead", "front-left", "left", "back-left", "behind", "back-right", "right", "front-right")
+
+
+@dataclass
+class Option:
+    """One numbered choice and how to carry it out."""
+
+    number: int
+    kind: OptionKind
+    text: str
+    goal: Point | None = None  # [m] where to drive
+    face: Point | None = None  # [m] what to face on arrival
+    landmark_id: str | None = None
+    name: str = ""  # the landmark's name, for the result line
+    at: tuple[str, ...] = ()  # Finish: the names of the landmarks the robot stands at
+    distance_m: float = 0.0  # [m] from the robot to `goal`
+    standing: bool = False  # landmark: the robot is there (at its stand point, or as close as is safe)
+
+    @property
+    def goal_name(self) -> str:
+        """What the option drives to, in a few words."""
+        return self.name or ("the explored edge" if self.kind == "frontier" else "the goal")
+
+
+@dataclass(frozen=True)
+class MenuInputs:
+    """What a menu is built from."""
+
+    ctx: EpisodeContext
+    cfg: HybridConfig
+    grids: list[OccupancyGrid]  # planning grids, roomiest first
+    lidar_map: LidarMap
+    memory: Memory
+    pose: Pose2D  # where the planner believes the robot is
+
+    @property
+    def sensed(self) -> bool:
+        """Whether the planner knows only what it sensed."""
+        return self.ctx.information == "sensed"
+
+
+def build_menu(inputs: MenuInputs, *, scored: bool = False) -> list[Option]:
+    """The numbered menu (`scored`: no cap on landmarks)."""
+    places = landmark_options(inputs, scored=scored) + frontier_options(inputs)
+    memory, pose, cfg = inputs.memory, inputs.pose, inputs.cfg
+    scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < cfg.rescan_m
+    # A second full turn on the same spot shows nothing new (the world is static): not offered. The words
+    # say what the robot does (a task may ask for the turn itself, in any wording).
+    turn = [] if scanned_here else [Option(0, "scan", "Turn a full circle to look around")]
+    if relevance_order(inputs.ctx):
+        menu = relevance_menu(inputs, places, turn)
+    else:
+        menu = neutral_menu(pose, places, turn)
+    for number, option in enumerate(menu, start=1):
+        option.number = number
+    return menu
+
+
+# --- the entries ---------------------------------------------------------------------------------
+def landmark_options(inputs: MenuInputs, *, scored: bool) -> list[Option]:
+    """Known landmarks with a reachable stand point, wanted ones first, then by distance.
+
+    The cap counts places to drive to: the landmark the robot stands at is listed besides them (as
+    Finish's "at", or as "you are there"), and one without a reachable stand point is not listed.
+    """
+    memory, pose, cfg = inputs.memory, inputs.pose, inputs.cfg
+    ranked = sorted(
+        memory.landmarks.items(),
+        key=lambda item: (item[0] not in memory.wanted, pose.distance_to(*item[1])),
+    )
+    options: list[Option] = []
+    places = 0
+    for object_id, position in ranked:
+        if object_id in memory.unreachable:
+            continue
+        # Scored decisions read no prompt: every known landmark stays on the menu.
+        if places >= cfg.max_landmarks and not scored:
+            break
+        option = landmark_option(inputs, object_id, position)
+        if option is None:
+            continue
+        places += not option.standing
+        options.append(option)
+    return options
+
+
+def landmark_option(inputs: MenuInputs, object_id: str, position: Point) -> Option | None:
+    """Going to one landmark, or None when the robot has nowhere to stand near it."""
+    memory, pose, cfg = inputs.memory, inputs.pose, inputs.cfg
+    # Sensed: the detector measures to the object's goal point, so the estimate is that point.
+    scenario = inputs.ctx.scenario
+    true_goal = None if inputs.sensed else scenario.object(object_id).goal
+    goal = approach(inputs, position if inputs.sensed else true_goal, position)
+    if goal is None:
+        return None
+    # Where the motion layer refused to go closer, the spot it allowed counts as arrival.
+    allowed = memory.closest.get(object_id)
+    standing = pose.distance_to(*goal) <= cfg.arrived_m or (
+        allowed is not None and pose.distance_to(*allowed) <= cfg.arrived_m
+    )
+    # Near its stand point the bearing to the point says nothing: say where the robot is instead.
+    notes = ["you are there" if standing else where(pose, goal)]
+    if object_id in memory.wanted:
+        notes.append("name matches task")
+    if object_id in memory.visited:
+        notes.append("visited")
+    name = memory.label(object_id)
+    return Option(
+        0,
+        "landmark",
+        f"Go to {name}, {', '.join(notes)}",
+        goal=goal,
+        face=position if inputs.sensed else scenario.object(object_id).center,
+        landmark_id=object_id,
+        name=name,
+        distance_m=pose.distance_to(*goal),
+        standing=standing,
+    )
+
+
+def frontier_options(inputs: MenuInputs) -> list[Option]:
+    """The nearest frontier clusters worth exploring; none with a published map.
+
+    With a published map every landmark is listed already: exploring would only distract the model. A
+    frontier the robot stands at, or one it has reached before, shows nothing new from there (its unknown
+    side cannot be seen from the free cells): offering it again only wastes decisions.
+    """
+    if inputs.ctx.scenario.corridors:
+        return []
+    pose, cfg, memory = inputs.pose, inputs.cfg, inputs.memory
+    centres = [
+        centre
+        for centre in frontier_points(inputs)
+        if pose.distance_to(*centre) > cfg.arrived_m
+        and all(math.dist(centre, seen) > cfg.rescan_m for seen in memory.explored)
+    ]
+    return [
+        Option(0, "frontier", f"Explore, {where(pose, centre)}", goal=centre, distance_m=pose.distance_to(*centre))
+        for centre in centres[: cfg.max_frontiers]
+    ]
+
+
+# --- the orders ----------------------------------------------------------------------------------
+def neutral_menu(pose: Pose2D, places: list[Option], turn: list[Option]) -> list[Option]:
+    """Every place by distance (ties: landmarks first, then by name), a look, then Finish.
+
+    Going to where the robot already stands does nothing, so that entry becomes a fact in the Finish
+    line instead (whatever the task is).
+    """
+    here = [o for o in places if o.kind == "landmark" and o.standing]
+    moves = sorted(
+        (o for o in places if o not in here),
+        key=lambda o: (
+            round(pose.distance_to(*o.goal), 1) if o.goal is not None else 0.0,
+            o.kind != "landmark",
+            o.text,
+        ),
+    )
+    at = ", ".join(o.name for o in here)
+    finish = Option(0, "complete", "Finish" + (f" (at {at})" if at else ""), at=tuple(o.name for o in here))
+    return [*moves, *turn, finish]
+
+
+def relevance_menu(inputs: MenuInputs, places: list[Option], turn: list[Option]) -> list[Option]:
+    """Most relevant first: small models lean heavily toward option 1 (and the last one)."""
+    memory = inputs.memory
+    wanted = memory.wanted
+    arrived = [o for o in places if o.landmark_id in wanted and o.landmark_id in memory.visited and o.standing]
+    # A task that names nothing (turn around, look around) is served by the scan, then by finishing.
+    turning_task = not wanted and inputs.ctx.task.kind in ("rotate", "explore")
+    done = _finish_note(arrived, turning_task, memory)
+    finish = Option(0, "complete", "Finish" + done, at=tuple(o.name for o in arrived))
+    # While nothing the task names is known, looking around (once per spot) and exploring come before
+    # unrelated landmarks.
+    useful = [o for o in places if o.kind == "landmark" and o.landmark_id in wanted and o not in arrived]
+    # Going to where the robot already stands does nothing: once there, that entry only distracts.
+    others = [o for o in places if o.kind == "landmark" and o not in useful and o not in arrived]
+    frontier = [o for o in places if o.kind == "frontier"]
+    if done:
+        # At what the task names (or after the asked-for turn) nothing else serves the task: a short menu
+        # keeps a weak model from wandering off (measured: it did, at random, from a full one).
+        return [finish, *turn]
+    if turning_task:
+        menu = [*turn, *others, *frontier, finish]
+    elif useful:
+        menu = [*useful, *others, *frontier, *turn, finish]
+    else:
+        menu = [*turn, *frontier, *others, finish]
+    if len(menu) >= 3:
+        # The tiny model also favours the last entry; finishing early is the one unrecoverable mistake,
+        # so an unfinished task never lists Finish last.
+        menu[-2], menu[-1] = menu[-1], menu[-2]
+    return menu
+
+
+def _finish_note(arrived: list[Option], turning_task: bool, memory: Memory) -> str:
+    """What the Finish line says the robot has done ("" while the task is not done)."""
+    if arrived:
+        return f" (at {arrived[0].name})"
+    if turning_task and memory.scans:
+        return " (you have looked around)"
+    return ""
+
+
+# --- geometry of the entries ---------------------------------------------------------------------
+def approach(inputs: MenuInputs, goal: Point | None, position: Point) -> Point | None:
+    """Where to stand: the goal point if the robot fits there, else the nearest free stand-off cell.
+
+    The stand-off cell comes from the roomiest grid that has one.
+    """
+    grids, cfg, pose = inputs.grids, inputs.cfg, inputs.pose
+    if goal is not None and grids[-1].is_free(*goal):
+        return goal
+    for grid in grids:
+        xs, ys = grid.geometry.centres()
+        ring = np.hypot(xs - position[0], ys - position[1])
+        ok = (~grid.blocked) & (ring >= cfg.approach_min_m) & (ring <= cfg.approach_max_m)
+        if ok.any():
+            cost = np.where(ok, np.hypot(xs - pose.x, ys - pose.y), np.inf)
+            row, col = np.unravel_index(int(np.argmin(cost)), cost.shape)
+            return grid.geometry.cell_to_world(int(row), int(col))
+    return None
+
+
+def frontier_points(inputs: MenuInputs) -> list[Point]:
+    """A reachable target point per frontier cluster (`llmnav.mapping.frontiers`), nearest first.
+
+    With a static map the point is the cluster cell nearest its centroid (free, on the frontier). Sensed,
+    unknown space is inflated, so no frontier cell is free: the point is the free cell within the
+    inflation plus `FRONTIER_GOAL_BAND_M` of the cluster that lies nearest its centroid.
+    """
+    grid, lidar_map, pose = inputs.grids[0], inputs.lidar_map, inputs.pose
+    free = None if inputs.sensed else lidar_map.free & ~grid.blocked
+    labels = frontier_clusters(lidar_map, inputs.cfg.frontier_min_cells, free)
+    targets = goal_cells(labels, grid, grid.inflation_m + FRONTIER_GOAL_BAND_M) if inputs.sensed else labels
+    points: list[Point] = []
+    for index in np.unique(labels[labels > 0]):
+        rows, cols = np.nonzero(labels == index)
+        centre_r, centre_c = rows.mean(), cols.mean()
+        rows_t, cols_t = np.nonzero(targets == index)
+        if rows_t.size == 0:
+            continue
+        best = int(np.argmin((rows_t - centre_r) ** 2 + (cols_t - centre_c) ** 2))
+        points.append(grid.geometry.cell_to_world(int(rows_t[best]), int(cols_t[best])))
+    points.sort(key=lambda point: pose.distance_to(*point))
+    return points
+
+
+def where(pose: Pose2D, point: Point) -> str:
+    """'3 m front-left' from the robot's point of view.
+
+    Coarse on purpose: the navigation stack does the driving, so the model only needs to tell options
+    apart, and every digit is a token of its own (whole metres; one decimal below 1 m).
+    """
+    bearing = math.degrees(pose.bearing_to(*point))
+    sector = SECTORS[round(bearing / 45.0) % 8]
+    distance = pose.distance_to(*point)
+    return f"{distance:.1f} m {sector}" if distance < 0.95 else f"{distance:.0f} m {sector}"
