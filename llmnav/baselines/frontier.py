@@ -44,6 +44,7 @@ from llmnav.baselines.drive import (
     rotate_by,
     run_untargeted,
 )
+from llmnav.declarations import Declarations, ReferencePath
 from llmnav.mapping.astar import astar, densify, shortcut
 from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, inflate, near_bounds, nearest_free_cell
 from llmnav.mapping.targets import OracleConfig, Point, plan_to_targets, scenario_grid, with_added_obstacles
@@ -339,6 +340,8 @@ class FrontierPlanner(Planner):
 
     name: ClassVar[str] = "frontier"
     needs_backend: ClassVar[bool] = False
+    # Explores with no map and no model: the path table shows every other run's length against its own.
+    declares: ClassVar[Declarations] = Declarations(reference_path=ReferencePath("frontier", "Frontier"))
 
     def __init__(self, config: FrontierConfig | None = None) -> None:
         self.config = config or FrontierConfig()

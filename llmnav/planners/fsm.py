@@ -50,6 +50,7 @@ import numpy as np
 from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
+from llmnav.planners.fsm_tables import FSM_DECLARATIONS
 from llmnav.realtime import frozen_heap, realtime_priority
 
 if TYPE_CHECKING:
@@ -349,6 +350,7 @@ class FsmPlanner(Planner):
         {"assist", "alpha", "beta", "ttl_ms", "ttl_auto", "model_latency", "max_ticks", "temperature", "max_tokens"}
     )
     paces_itself = True  # its 50 Hz ticks follow the wall clock under --realtime, not the physics steps
+    declares = FSM_DECLARATIONS
 
     def __init__(self, config: FsmConfig | None = None) -> None:
         self.cfg = config or FsmConfig()

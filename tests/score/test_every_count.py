@@ -7,7 +7,9 @@ from typing import Any
 
 import pytest
 
-from llmnav.score import MISSING, Run, fsm_table, path_table, stepwise_table, waypoint_table
+from llmnav.planners.fsm_tables import FSM_TABLE
+from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
+from llmnav.score import MISSING, Run, declared_table, path_table, stepwise_table
 from llmnav.tasks import resolve_task
 
 START = resolve_task("factory", None, "T1", 2).start.pose().as_list()  # the oracle's path starts here
@@ -84,7 +86,7 @@ WAYPOINT_METRICS = {
                                     "Collision events", "Replanning (1/s)", "Success"])  # fmt: skip
 def test_waypoint_table_shows_every_metric(column: str) -> None:
     run = _run("waypoints", {"path_length_m": 10.0}, WAYPOINT_METRICS)
-    cells = {k.split(":", 1)[1]: v for k, v in _cells(waypoint_table([run], ["planner"])).items()}
+    cells = {k.split(":", 1)[1]: v for k, v in _cells(declared_table(WAYPOINT_TABLE, [run], ["planner"])).items()}
     assert cells[column] != MISSING, cells
 
 
@@ -99,5 +101,5 @@ FSM_METRICS = {
                                     "Accepted", "Stale", "Bounds", "Parse", "New tok"])  # fmt: skip
 def test_fsm_table_shows_every_metric(column: str) -> None:
     run = _run("fsm", {"new_prompt_tokens_median": 20}, FSM_METRICS)
-    cells = {k.split(":", 1)[1]: v for k, v in _cells(fsm_table([run], ["planner"])).items()}
+    cells = {k.split(":", 1)[1]: v for k, v in _cells(declared_table(FSM_TABLE, [run], ["planner"])).items()}
     assert cells[column] != MISSING, cells

@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
 from llmnav.chat import ChatRequest, Message
+from llmnav.declarations import Declarations
 from llmnav.errors import BadInputError
 from llmnav.geometry import Pose2D
 from llmnav.planners.base import MODEL_OPTIONS, DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
@@ -149,6 +150,7 @@ class HybridPlanner(Planner):
 
     name = "hybrid"
     needs_backend = True
+    declares = Declarations(asks_model_every_decision=True)
     options = MODEL_OPTIONS | {
         "sensing",
         "lidar_sectors",

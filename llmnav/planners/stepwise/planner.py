@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
 from llmnav.chat import ChatRequest, Message
+from llmnav.declarations import Declarations
 from llmnav.guard.ask import GuardedAnswer, ask_guarded
 from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, response_schema
 from llmnav.guard.veto import VetoResult, veto_message
@@ -70,6 +71,7 @@ class StepwisePlanner(Planner):
 
     name: ClassVar[str] = "stepwise"
     needs_backend: ClassVar[bool] = True
+    declares: ClassVar[Declarations] = Declarations(asks_model_every_decision=True)
     options: ClassVar[frozenset[str]] = MODEL_OPTIONS | {
         "sensing",
         "lidar_sectors",

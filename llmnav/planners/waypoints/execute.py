@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from llmnav.chat import ChatRequest, ChatResult
+from llmnav.declarations import Column, Declarations, ScoreTable
 from llmnav.errors import BadInputError, InvalidActionError
 from llmnav.geometry import Pose2D
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
@@ -44,6 +45,25 @@ class WaypointConfig:
     obstacle_margin_m: float = 0.1  # [m] clearance kept from it beyond the robot's radius
 
 
+# Source B, Tables 1–3: a row per command and one averaged over them.
+WAYPOINT_TABLE = ScoreTable(
+    name="waypoints",
+    title="Waypoint planner (waypoint source, Tables 1–3 style)",
+    columns=(
+        Column("planning_time_s", "Planning (s)"),
+        Column("execution_time_s", "Execution (s)"),
+        Column("path_length_m", "Path (m)", source="summary"),
+        Column("wgsr", "WGSR (%)", digits=1),
+        Column("collision_events", "Collision events", digits=1),
+        Column("replanning_rate", "Replanning (1/s)", digits=3),
+        Column("successes", "Success", aggregate="rate", source="summary", path="success"),
+    ),
+    marker="wgsr",
+    rows="command",
+    average_row=True,
+)
+
+
 def map_to_odom(point: Point, start_map: Pose2D, start_odom: Pose2D) -> Point:
     """A map-frame point in the odometry frame: rotate by the frame offset, then translate."""
     dtheta = start_odom.yaw - start_map.yaw
@@ -57,6 +77,8 @@ class WaypointPlanner(Planner):
 
     name = "waypoints"
     needs_backend = True
+    # A decision is one leg of the command: grounding, plan generations, replans, each asking the model.
+    declares = Declarations(score_tables=(WAYPOINT_TABLE,), decision_noun="Leg", asks_model_every_decision=True)
     options = frozenset(
         {"temperature", "max_generations", "max_replans", "replan_cooldown_s", "preset_waypoints", "decide"}
     )
