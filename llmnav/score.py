@@ -300,7 +300,7 @@ def _metric(name: str) -> Callable[[Run], Any]:
 # --- the tables ---------------------------------------------------------------------------------
 
 
-def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+def episodes_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     """Source A, Table 1 style, per task and condition: iterations, latency, #JSON, #Safety, k/N, score."""
     if not runs:
         return None
@@ -564,7 +564,7 @@ def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -
     for run in runs:
         if run.planner not in declared:
             run.problem(f"planner '{run.planner}' is not installed (or fails to load): its own tables are left out")
-    common = (stepwise_table(results, keys), path_table(results, keys, reference_paths(declared)))
+    common = (episodes_table(results, keys), path_table(results, keys, reference_paths(declared)))
     tables = [t for t in common if t is not None]
     tables += declared_tables(results, keys, declared)
     policies = (null_policy_table, ceiling_table, wording_table, wording_spread_table)
