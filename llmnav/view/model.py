@@ -138,7 +138,14 @@ class StepView:
 
     @property
     def reasoning(self) -> str:
-        """The model's reasoning on its last answer, on one line (empty when there is none)."""
+        """The model's reasoning on its last accepted answer, on one line (empty when there is none).
+
+        The guard logs the value it accepted; a log written before it did has only the replies, parsed again.
+        """
+        logged = [g for g in self.guards if "value" in g]
+        if logged:
+            accepted = next((g.get("value") for g in reversed(logged) if g.get("outcome") == "ok"), None)
+            return one_line_reasoning(accepted)
         for call in reversed(self.calls):
             if call.reply:
                 return reasoning_of(call.reply)
@@ -242,12 +249,16 @@ def polyline_length(points: list[tuple[float, float]] | list[list[float]]) -> fl
 
 
 def reasoning_of(reply: str) -> str:
-    """The `reasoning` field of an answer, on one line; empty when the answer has none."""
+    """The `reasoning` field of a reply parsed again (logs from before the guard logged its value)."""
     from llmnav.guard.parse import parse_answer
 
     result: Any = parse_answer(reply, dict[str, Any])
-    value = result.value if isinstance(result.value, dict) else None
-    text = value.get("reasoning") if value else None
+    return one_line_reasoning(result.value)
+
+
+def one_line_reasoning(value: Any) -> str:
+    """The `reasoning` field of an answer's value, on one line; empty when the value has none."""
+    text = value.get("reasoning") if isinstance(value, dict) else None
     if not isinstance(text, str):
         return ""
     line = " ".join(text.split())
