@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -17,14 +18,10 @@ from score_fakes import config_for, write_run  # noqa: E402
 from llmnav.cli import app  # noqa: E402
 
 
-def _install_turns_planner(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def _install_turns_planner(install_planner: Callable[[str, str, str], None]) -> None:
     """Register tests/score/turns_planner.py under the planner entry-point group, as `pip install` would."""
-    info = tmp_path / "site" / "turns_planner-0.1.dist-info"
-    info.mkdir(parents=True)
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: turns-planner\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[llmnav.planners]\nturns = turns_planner:TurnsPlanner\n")
-    monkeypatch.syspath_prepend(str(tmp_path / "site"))
-    monkeypatch.syspath_prepend(str(Path(__file__).parent))
+    source = (Path(__file__).parent / "turns_planner.py").read_text(encoding="utf-8")
+    install_planner("turns", "turns_planner:TurnsPlanner", source)
 
 
 def _runs(root: Path) -> None:
@@ -35,8 +32,10 @@ def _runs(root: Path) -> None:
     write_run(root / "ghost", config_for("T1", planner="ghost"), [[0, 0, 0], [4.0, 0, 0]], summary=True)
 
 
-def test_a_third_party_planner_declares_its_own_score_table(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    _install_turns_planner(tmp_path, monkeypatch)
+def test_a_third_party_planner_declares_its_own_score_table(
+    tmp_path: Path, install_planner: Callable[[str, str, str], None]
+) -> None:
+    _install_turns_planner(install_planner)
     _runs(tmp_path / "runs")
     result = CliRunner().invoke(app, ["score", str(tmp_path / "runs"), "--format", "json"])
     assert result.exit_code == 0, result.output

@@ -56,13 +56,8 @@ def test_a_run_whose_planner_is_not_installed_is_read_from_its_log(runs, tmp_pat
         assert 'alt="FSM command profile' in page and "Suggestion 1" in page
 
 
-def test_a_third_party_planner_names_its_decisions(runs, tmp_path, monkeypatch):
-    (tmp_path / "turns_view.py").write_text(TURNS)
-    info = tmp_path / "turns_view-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: turns-view\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[llmnav.planners]\nturns = turns_view:TurnsPlanner\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
+def test_a_third_party_planner_names_its_decisions(runs, tmp_path, install_planner):
+    install_planner("turns", "turns_view:TurnsPlanner", TURNS)
     run = _as_planner(runs["killed"], tmp_path / "turns", "turns")
     steps = build_run_view(run).steps
     assert [s.label for s in steps] == [f"Turn {s.step}" for s in steps]
