@@ -1,8 +1,9 @@
 """`llmnav score`: read run folders, group them by task and condition, and build the sources' tables.
 
 Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
-`build_tables` (stepwise / path / waypoint / FSM tables, plus the null-policy, floor/model/ceiling and
-wording tables of `llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A
+`build_tables` (the episode and path-length tables every run has, the tables each planner declares (see
+`llmnav.declarations`), and the null-policy, floor/model/ceiling and wording tables of
+`llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A
 KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data
 (`Table`): formatted cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a
 scenario that does not load, an oracle that fails) is noted on its `Run` and listed by `problems`, never
@@ -14,12 +15,13 @@ from __future__ import annotations
 import math
 import statistics
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
 from llmnav.errors import BadInputError
 from llmnav.metrics import CONDITION_KEYS, aborted_by_infrastructure, summarize_run
 from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, read_run
@@ -30,7 +32,6 @@ if TYPE_CHECKING:
 
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
-ITERATIVE_PLANNERS = frozenset({"stepwise", "hybrid"})
 ORACLE_BACKEND = "policy:oracle"  # answers computed from the ground truth: a ceiling, neither model nor null policy
 ORACLE_MARK = " (oracle answers)"
 
@@ -97,7 +98,7 @@ class Table:
     rows: list[list[str]]
     records: list[dict[str, Any]] = field(default_factory=list)
     note: str = ""
-    name: str = ""  # short id for `--table` (episodes, path, waypoints, fsm, ...)
+    name: str = ""  # short id for `--table` (episodes, path, a planner's declared table, ...)
 
 
 # --- loading ------------------------------------------------------------------------------------
@@ -299,7 +300,7 @@ def _metric(name: str) -> Callable[[Run], Any]:
 # --- the tables ---------------------------------------------------------------------------------
 
 
-def stepwise_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+def episodes_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     """Source A, Table 1 style, per task and condition: iterations, latency, #JSON, #Safety, k/N, score."""
     if not runs:
         return None
@@ -384,175 +385,190 @@ def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
     return lengths
 
 
-def path_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Source A, Table 2 style, successful runs only: path length and its ratio to Oracle and Frontier."""
+def reference_paths(declared: Mapping[str, Declarations] | None = None) -> dict[str, ReferencePath]:
+    """Planner name -> the reference path it declares, for every installed planner that declares one."""
+    declared = installed_declarations() if declared is None else declared
+    return {name: d.reference_path for name, d in declared.items() if d.reference_path is not None}
+
+
+def path_table(
+    runs: Sequence[Run], keys: Sequence[str], references: Mapping[str, ReferencePath] | None = None
+) -> Table | None:
+    """Source A, Table 2 style, successful runs only: path length and its ratio to Oracle and to each reference.
+
+    The references default to every installed planner's (see `llmnav.declarations.ReferencePath`).
+    """
     successful = [r for r in runs if r.summary.get("success") and _num(r.summary.get("path_length_m")) is not None]
     if not successful:
         return None
+    references = reference_paths() if references is None else references
     oracle = _oracle_lengths(successful)
-    frontier: dict[tuple[str, Any], list[float]] = defaultdict(list)
+    reference: dict[str, dict[tuple[str, Any], list[float]]] = {name: defaultdict(list) for name in references}
     for run in successful:
-        if run.planner == "frontier":
-            frontier[_start_key(run)].append(float(run.summary["path_length_m"]))
-    columns = ["Task", "Condition", "N ok", "Path (m)", "Oracle (m)", "Ratio", "Frontier (m)", "Ratio"]
+        if run.planner in reference:
+            reference[run.planner][_start_key(run)].append(float(run.summary["path_length_m"]))
+    columns = ["Task", "Condition", "N ok", "Path (m)", "Oracle (m)", "Ratio"]
+    for ref in references.values():
+        columns += [f"{ref.label} (m)", "Ratio"]
     rows, records = [], []
     for task, cond, group in group_runs(successful, keys):
         paths = _values(group, lambda r: r.summary.get("path_length_m"))
-        oracle_m, oracle_ratio, frontier_m, frontier_ratio = [], [], [], []
+        oracle_m, oracle_ratio = [], []
+        ref_m: dict[str, list[float]] = {name: [] for name in references}
+        ref_ratio: dict[str, list[float]] = {name: [] for name in references}
         for run in group:
             path = float(run.summary["path_length_m"])
             o = oracle.get(_start_key(run))
             if o:
                 oracle_m.append(o)
                 oracle_ratio.append(path / o)
-            f = frontier.get(_start_key(run))
-            if f and run.planner != "frontier":
-                f_mean = sum(f) / len(f)
-                frontier_m.append(f_mean)
-                if f_mean > 0:
-                    frontier_ratio.append(path / f_mean)
-        rows.append(
-            [
-                task,
-                cond,
-                str(len(group)),
-                _mean_sd(paths, 2),
-                _mean_sd(oracle_m, 2),
-                _mean_sd(oracle_ratio, 2),
-                _mean_sd(frontier_m, 2),
-                _mean_sd(frontier_ratio, 2),
-            ]
-        )
-        records.append(
-            {
-                "task": task,
-                "condition": cond,
-                **condition_fields(group[0], keys),
-                "n": len(group),
-                "path_length_m": _stats_record(paths),
-                "oracle_length_m": _stats_record(oracle_m),
-                "oracle_ratio": _stats_record(oracle_ratio),
-                "frontier_length_m": _stats_record(frontier_m),
-                "frontier_ratio": _stats_record(frontier_ratio),
-            }
-        )
+            for name in references:
+                lengths = reference[name].get(_start_key(run))
+                if lengths and run.planner != name:  # a reference is no yardstick for itself
+                    mean = sum(lengths) / len(lengths)
+                    ref_m[name].append(mean)
+                    if mean > 0:
+                        ref_ratio[name].append(path / mean)
+        row = [task, cond, str(len(group)), _mean_sd(paths, 2), _mean_sd(oracle_m, 2), _mean_sd(oracle_ratio, 2)]
+        record = {
+            "task": task,
+            "condition": cond,
+            **condition_fields(group[0], keys),
+            "n": len(group),
+            "path_length_m": _stats_record(paths),
+            "oracle_length_m": _stats_record(oracle_m),
+            "oracle_ratio": _stats_record(oracle_ratio),
+        }
+        for name, ref in references.items():
+            row += [_mean_sd(ref_m[name], 2), _mean_sd(ref_ratio[name], 2)]
+            record[f"{ref.key}_length_m"] = _stats_record(ref_m[name])
+            record[f"{ref.key}_ratio"] = _stats_record(ref_ratio[name])
+        rows.append(row)
+        records.append(record)
     title = "Path length (stepwise source, Table 2 style; successful runs)"
     return Table(title, columns, rows, records, name="path")
 
 
-def waypoint_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Source B, Tables 1–3 style: per command and averaged."""
-    wp = [r for r in runs if r.planner == "waypoints" or "wgsr" in r.metrics]
-    if not wp:
+def _read(run: Run, source: str, where: Sequence[str]) -> Any:
+    """A value of the run's planner metrics or summary at a dotted path (see `llmnav.declarations.Column`)."""
+    value: Any = run.metrics if source == "metrics" else run.summary
+    for part in where:
+        if not isinstance(value, dict):  # a number where a mapping was expected stands for itself
+            break
+        value = value.get(part)
+    return value
+
+
+def _reader(source: str, where: Sequence[str]) -> Callable[[Run], Any]:
+    return lambda run: _read(run, source, where)
+
+
+def _column_values(group: Sequence[Run], column: Column) -> list[float]:
+    return _values(group, _reader(column.source, column.where))
+
+
+def _declared_row(spec: ScoreTable, group: Sequence[Run]) -> tuple[list[str], dict[str, Any]]:
+    """A group's cells (after its label, condition and N) and record fields (after its label, condition and n).
+
+    Record fields come counts first (rates, the shares' denominators), then means, shares and medians,
+    each in column order: the order of the CSV's columns.
+    """
+    cells: list[str] = []
+    counts: dict[str, Any] = {}
+    means: dict[str, Any] = {}
+    shares: dict[str, Any] = {}
+    medians: dict[str, Any] = {}
+    for column in spec.columns:
+        if column.aggregate == "rate":
+            hits = sum(1 for r in group if _read(r, column.source, column.where))
+            cells.append(f"{hits}/{len(group)}")
+            counts[column.key] = hits
+        elif column.aggregate == "share":
+            total = sum(_values(group, _reader(column.source, (column.per,))))
+            counts.setdefault(column.per, total)
+            share = sum(_column_values(group, column)) / total if total else None
+            cells.append(MISSING if share is None else f"{share:.0%}")
+            shares[f"share_{column.key}"] = share
+        elif column.aggregate == "median":
+            values = _column_values(group, column)
+            cells.append(f"{statistics.median(values):.{column.digits}f}" if values else MISSING)
+            medians[column.key] = _stats_record(values)
+        else:
+            values = _column_values(group, column)
+            cells.append(_mean_sd(values, column.digits))
+            means[column.key] = _stats_record(values)
+    return cells, counts | means | shares | medians
+
+
+def declared_table(
+    spec: ScoreTable, runs: Sequence[Run], keys: Sequence[str], planners: Collection[str] = ()
+) -> Table | None:
+    """A planner's declared table over the runs it covers: those of `planners` and those holding its marker."""
+    covered = [r for r in runs if r.planner in planners or (spec.marker and spec.marker in r.metrics)]
+    if not covered:
         return None
-    columns = [
-        "Command", "Condition", "N", "Planning (s)", "Execution (s)", "Path (m)", "WGSR (%)",
-        "Collision events", "Replanning (1/s)", "Success",
-    ]  # fmt: skip
-    fields: dict[str, Callable[[Run], Any]] = {
-        "planning_time_s": _metric("planning_time_s"),
-        "execution_time_s": _metric("execution_time_s"),
-        "path_length_m": lambda r: r.summary.get("path_length_m"),
-        "wgsr": _metric("wgsr"),
-        "collision_events": _metric("collision_events"),
-        "replanning_rate": _metric("replanning_rate"),
-    }
-    digits = {"wgsr": 1, "collision_events": 1, "replanning_rate": 3}
+    label_column = "Command" if spec.rows == "command" else "Task"
+    columns = [label_column, "Condition", "N", *(c.label for c in spec.columns)]
     rows, records = [], []
 
     def add(label: str, cond: str, group: Sequence[Run]) -> None:
-        vals = {name: _values(group, get) for name, get in fields.items()}
-        ok = sum(1 for r in group if r.summary.get("success"))
-        rows.append(
-            [label, cond, str(len(group))]
-            + [_mean_sd(vals[n], digits.get(n, 2)) for n in fields]
-            + [f"{ok}/{len(group)}"]
-        )
-        records.append(
-            {"command": label, "condition": cond, **condition_fields(group[0], keys), "n": len(group), "successes": ok}
-            | {n: _stats_record(v) for n, v in vals.items()}
-        )
+        cells, fields = _declared_row(spec, group)
+        rows.append([label, cond, str(len(group)), *cells])
+        lead = {label_column.lower(): label, "condition": cond, **condition_fields(group[0], keys), "n": len(group)}
+        records.append(lead | fields)
 
-    for _task, cond, group in group_runs(wp, keys):
-        add(str(group[0].summary.get("task_text") or group[0].task), cond, group)
-    for _task, cond, group in group_runs(wp, keys, by_task=False):
-        add("Average", cond, group)
-    return Table("Waypoint planner (waypoint source, Tables 1–3 style)", columns, rows, records, name="waypoints")
+    for task, cond, group in group_runs(covered, keys):
+        add(str(group[0].summary.get("task_text") or task) if spec.rows == "command" else task, cond, group)
+    if spec.average_row:
+        for _task, cond, group in group_runs(covered, keys, by_task=False):
+            add("Average", cond, group)
+    return Table(spec.title, columns, rows, records, spec.note, name=spec.name)
 
 
-def fsm_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Source C, Tables 5–6 style: e_pos, η, loop and model latency, acceptance, utilisation, rejections."""
-    fsm = [r for r in runs if r.planner == "fsm" or "e_pos_m" in r.metrics]
-    if not fsm:
-        return None
-    columns = [
-        "Task", "Condition", "N", "e_pos (m)", "η", "Loop (ms)", "Model (ms)", "r_acc", "r_use",
-        "Accepted", "Stale", "Bounds", "Parse", "New tok",
-    ]  # fmt: skip
+def installed_declarations() -> dict[str, Declarations]:
+    """What every installed planner declares, by planner name; one that fails to load is left out."""
+    from llmnav.planners.base import planner_class, planner_names
 
-    def loop_ms(run: Run) -> Any:
-        tick = run.metrics.get("tick_latency_ms")
-        return tick.get("mean") if isinstance(tick, dict) else tick
+    declared: dict[str, Declarations] = {}
+    for name in planner_names():
+        try:
+            declared[name] = declarations_of(planner_class(name))
+        except BadInputError:
+            continue
+    return declared
 
-    def model_ms(run: Run) -> Any:
-        value = run.metrics.get("model_latency_ms")
-        return value.get("mean") if isinstance(value, dict) else value
 
-    def rejected(reason: str) -> Callable[[Run], Any]:
-        return lambda run: (run.metrics.get("rejected") or {}).get(reason)
-
-    fields: dict[str, tuple[Callable[[Run], Any], int]] = {
-        "e_pos_m": (_metric("e_pos_m"), 3),
-        "eta": (_metric("eta"), 3),
-        "loop_latency_ms": (loop_ms, 2),
-        "model_latency_ms": (model_ms, 1),
-        "r_acc": (_metric("r_acc"), 2),
-        "r_use": (_metric("r_use"), 2),
-    }
-    outcomes: dict[str, Callable[[Run], Any]] = {
-        "accepted": _metric("accepted"),
-        "stale": rejected("stale"),
-        "bounds": rejected("bounds"),
-        "parse": rejected("parse"),
-    }
-    rows, records = [], []
-    for task, cond, group in group_runs(fsm, keys):
-        vals = {name: _values(group, get) for name, (get, _) in fields.items()}
-        new_tokens = _values(group, lambda r: r.summary.get("new_prompt_tokens_median"))
-        # Validation outcomes pooled over the group's suggestions, as shares (the source's figure).
-        suggestions = sum(_values(group, _metric("suggestions")))
-        shares = {
-            name: (sum(_values(group, get)) / suggestions if suggestions else None) for name, get in outcomes.items()
-        }
-        rows.append(
-            [task, cond, str(len(group))]
-            + [_mean_sd(vals[n], d) for n, (_, d) in fields.items()]
-            + [MISSING if share is None else f"{share:.0%}" for share in shares.values()]
-            + [_median(new_tokens)]
-        )
-        records.append(
-            {"task": task, "condition": cond, **condition_fields(group[0], keys), "n": len(group)}
-            | {"suggestions": suggestions}
-            | {n: _stats_record(v) for n, v in vals.items()}
-            | {f"share_{n}": share for n, share in shares.items()}
-            | {"new_prompt_tokens": _stats_record(new_tokens)}
-        )
-    title = "FSM with LLM assist (FSM source, Tables 5–6 style)"
-    note = "validation outcomes: shares of all suggestions of the group; New tok: median of run medians"
-    return Table(title, columns, rows, records, note, name="fsm")
+def declared_tables(runs: Sequence[Run], keys: Sequence[str], declared: Mapping[str, Declarations]) -> list[Table]:
+    """Every table the planners declare that covers some run, in the order of the planners' names."""
+    specs: dict[str, ScoreTable] = {}
+    planners: dict[str, set[str]] = defaultdict(set)
+    for name, declarations in declared.items():
+        for spec in declarations.score_tables:
+            specs.setdefault(spec.name, spec)
+            planners[spec.name].add(name)
+    tables = (declared_table(spec, runs, keys, planners[name]) for name, spec in specs.items())
+    return [t for t in tables if t is not None]
 
 
 def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
-    """Every table that has data; groups are told apart by `group_keys` (default: the varying keys)."""
+    """Every table that has data; groups are told apart by `group_keys` (default: the varying keys).
+
+    The planners' own tables come from what each installed planner declares (`llmnav.declarations`);
+    a run whose planner is not installed is in the common tables (and noted as a problem).
+    """
     from llmnav.score_policies import ceiling_table, null_policy_table, wording_spread_table, wording_table
 
     keys = list(group_keys) if group_keys is not None else varying_keys(runs)
     results, aborted = split_aborted(runs)
-    builders = (
-        stepwise_table, path_table, waypoint_table, fsm_table, null_policy_table, ceiling_table, wording_table,
-        wording_spread_table,
-    )  # fmt: skip
-    tables = [t for t in (b(results, keys) for b in builders) if t is not None]
+    declared = installed_declarations()
+    for run in runs:
+        if run.planner not in declared:
+            run.problem(f"planner '{run.planner}' is not installed (or fails to load): its own tables are left out")
+    common = (episodes_table(results, keys), path_table(results, keys, reference_paths(declared)))
+    tables = [t for t in common if t is not None]
+    tables += declared_tables(results, keys, declared)
+    policies = (null_policy_table, ceiling_table, wording_table, wording_spread_table)
+    tables += [t for t in (b(results, keys) for b in policies) if t is not None]
     table = aborted_table(aborted, keys)
     return tables + ([table] if table is not None else [])
 

@@ -81,6 +81,7 @@ def check_backend(cls: type[Backend], arg: str | None = None) -> None:
 
 
 def _check_declarations(cls: type[Planner[Any]]) -> None:
+    from llmnav.declarations import Declarations
     from llmnav.knowledge import INFORMATION_MODES
     from llmnav.planners.base import DriveOptions, Planner, planner_class
 
@@ -91,6 +92,9 @@ def _check_declarations(cls: type[Planner[Any]]) -> None:
     assert model.model_config.get("extra") == "forbid", f"{cls.name}: Options must forbid extra keys"
     for key in set(model.model_fields) - set(DriveOptions.model_fields):
         assert model.model_fields[key].description, f"{cls.name}: option {key!r} has no description (unit)"
+    assert isinstance(cls.declares, Declarations), f"{cls.name}: `declares` is not a llmnav Declarations"
+    names = [table.name for table in cls.declares.score_tables]
+    assert len(set(names)) == len(names), f"{cls.name}: two score tables share a name"
     modes = cls.information_modes
     assert modes and set(modes) <= set(INFORMATION_MODES), f"{cls.name}: information modes {modes!r}"
     unknown = set(cls.grid_factors) - model.input_keys()

@@ -315,3 +315,25 @@ def ideal_scenario(tmp_path: Path) -> Callable[[str], str]:
         return str(path)
 
     return make
+
+
+@pytest.fixture
+def install_planner(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Callable[[str, str, str], None]:
+    """`install_planner(name, module, source)`: a third-party planner registered for one test, as `pip install`
+    would: `source` written as `module`.py beside a dist-info whose entry point names `module:<class>`.
+
+    `name` is the entry point (`spin = spin_planner:SpinPlanner` is `install_planner("spin",
+    "spin_planner:SpinPlanner", source)`).
+    """
+    site = tmp_path / "site-packages"
+
+    def install(name: str, target: str, source: str) -> None:
+        module = target.split(":", 1)[0]
+        info = site / f"{module}-0.1.dist-info"
+        info.mkdir(parents=True)
+        (site / f"{module}.py").write_text(source, encoding="utf-8")
+        (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {module}\nVersion: 0.1\n")
+        (info / "entry_points.txt").write_text(f"[llmnav.planners]\n{name} = {target}\n")
+        monkeypatch.syspath_prepend(str(site))
+
+    return install

@@ -45,6 +45,7 @@ from llmnav.baselines.drive import (
     rotate_by,
     run_untargeted,
 )
+from llmnav.declarations import Declarations, ReferencePath
 from llmnav.geometry import Point
 from llmnav.mapping.astar import astar, densify, shortcut
 from llmnav.mapping.frontiers import frontier_clusters, goal_cells, sensed_grid
@@ -331,6 +332,8 @@ class FrontierPlanner(Planner):
     needs_backend: ClassVar[bool] = False
     # explores its own map, then takes the true grid's path to the target
     information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
+    # Explores with no map and no model: the path table shows every other run's length against its own.
+    declares: ClassVar[Declarations] = Declarations(reference_path=ReferencePath("frontier", "Frontier"))
 
     def __init__(self, config: FrontierConfig | None = None) -> None:
         self.config = config or FrontierConfig()

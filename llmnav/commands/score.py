@@ -44,14 +44,15 @@ def score(
         str | None,
         typer.Option(
             "--table",
-            help="Only this table: episodes, path, waypoints, fsm, null_policies, ceiling, wording, "
-            "wording_spread, aborted, comparison. CSV writes one table (default: the first).",
+            help="Only this table: episodes, path, null_policies, ceiling, wording, wording_spread, aborted, "
+            "comparison, or one a planner declares (its name is in the JSON). CSV writes one table (default: "
+            "the first).",
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")] = None,
 ) -> None:
-    """Turn run logs into the sources' tables: episodes, path length, waypoints, FSM, null policies; statistics.
+    """Turn run logs into the sources' tables: episodes, path length, each planner's own, null policies; statistics.
 
     Tables (or data) go to stdout; status and anything that could not be computed go to stderr.
     """

@@ -5,7 +5,10 @@
 1. send the request (or take a reply already in hand, e.g. a self-check revision);
 2. run the guard on the reply (`parse_answer`: extract -> repair -> schema -> bounds);
 3. log ONE `guard` event for this attempt: `step`, `attempt` (1 for the first reply, 2 for the first
-   correction, ...), `outcome` (ok | parse | schema | bounds), `error`, `purpose`;
+   correction, ...), `outcome` (ok | parse | schema | bounds), `error`, `purpose`, and `value`: the
+   accepted value as JSON data (None when rejected; readers need not parse the reply again). A value
+   longer than MAX_VALUE_CHARS is not logged (`value_chars` says how long it was); the run log redacts
+   secrets in it as in every line;
 4. when the reply is rejected and corrections are left, append the model's reply and a correction turn
    naming the exact problem to the conversation and go to 1; otherwise stop.
 
@@ -25,9 +28,12 @@ its own (the waypoint planner lists every map rule a plan broke).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any, Generic, Protocol, TypeVar, cast
+
+from pydantic_core import PydanticSerializationError, to_jsonable_python
 
 from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.guard.parse import GuardResult, correction_message, parse_answer
@@ -36,6 +42,9 @@ from llmnav.guard.schemas import Bounds
 T = TypeVar("T")
 Feedback = Callable[[GuardResult[Any]], str]  # the correction turn for a rejected reply
 OnReply = Callable[[int, str, GuardResult[Any], float], None]  # (attempt, reply text, verdict, latency [s])
+# [characters] of JSON: the schemas cap each text field, so an accepted answer is far shorter; a longer one
+# (a planner guarding free-form JSON) stays in the reply of its `llm_call` event only.
+MAX_VALUE_CHARS = 8_000
 
 
 class AskContext(Protocol):
@@ -129,7 +138,15 @@ def ask_guarded(
         result: GuardResult[T] = parse_answer(text, model, bounds=bounds)
         if on_reply is not None:
             on_reply(attempt, text, result, took)
-        ctx.event("guard", step=step, attempt=attempt, outcome=result.outcome, error=result.error, purpose=purpose)
+        ctx.event(
+            "guard",
+            step=step,
+            attempt=attempt,
+            outcome=result.outcome,
+            error=result.error,
+            purpose=purpose,
+            **logged_value(result.value),
+        )
         if result.ok or attempt > max_corrections:
             return GuardedAnswer(result.value, text, result, attempt, latency, turns)
         if feedback is not None:
@@ -137,3 +154,15 @@ def ask_guarded(
         else:
             correction = correction_message(result, quoted if quoted is not None else cast(Any, model))
         turns += [Message("assistant", text), Message("user", correction)]
+
+
+def logged_value(value: Any) -> dict[str, Any]:
+    """The `guard` event's `value` field: the accepted value as JSON data, or None (see the module docstring)."""
+    if value is None:
+        return {"value": None}
+    try:
+        data = to_jsonable_python(value)
+        chars = len(json.dumps(data, ensure_ascii=False))
+    except (PydanticSerializationError, TypeError, ValueError):  # a value type with no JSON form
+        return {"value": None}
+    return {"value": data} if chars <= MAX_VALUE_CHARS else {"value": None, "value_chars": chars}

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol, Typ
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from llmnav.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
 
 if TYPE_CHECKING:
@@ -316,6 +317,8 @@ class Planner(ABC, Generic[OptionsT]):
     # What it can run with (llmnav.knowledge); the first is its default where no map is published.
     information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
     grid_factors: ClassVar[tuple[str, ...]] = ()  # option keys worth varying in an ablation (its own first)
+    # its score tables, decision noun and view sections (llmnav.declarations): read above it, never by name
+    declares: ClassVar[Declarations] = NOTHING_DECLARED
     paces_itself: ClassVar[bool] = False  # paces its own loop under --realtime (the world does not)
 
     def requires_backend(self, options: OptionsT) -> bool:

@@ -51,6 +51,7 @@ from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 from llmnav.planners.fsm_options import FsmOptions
+from llmnav.planners.fsm_tables import FSM_DECLARATIONS
 from llmnav.realtime import frozen_heap, realtime_priority
 
 if TYPE_CHECKING:
@@ -351,6 +352,7 @@ class FsmPlanner(Planner):
     options = frozenset({"temperature", "max_tokens"})
     grid_factors = ("assist",)
     paces_itself = True  # its 50 Hz ticks follow the wall clock under --realtime, not the physics steps
+    declares = FSM_DECLARATIONS
 
     def __init__(self, config: FsmConfig | None = None) -> None:
         self.cfg = config or FsmConfig()

@@ -4,10 +4,15 @@
 the way `llmnav score` does (`llmnav.score.load_run`: summary.json, or recomputed for a run cut short),
 and groups the events into decisions:
 
-- stepwise, hybrid, waypoints, oracle, frontier: one decision per logged `step` value (a waypoint
-  decision is one leg: its grounding, every generation attempt with its verdict, the replans);
-- fsm: one decision per model suggestion (its verdict: accepted, stale, bounds, parse); an FSM without
-  a model has one decision per state change.
+- most planners: one decision per logged `step` value, named by the planner's `decision_noun` ("Step 3";
+  a waypoint decision is one leg: its grounding, every generation attempt with its verdict, the replans);
+- a planner that declares `velocity_view` (it commands velocities every tick): one decision per model
+  suggestion (its verdict: accepted, stale, bounds, parse), else one per state change, and its command
+  profile.
+
+What a planner declares (`llmnav.declarations`) is looked up through the planner registry; for a run whose
+planner is not installed here, the log's own content stands in (velocity commands or suggestions, model
+calls made at decisions).
 
 Everything here tolerates missing fields and missing events: a killed run shows what it logged and each
 decision says what it lacks. Nothing here renders HTML (see `llmnav.view.page`).
@@ -21,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.declarations import Declarations, declarations_of
 from llmnav.geometry import logged_pose
 from llmnav.runlog import IMAGES_DIR, RunRecord, read_run
 
@@ -132,7 +138,14 @@ class StepView:
 
     @property
     def reasoning(self) -> str:
-        """The model's reasoning on its last answer, on one line (empty when there is none)."""
+        """The model's reasoning on its last accepted answer, on one line (empty when there is none).
+
+        The guard logs the value it accepted; a log written before it did has only the replies, parsed again.
+        """
+        logged = [g for g in self.guards if "value" in g]
+        if logged:
+            accepted = next((g.get("value") for g in reversed(logged) if g.get("outcome") == "ok"), None)
+            return one_line_reasoning(accepted)
         for call in reversed(self.calls):
             if call.reply:
                 return reasoning_of(call.reply)
@@ -140,8 +153,8 @@ class StepView:
 
 
 @dataclass
-class FsmView:
-    """FSM records: the command profile and the suggestion outcomes over time."""
+class CommandProfile:
+    """A velocity planner's records: the command profile and the suggestion outcomes over time."""
 
     t: list[float]
     base: list[list[float]]
@@ -163,9 +176,10 @@ class RunView:
     steps: list[StepView]
     trajectory: list[list[float]]
     oracle: list[tuple[float, float]] | None
-    fsm: FsmView | None
+    profile: CommandProfile | None  # a planner that declares `velocity_view`
     missing: list[str]  # what the whole run lacks (summary, end event, images ...)
     image_files: dict[str, Path]  # hash -> file for the images that exist
+    declared: Declarations  # what its planner declares, or what the log shows when it is not installed
 
     @property
     def config(self) -> dict[str, Any]:
@@ -235,12 +249,16 @@ def polyline_length(points: list[tuple[float, float]] | list[list[float]]) -> fl
 
 
 def reasoning_of(reply: str) -> str:
-    """The `reasoning` field of an answer, on one line; empty when the answer has none."""
+    """The `reasoning` field of a reply parsed again (logs from before the guard logged its value)."""
     from llmnav.guard.parse import parse_answer
 
     result: Any = parse_answer(reply, dict[str, Any])
-    value = result.value if isinstance(result.value, dict) else None
-    text = value.get("reasoning") if value else None
+    return one_line_reasoning(result.value)
+
+
+def one_line_reasoning(value: Any) -> str:
+    """The `reasoning` field of an answer's value, on one line; empty when the value has none."""
+    text = value.get("reasoning") if isinstance(value, dict) else None
     if not isinstance(text, str):
         return ""
     line = " ".join(text.split())
@@ -362,8 +380,8 @@ def _planner_note(event: dict[str, Any]) -> str:
 # --- grouping ------------------------------------------------------------------------------------
 
 
-def _fsm_steps(record: RunRecord) -> list[StepView]:
-    """FSM decisions: one per suggestion (paired with its verdict in order), else one per state change."""
+def _suggestion_steps(record: RunRecord) -> list[StepView]:
+    """A velocity planner's decisions: one per suggestion (paired with its verdict in order), else per state change."""
     calls = record.of_type("llm_call")
     verdicts = [e for e in record.of_type("planner") if e.get("kind") == "suggestion"]
     steps: list[StepView] = []
@@ -411,8 +429,8 @@ def _place_by_time(steps: list[StepView], record: RunRecord) -> None:
             step.pose_before = step.pose_after = samples[index][1]
 
 
-def _stepped(record: RunRecord) -> list[StepView]:
-    """Decisions by logged step value, in the order they first appear."""
+def _stepped(record: RunRecord, noun: str) -> list[StepView]:
+    """Decisions by logged step value, in the order they first appear, labelled `noun` and the value."""
     by_step: dict[Any, StepView] = {}
     previous: list[MessageView] = []
     for event in record.events:
@@ -424,9 +442,7 @@ def _stepped(record: RunRecord) -> list[StepView]:
             continue
         step = by_step.get(key)
         if step is None:
-            planner = record.config.get("planner")
-            name = "Leg" if planner == "waypoints" else "Step"
-            step = by_step[key] = StepView(len(by_step), f"{name} {key}", key, t_sim=event.get("t_sim"))
+            step = by_step[key] = StepView(len(by_step), f"{noun} {key}", key, t_sim=event.get("t_sim"))
         if kind == "observation":
             step.pose_before = step.pose_before or as_pose(event.get("pose"))
             image = event.get("image")
@@ -468,14 +484,12 @@ def _stepped(record: RunRecord) -> list[StepView]:
     return list(by_step.values())
 
 
-def _fsm_view(record: RunRecord) -> FsmView | None:
+def _profile(record: RunRecord) -> CommandProfile:
     from llmnav.reporting.velocity import well_formed_cmd
 
     planner = record.of_type("planner")
     cmds = [e for e in planner if e.get("kind") == "cmd" and well_formed_cmd(e)]
-    if not cmds and record.config.get("planner") != "fsm":
-        return None
-    return FsmView(
+    return CommandProfile(
         t=[float(e.get("t_sim", 0.0)) for e in cmds],
         base=[e["base"] for e in cmds],
         raw=[e.get("raw") if isinstance(e.get("raw"), list) else None for e in cmds],
@@ -485,9 +499,24 @@ def _fsm_view(record: RunRecord) -> FsmView | None:
     )
 
 
-def _mark_missing(steps: list[StepView], planner: str | None) -> None:
-    """Say what each decision lacks (a killed run stops mid-decision)."""
-    model_planner = planner in ("stepwise", "hybrid", "waypoints")
+def _declarations(record: RunRecord) -> Declarations:
+    """What the run's planner declares, through the registry; the log's own content when it is not installed."""
+    from llmnav.errors import BadInputError
+    from llmnav.planners.base import planner_class
+
+    name = record.config.get("planner") or as_dict(record.config.get("options")).get("planner")
+    try:
+        return declarations_of(planner_class(str(name)))
+    except BadInputError:
+        kinds = {e.get("kind") for e in record.of_type("planner")}
+        return Declarations(
+            velocity_view=bool(kinds & {"cmd", "suggestion", "fsm_state"}),
+            asks_model_every_decision=any(e.get("step") is not None for e in record.of_type("llm_call")),
+        )
+
+
+def _mark_missing(steps: list[StepView], model_planner: bool) -> None:
+    """Say what each decision lacks (a killed run stops mid-decision); `model_planner`: each asks the model."""
     for step in steps:
         if step.verdict is not None:
             continue
@@ -536,9 +565,9 @@ def build_run_view(run_dir: Path) -> RunView:
         summary = dict(record.summary or {})
         missing.append(f"the run's figures cannot be computed from this log ({type(err).__name__}: {err})")
     scenario = scenario_of(record.config)
-    planner = record.config.get("planner")
-    steps = _fsm_steps(record) if planner == "fsm" else _stepped(record)
-    _mark_missing(steps, planner)
+    declared = _declarations(record)
+    steps = _suggestion_steps(record) if declared.velocity_view else _stepped(record, declared.decision_noun)
+    _mark_missing(steps, declared.asks_model_every_decision)
     if not record.complete:
         missing.append("the run has no end event: it was cut short (killed or still running)")
     if record.summary is None:
@@ -573,7 +602,8 @@ def build_run_view(run_dir: Path) -> RunView:
         steps=steps,
         trajectory=[p for p in (as_pose(e.get("pose")) for e in record.of_type("pose")) if p is not None],
         oracle=oracle,
-        fsm=_fsm_view(record) if planner == "fsm" else None,
+        profile=_profile(record) if declared.velocity_view else None,
         missing=missing,
         image_files=images,
+        declared=declared,
     )

@@ -157,7 +157,7 @@ STRIP_W, STRIP_PAD = 760, 36  # [px] suggestion-outcome strip: width and left ma
 
 
 def _velocity_profile(view: RunView) -> str | None:
-    """The FSM's velocity-profile figure (`llmnav.reporting.velocity`) as a PNG data URI.
+    """The velocity-profile figure (`llmnav.reporting.velocity`) as a PNG data URI.
 
     The planner draws it at the end of a run; a run cut short gets it drawn now.
     """
@@ -172,20 +172,20 @@ def _velocity_profile(view: RunView) -> str | None:
         return data_uri(path, path.parent)
 
 
-def _fsm_charts(view: RunView) -> dict[str, Any] | None:
+def _velocity_charts(view: RunView) -> dict[str, Any] | None:
     """The velocity profile and a strip of suggestion outcomes over simulation time."""
-    fsm = view.fsm
-    if fsm is None:
+    profile = view.profile
+    if profile is None:
         return None
     verdicts: dict[str, int] = {}
-    for s in fsm.suggestions:
+    for s in profile.suggestions:
         verdicts[str(s.get("verdict"))] = verdicts.get(str(s.get("verdict")), 0) + 1
 
     def received(s: dict[str, Any]) -> float:
         value = s.get("t_recv")
         return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
 
-    t1 = max([*fsm.t, *(received(s) for s in fsm.suggestions), 1.0])
+    t1 = max([*profile.t, *(received(s) for s in profile.suggestions), 1.0])
     span = STRIP_W - STRIP_PAD - 8
     marks = [
         {
@@ -194,19 +194,21 @@ def _fsm_charts(view: RunView) -> dict[str, Any] | None:
             "detail": s.get("detail"),
             "t": s.get("t_recv"),
         }
-        for s in fsm.suggestions
+        for s in profile.suggestions
     ]
     ticks = [{"x": round(STRIP_PAD + k / 4 * span, 2), "label": f"{t1 * k / 4:.0f}"} for k in range(5)]
     from llmnav.view.model import as_dict
 
+    switch = view.declared.model_switch  # the option that turns the model on: named when none answered
     return {
-        "assist": as_dict(view.config.get("options")).get("assist"),
+        "switch": switch,
+        "switch_value": as_dict(view.config.get("options")).get(switch) if switch else None,
         "profile": _velocity_profile(view),
         "verdicts": verdicts,
         "marks": marks,
         "ticks": ticks,
-        "states": fsm.states,
-        "samples": len(fsm.t),
+        "states": profile.states,
+        "samples": len(profile.t),
     }
 
 
@@ -246,7 +248,7 @@ def run_context(view: RunView) -> dict[str, Any]:
         "overlays": [_overlay(s) for s in view.steps],
         "images": images,
         "lidar": {s.index: lidar_wedges(s.lidar) for s in view.steps if s.lidar is not None},
-        "fsm": _fsm_charts(view),
+        "velocity": _velocity_charts(view),
     }
 
 

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 from llmnav.chat import ChatRequest, ChatResult, Message
-from llmnav.guard.ask import CallContext, ask_guarded
+from llmnav.guard.ask import MAX_VALUE_CHARS, CallContext, ask_guarded
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import ActionBounds, StepAction, response_schema, step_answer
 
@@ -91,3 +92,35 @@ def test_a_bare_call_works_without_an_episode() -> None:
 
     answer = ask_guarded(CallContext(call, lambda kind, **f: events.append(kind)), REQUEST, StepAction, BOUNDS)
     assert answer.ok and calls == ["action"] and events == ["guard"]
+
+
+def test_the_guard_event_logs_the_accepted_value_as_json_data() -> None:
+    accepted = json.dumps(step_answer("FRONT", 1.0) | {"reasoning": "the corridor is clear"})
+    ctx = Scripted(["no JSON here", f"Sure!\n```json\n{accepted}\n```"])
+    answer = ask_guarded(ctx, REQUEST, StepAction, BOUNDS, 1, step=2)
+    rejected, ok = [f for kind, f in ctx.events if kind == "guard"]
+    assert rejected["value"] is None and ok["outcome"] == "ok"
+    assert answer.value is not None and ok["value"] == answer.value.model_dump(mode="json")
+    assert ok["value"]["reasoning"] == "the corridor is clear" and ok["value"]["action"]["command"] == "FRONT"
+    json.dumps(ok["value"])  # plain JSON data, not a model object
+
+
+def test_a_value_too_long_to_log_is_left_in_the_reply() -> None:
+    long = json.dumps({"notes": ["x" * 100] * 100})
+    ctx = Scripted([])
+    answer = ask_guarded(ctx, REQUEST, dict[str, Any], None, 0, reply=long)
+    ((_, event),) = ctx.events
+    assert answer.ok and event["value"] is None and event["value_chars"] > MAX_VALUE_CHARS
+
+
+def test_a_secret_in_the_accepted_value_is_redacted_in_the_run_log(tmp_path: Path) -> None:
+    from llmnav.runlog import RunLog, read_run
+
+    key = "sk-test-0123456789"
+    with RunLog(tmp_path / "run", {"planner": "stepwise"}, secrets=[key]) as log:
+        ctx = CallContext(lambda request, purpose: ChatResult("", 0.0, "script"), log.event)
+        reply = json.dumps(step_answer("FRONT", 1.0) | {"reasoning": f"my key is {key}"})
+        ask_guarded(ctx, REQUEST, StepAction, BOUNDS, 0, reply=reply)
+    (guard,) = read_run(tmp_path / "run").of_type("guard")
+    assert guard["value"]["reasoning"] == "my key is ***"
+    assert key not in (tmp_path / "run" / "run.jsonl").read_text()

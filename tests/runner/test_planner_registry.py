@@ -5,6 +5,7 @@ calls after the log closes."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from importlib.metadata import entry_points
 from pathlib import Path
 
@@ -60,14 +61,9 @@ class SpinPlanner(Planner):
 
 
 def test_a_third_party_planner_installs_by_entry_point_and_gets_the_guarded_layer(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, install_planner: Callable[[str, str, str], None]
 ) -> None:
-    (tmp_path / "spin_planner.py").write_text(THIRD_PARTY)
-    info = tmp_path / "spin_planner-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: spin-planner\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[llmnav.planners]\nspin = spin_planner:SpinPlanner\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
+    install_planner("spin", "spin_planner:SpinPlanner", THIRD_PARTY)
     assert "spin" in planner_names()
     spec = EpisodeSpec(
         scenario=SMALL, task_id="T1", start_pose=2, options={"planner": "spin", "max_iterations": 4},

@@ -7,7 +7,9 @@ from typing import Any
 
 import pytest
 
-from llmnav.score import MISSING, Run, fsm_table, path_table, stepwise_table, waypoint_table
+from llmnav.planners.fsm_tables import FSM_TABLE
+from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
+from llmnav.score import MISSING, Run, declared_table, episodes_table, path_table
 from llmnav.tasks import resolve_task
 
 START = resolve_task("factory", None, "T1", 2).start.pose().as_list()  # the oracle's path starts here
@@ -49,7 +51,7 @@ STEPWISE_COLUMNS = ["N", "Iterations", "Latency (s)", "#JSON", "#Safety", "Succe
 
 @pytest.mark.parametrize("column", STEPWISE_COLUMNS)
 def test_episodes_table_shows_every_count_of_a_baseline(column: str) -> None:
-    table = stepwise_table([_oracle_with_a_veto()], ["planner"])
+    table = episodes_table([_oracle_with_a_veto()], ["planner"])
     cells = {k.split(":", 1)[1]: v for k, v in _cells(table).items()}
     assert cells[column] != MISSING, cells
     if column == "#Safety":
@@ -60,7 +62,7 @@ def test_episodes_table_shows_every_count_of_a_baseline(column: str) -> None:
 
 def test_episodes_table_still_marks_a_value_no_summary_has() -> None:
     run = _run("oracle", {"llm_calls": 0, "iterations": 3})  # no counts at all
-    cells = {k.split(":", 1)[1]: v for k, v in _cells(stepwise_table([run], ["planner"])).items()}
+    cells = {k.split(":", 1)[1]: v for k, v in _cells(episodes_table([run], ["planner"])).items()}
     assert cells["#Safety"] == MISSING and cells["#JSON"] == MISSING and cells["Iterations"] == "3.0"
 
 
@@ -84,7 +86,7 @@ WAYPOINT_METRICS = {
                                     "Collision events", "Replanning (1/s)", "Success"])  # fmt: skip
 def test_waypoint_table_shows_every_metric(column: str) -> None:
     run = _run("waypoints", {"path_length_m": 10.0}, WAYPOINT_METRICS)
-    cells = {k.split(":", 1)[1]: v for k, v in _cells(waypoint_table([run], ["planner"])).items()}
+    cells = {k.split(":", 1)[1]: v for k, v in _cells(declared_table(WAYPOINT_TABLE, [run], ["planner"])).items()}
     assert cells[column] != MISSING, cells
 
 
@@ -99,5 +101,5 @@ FSM_METRICS = {
                                     "Accepted", "Stale", "Bounds", "Parse", "New tok"])  # fmt: skip
 def test_fsm_table_shows_every_metric(column: str) -> None:
     run = _run("fsm", {"new_prompt_tokens_median": 20}, FSM_METRICS)
-    cells = {k.split(":", 1)[1]: v for k, v in _cells(fsm_table([run], ["planner"])).items()}
+    cells = {k.split(":", 1)[1]: v for k, v in _cells(declared_table(FSM_TABLE, [run], ["planner"])).items()}
     assert cells[column] != MISSING, cells

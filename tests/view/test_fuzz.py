@@ -40,8 +40,11 @@ events = st.lists(
 configs = st.dictionaries(st.sampled_from(["task", "options", "start_pose", "backend", "information"]), json_values)
 
 
+PLANNERS = ["stepwise", "hybrid", "fsm", "waypoints", "oracle", "not-installed"]  # the last: read from its log
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(events=events, planner=st.sampled_from(["stepwise", "hybrid", "fsm", "waypoints", "oracle"]), extra=configs)
+@given(events=events, planner=st.sampled_from(PLANNERS), extra=configs)
 def test_any_event_fields_give_a_page(tmp_path_factory, events, planner, extra):
     run = Path(tmp_path_factory.mktemp("fuzz"))
     config = {"type": "config", "scenario": "nowhere", "planner": planner, "task": {"text": "Go"}, **extra}

@@ -48,6 +48,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from llmnav.declarations import Declarations
 from llmnav.errors import BadInputError
 from llmnav.guard.legs import Action
 from llmnav.mapping.frontiers import sensed_grid
@@ -114,6 +115,7 @@ class HybridPlanner(Planner):
     # from a published map, from its sensors, or (as before the information model) the true grid
     information_modes: ClassVar[tuple[Information, ...]] = ("sensed", "map", "oracle")
     grid_factors = ("decide", "menu_order", "sensing", "lidar_sectors")
+    declares = Declarations(asks_model_every_decision=True)
     options = MODEL_OPTIONS | {
         "sensing",
         "lidar_sectors",

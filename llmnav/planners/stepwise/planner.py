@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
 from llmnav.chat import ChatRequest, Message
+from llmnav.declarations import Declarations
 from llmnav.guard.ask import GuardedAnswer, ask_guarded
 from llmnav.guard.legs import Action
 from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, response_schema
@@ -73,6 +74,7 @@ class StepwisePlanner(Planner[StepwiseOptions]):
     name: ClassVar[str] = "stepwise"
     needs_backend: ClassVar[bool] = True
     Options: ClassVar[type[StepwiseOptions]] = StepwiseOptions
+    declares: ClassVar[Declarations] = Declarations(asks_model_every_decision=True)
     options: ClassVar[frozenset[str]] = MODEL_OPTIONS | {
         "sensing",
         "lidar_sectors",

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from llmnav.chat import ChatRequest, ChatResult
+from llmnav.declarations import Column, Declarations, ScoreTable
 from llmnav.errors import BadInputError, InvalidActionError
 from llmnav.geometry import Point, Pose2D
 from llmnav.guard.legs import drive_leg
@@ -46,6 +47,25 @@ class WaypointConfig:
     obstacle_margin_m: float = 0.1  # [m] clearance kept from it beyond the robot's radius
 
 
+# Source B, Tables 1–3: a row per command and one averaged over them.
+WAYPOINT_TABLE = ScoreTable(
+    name="waypoints",
+    title="Waypoint planner (waypoint source, Tables 1–3 style)",
+    columns=(
+        Column("planning_time_s", "Planning (s)"),
+        Column("execution_time_s", "Execution (s)"),
+        Column("path_length_m", "Path (m)", source="summary"),
+        Column("wgsr", "WGSR (%)", digits=1),
+        Column("collision_events", "Collision events", digits=1),
+        Column("replanning_rate", "Replanning (1/s)", digits=3),
+        Column("successes", "Success", aggregate="rate", source="summary", path="success"),
+    ),
+    marker="wgsr",
+    rows="command",
+    average_row=True,
+)
+
+
 def map_to_odom(point: Point, start_map: Pose2D, start_odom: Pose2D) -> Point:
     """A map-frame point in the odometry frame: rotate by the frame offset, then translate."""
     dtheta = start_odom.yaw - start_map.yaw
@@ -59,6 +79,8 @@ class WaypointPlanner(Planner):
 
     name = "waypoints"
     needs_backend = True
+    # A decision is one leg of the command: grounding, plan generations, replans, each asking the model.
+    declares = Declarations(score_tables=(WAYPOINT_TABLE,), decision_noun="Leg", asks_model_every_decision=True)
     Options = WaypointOptions
     options = frozenset({"temperature"})
     information_modes: ClassVar[tuple[Information, ...]] = ("map",)  # the corridor rectangles and object positions
