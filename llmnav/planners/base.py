@@ -5,8 +5,12 @@ entry-point group (the built-ins are registered the same way in llmnav's own pyp
 party adds one with `pip install`. A planner declares what it needs and does through class attributes
 and small hooks, so nothing above it names it:
 
-- `options`: the `DriveOptions` fields that apply to it (beyond `COMMON_OPTIONS`); `unused_options`
-  tells `drive` and `ablate` which given flags it ignores;
+- `Options`: its own pydantic options model, a `DriveOptions` subclass (`extra="forbid"`, a unit in every
+  field's description); `drive -o KEY=VALUE` and ablation factors take any of its keys;
+- `options`: the shared `DriveOptions` fields it reads; `unused_options` tells `drive` and `ablate`
+  which given keys it ignores;
+- `information_modes`: what it may know (read by `llmnav.knowledge`); `grid_factors`: options worth
+  varying; `declares`: its score tables and how the view reads its decisions (`llmnav.declarations`);
 - `paces_itself`: it paces its own control loop in `--realtime` (the world then does not);
 - `templates(options)`: the prompt templates it renders (hashed into the run's config line);
 - `summarize(record, scenario, task)`: planner metrics computed from the finished run log;
