@@ -34,6 +34,8 @@ from llmnav.planners.base import (
 from llmnav.scenario import resolve_scenario_path
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from llmnav.backends.base import Backend
     from llmnav.backends.policy import PolicyBackend
     from llmnav.geometry import Pose2D
@@ -351,10 +353,26 @@ def _attach_answer_key(
     oracle.attach_answer_key(planner.oracle_answers(truth, options))
 
 
+def _velocity_profile(run_dir: Path) -> Path | None:
+    from llmnav.reporting.velocity import PROFILE_FILE, plot_velocity_profile
+
+    return plot_velocity_profile(run_dir, run_dir / PROFILE_FILE)
+
+
+# The standard figures a planner may ask for by kind (`Planner.figure_kinds`): each draws from the run folder.
+FIGURES: dict[str, Callable[[Path], Path | None]] = {
+    "velocity_profile": _velocity_profile,  # commanded velocities over time, from the `cmd` records
+}
+
+
 def _planner_figures(planner: Planner, record: RunRecord, log: RunLog, summary: dict[str, Any]) -> None:
-    """The planner's own figures (its `figures` hook); a failure is noted, never fatal."""
+    """The figures the planner asks for by kind, then its own (`figures` hook); a failure is noted, never fatal."""
     try:
-        written = planner.figures(record, log.run_dir)
+        unknown = [kind for kind in planner.figure_kinds if kind not in FIGURES]
+        if unknown:
+            raise ValueError(f"unknown figure kind(s) {', '.join(unknown)} (known: {', '.join(sorted(FIGURES))})")
+        drawn = [FIGURES[kind](log.run_dir) for kind in planner.figure_kinds]
+        written = [path for path in drawn if path is not None] + planner.figures(record, log.run_dir)
     except Exception as err:  # noqa: BLE001 - as for the trajectory: the result matters more than a figure
         summary["figures_error"] = f"{type(err).__name__}: {one_line(err)}"
         return

@@ -213,7 +213,7 @@ class GuardedMotion:
         if not (isinstance(v, int | float) and isinstance(w, int | float) and math.isfinite(v) and math.isfinite(w)):
             return 0.0, 0.0, f"command ({v!r}, {w!r}) is not a pair of finite numbers: stopped"
         box_v, box_w = self.__box.project(float(v), float(w))
-        reason = self.__box.check(_Pair(float(v), float(w)))
+        reason = self.__box.violation(float(v), float(w))
         if box_v == 0.0:
             return box_v, box_w, reason
         blocked = self.__ttc_blocked(box_v, box_w, dt)
@@ -263,12 +263,6 @@ class GuardedMotion:
                 f"obstacle after {ahead:.2f} m, inside its stopping distance: forward speed set to 0"
             )
         return None
-
-
-@dataclass(frozen=True)
-class _Pair:
-    linear_x: float
-    angular_z: float
 
 
 def _num(value: Any) -> Any:

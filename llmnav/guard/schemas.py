@@ -140,15 +140,16 @@ class VelocityMilli(RootModel[tuple[Annotated[int, Field(strict=True)], Annotate
 
 
 def velocity_schema(v_min: float, v_max: float, w_max: float) -> dict[str, Any]:
-    """`VelocityMilli`'s JSON Schema with the kinematic box as integer minimum/maximum.
+    """`VelocityMilli`'s JSON Schema with the kinematic box (`VelocityBox.of`) as integer minimum/maximum.
 
     Under llama.cpp's grammar an out-of-box value cannot be decoded; other backends get the same schema
-    and their answers are still checked against the box after decoding.
+    and their answers are judged against the same box by the guard (`VelocityBox` as its bounds).
     """
+    box = VelocityBox.of(v_min, v_max, w_max)
     schema = response_schema(VelocityMilli)
     v_item, w_item = schema["prefixItems"]
-    v_item.update(minimum=math.ceil(v_min * 1000), maximum=math.floor(v_max * 1000))
-    w_item.update(minimum=-math.floor(w_max * 1000), maximum=math.floor(w_max * 1000))
+    v_item.update(minimum=box.v_min, maximum=box.v_max)
+    w_item.update(minimum=-box.w_max, maximum=box.w_max)
     schema["items"] = False  # nothing after the two numbers
     return schema
 
@@ -306,12 +307,40 @@ class WaypointBounds:
         return None
 
 
-# --- kinematic helper (used by the FSM planner; the guard applies it only when passed as bounds) ----
+@dataclass(frozen=True)
+class VelocityBox:
+    """The admissible box of a `VelocityMilli` answer, in its whole milli-units: what its schema states.
+
+    v_min <= v <= v_max [mm/s], |w| <= w_max [mrad/s]. Passed to the guard as its bounds, so an answer
+    outside the box is rejected (and logged) as `bounds` by the guard itself.
+    """
+
+    v_min: int  # [mm/s]
+    v_max: int  # [mm/s]
+    w_max: int  # [mrad/s]
+
+    @classmethod
+    def of(cls, v_min: float, v_max: float, w_max: float) -> VelocityBox:
+        """The whole milli-units inside a box given in m/s and rad/s (rounded inward)."""
+        return cls(math.ceil(v_min * 1000), math.floor(v_max * 1000), math.floor(w_max * 1000))
+
+    def check(self, value: Any) -> str | None:
+        """Why a `VelocityMilli` lies outside the box, or None when it is admissible."""
+        answer: VelocityMilli = value
+        if not (self.v_min <= answer.v <= self.v_max and -self.w_max <= answer.w <= self.w_max):
+            return (
+                f"[{answer.v}, {answer.w}] is outside {self.v_min} <= v <= {self.v_max} mm/s, "
+                f"|w| <= {self.w_max} mrad/s"
+            )
+        return None
+
+
+# --- the robot's kinematic box (the guarded motion layer clips every velocity command onto it) -----
 
 
 @dataclass(frozen=True)
 class VelocityLimits:
-    """Admissible box for a velocity suggestion: |v| ≤ v_max [m/s], |ω| ≤ w_max [rad/s]."""
+    """Admissible box for a velocity command: |v| ≤ v_max [m/s], |ω| ≤ w_max [rad/s]."""
 
     v_max: float  # [m/s]
     w_max: float  # [rad/s]
@@ -319,10 +348,14 @@ class VelocityLimits:
     def check(self, value: Any) -> str | None:
         """Why a `VelocitySuggestion` lies outside the box, or None when it is admissible."""
         suggestion: VelocitySuggestion = value
-        if not (math.isfinite(suggestion.linear_x) and abs(suggestion.linear_x) <= self.v_max):
-            return f"linear_x {suggestion.linear_x:g} m/s is outside [-{self.v_max:g}, {self.v_max:g}]"
-        if not (math.isfinite(suggestion.angular_z) and abs(suggestion.angular_z) <= self.w_max):
-            return f"angular_z {suggestion.angular_z:g} rad/s is outside [-{self.w_max:g}, {self.w_max:g}]"
+        return self.violation(suggestion.linear_x, suggestion.angular_z)
+
+    def violation(self, linear_x: float, angular_z: float) -> str | None:
+        """Why the command (linear_x [m/s], angular_z [rad/s]) lies outside the box, or None."""
+        if not (math.isfinite(linear_x) and abs(linear_x) <= self.v_max):
+            return f"linear_x {linear_x:g} m/s is outside [-{self.v_max:g}, {self.v_max:g}]"
+        if not (math.isfinite(angular_z) and abs(angular_z) <= self.w_max):
+            return f"angular_z {angular_z:g} rad/s is outside [-{self.w_max:g}, {self.w_max:g}]"
         return None
 
     def project(self, linear_x: float, angular_z: float) -> tuple[float, float]:

@@ -14,7 +14,9 @@ and small hooks, so nothing above it names it:
 - `paces_itself`: it paces its own control loop in `--realtime` (the world then does not);
 - `templates(options)`: the prompt templates it renders (hashed into the run's config line);
 - `summarize(record, scenario, task)`: planner metrics computed from the finished run log;
-- `figures(record, out_dir)`: extra figures, written only when plots are on;
+- `figure_kinds`: standard figures the runner draws for it from its run log when plots are on (a kind
+  names a figure, e.g. `velocity_profile` from `cmd` records, never a planner);
+- `figures(record, out_dir)`: extra figures it draws itself, written only when plots are on;
 - `oracle_answers(truth, options)`: the answers a perfect model would give to its requests (an
   `AnswerKey` built from `GroundTruth`), which the `policy:oracle` backend returns: its ceiling.
 """
@@ -324,6 +326,7 @@ class Planner(ABC, Generic[OptionsT]):
     # its score tables, decision noun and view sections (llmnav.declarations): read above it, never by name
     declares: ClassVar[Declarations] = NOTHING_DECLARED
     paces_itself: ClassVar[bool] = False  # paces its own loop under --realtime (the world does not)
+    figure_kinds: ClassVar[tuple[str, ...]] = ()  # standard figures drawn from its log (llmnav.runner.FIGURES)
 
     def requires_backend(self, options: OptionsT) -> bool:
         """Whether this episode needs a model (the runner creates no backend otherwise)."""

@@ -2,7 +2,7 @@
 
 Each assist request is the state line the FSM publishes in APPROACH (`stop 1.23 -0.10 45 -150`); the
 answer is `[v, w]` in whole mm/s and mrad/s, inside the kinematic box the answer's schema states, so the
-guard, the FSM's bounds and its projection take it as they take any model's.
+guard judges it against that box as it judges any model's.
 
 The sign the line describes is found among the scenario's signs of its class from the true pose (the one
 whose true distance is nearest the reported one). Its stop point is where e_pos is measured, `d_goal` in
@@ -28,7 +28,7 @@ from llmnav.planners.base import GeneratedAnswers
 if TYPE_CHECKING:
     from llmnav.chat import ChatRequest
     from llmnav.planners.base import GroundTruth
-    from llmnav.planners.fsm import FsmConfig
+    from llmnav.planners.fsm.control import FsmConfig
     from llmnav.scenario import LabelledObject, Scenario
 
 

@@ -13,7 +13,7 @@ import pytest
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.chat import ChatRequest, ChatResult
 from llmnav.planners.base import drive_options
-from llmnav.planners.fsm import FsmConfig, project
+from llmnav.planners.fsm import FsmConfig
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, run_episode
 
@@ -104,13 +104,15 @@ def test_llm_suggestions_are_judged_fused_and_deterministic(tmp_path):
     for event in verdicts:
         if event["verdict"] == "accepted":
             assert event["t_recv"] - event["stamp"] <= 0.5 + 1e-9
-    # Fusion: published = (1 - alpha) base + alpha proj(raw) whenever a suggestion is held.
+    # Fusion: published = (1 - alpha) base + alpha raw whenever a suggestion is held; the guard let only
+    # values inside the admissible box through, so no projection is needed.
     fused = [e for e in record.of_type("planner") if e.get("kind") == "cmd" and e.get("raw") is not None]
     assert fused
     for event in fused:
-        proj = project(event["raw"][0], event["raw"][1], CFG)
+        raw = event["raw"]
+        assert CFG.v_min <= raw[0] <= CFG.v_max and abs(raw[1]) <= CFG.w_max
         for i in (0, 1):
-            assert event["fused"][i] == pytest.approx(0.5 * event["base"][i] + 0.5 * proj[i], abs=2e-4)
+            assert event["fused"][i] == pytest.approx(0.5 * event["base"][i] + 0.5 * raw[i], abs=2e-4)
     # Same scripted answers and latencies -> the same trajectory (latency is charged to sim time).
     assert record.poses() == again.poses()
 
@@ -194,3 +196,55 @@ def test_realtime_runs_an_in_process_model_in_a_process_of_its_own(tmp_path, mon
         assert set(call) - {"type", "t_wall", "t_sim"} == expected and call["purpose"] == "suggestion"
     verdicts = [e["verdict"] for e in record.of_type("planner") if e.get("kind") == "suggestion"]
     assert len(verdicts) == len(calls) and "accepted" in verdicts
+
+
+# The planner metrics of the MIXED episode above (2500 ticks), as summary.json held them before the FSM
+# took its log-derived metrics (driven length, eta) into its `summarize` hook; wall-clock tick latencies
+# are left out.
+RECORDED_MIXED_METRICS: dict[str, Any] = {
+    "assist": "llm",
+    "e_pos_m": 3.6675589270019797,
+    "eta": 2.234319190243906,
+    "optimal_length_m": 5.949890470194593,
+    "real_length_m": 2.662954557332107,
+    "ticks": 2500,
+    "missed_deadlines": 0,
+    "scheduling": "simulated",
+    "model_in": "loop",
+    "model_latency_ms": {"mean": 273.6842105263158, "p50": 100.0, "max": 800.0},
+    "suggestions": 133,
+    "accepted": 34,
+    "rejected": {"stale": 33, "bounds": 33, "parse": 33, "error": 0},
+    "r_acc": 0.2556390977443609,
+    "r_use": 0.2788,
+    "ttl_ms": 500.0,
+}
+
+
+@pytest.fixture(scope="module")
+def mixed_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], RunRecord]:
+    tmp = tmp_path_factory.mktemp("fsm_mixed")
+    return run_fsm(tmp, "mixed", assist="llm", backend=ReplayBackend(script(tmp / "s", MIXED)), max_ticks=2500)
+
+
+def test_summary_metrics_are_the_recorded_ones(mixed_run):
+    summary, _ = mixed_run
+    metrics = dict(summary["planner_metrics"])
+    assert set(metrics.pop("tick_latency_ms")) == {"mean", "p50", "p99", "max"}
+    assert metrics == RECORDED_MIXED_METRICS
+
+
+def test_the_guard_rejects_what_the_fsm_counts_out_of_bounds(mixed_run):
+    """Each judged suggestion's `guard` event comes right before its `suggestion` event and agrees with it:
+    `bounds` for an answer outside the box (the guard judges with the FSM's own box), `ok` for an accepted one."""
+    summary, record = mixed_run
+    agreeing = {"accepted": {"ok"}, "bounds": {"bounds"}, "parse": {"parse", "schema"}, "stale": {"ok", "bounds"}}
+    events = [e for e in record.events if e["type"] == "guard" or e.get("kind") == "suggestion"]
+    bounds = 0
+    for previous, event in zip(events, events[1:], strict=False):
+        if event.get("kind") != "suggestion" or event["verdict"] == "error":
+            continue
+        assert previous["type"] == "guard" and previous["purpose"] == "suggestion", (previous, event)
+        assert previous["outcome"] in agreeing[event["verdict"]], (previous, event)
+        bounds += previous["outcome"] == "bounds" and event["verdict"] == "bounds"
+    assert bounds == summary["planner_metrics"]["rejected"]["bounds"] > 0

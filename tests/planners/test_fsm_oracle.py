@@ -14,6 +14,7 @@ from llmnav.backends.replay import ReplayBackend
 from llmnav.geometry import Pose2D
 from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.fsm import FsmConfig, FsmPlanner, check_suggestion, state_message
+from llmnav.planners.fsm.assist import answer_schema, suggestion_request, system_prompt
 from llmnav.planners.fsm_oracle import FsmAnswerKey, sign_stop_point
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, run_episode
@@ -34,9 +35,8 @@ def key_at(pose: Pose2D) -> FsmAnswerKey:
 
 def ask(key: FsmAnswerKey, sign: str, distance: float) -> str:
     """The key's reply to the request the FSM publishes for `sign` seen at `distance`."""
-    planner = FsmPlanner(CFG)
     text = state_message(sign, distance, 0.0, 0.03, 0.0)  # what the FSM publishes in APPROACH
-    request = planner._request(planner._system_prompt(), planner.answer_schema(), text, OPTIONS)
+    request = suggestion_request(system_prompt(CFG), answer_schema(CFG), text, OPTIONS)
     assert request.messages[-1].text == text
     return key.answer(request)
 

@@ -1,10 +1,10 @@
-"""The FSM assist's acceptance rules (source C): parse, freshness (TTL), bounds, projection, rate limits."""
+"""The FSM assist's acceptance rules (source C): parse, freshness (TTL), bounds (the guard's), rate limits."""
 
 from __future__ import annotations
 
 import pytest
 
-from llmnav.planners.fsm import FsmConfig, check_suggestion, project, rate_limit
+from llmnav.planners.fsm import FsmConfig, check_suggestion, rate_limit
 
 CFG = FsmConfig()
 
@@ -38,8 +38,26 @@ def test_failed_call_is_error():
     assert check_suggestion(None, 1.0, 1.1, 0.5, CFG)[0] == "error"
 
 
-def test_projection_clips_reverse_speed_to_v_min():
-    assert project(-0.05, 0.1, CFG) == (CFG.v_min, 0.1)
+def test_reverse_speed_is_outside_the_box_the_schema_states():
+    # The box is [v_min, v_max] x [-w_max, w_max], as the answer's schema says: a backend without the
+    # grammar that sends a reverse speed is rejected for bounds (no projection makes it another command).
+    verdict, value, detail = check_suggestion("[-50,100]", 1.0, 1.1, 0.5, CFG)
+    assert verdict == "bounds" and value is None and "0 <= v <= 60" in detail
+
+
+def test_parse_comes_before_freshness_and_freshness_before_bounds():
+    assert check_suggestion("[50]", 1.0, 9.0, 0.5, CFG)[0] == "parse"  # stale too
+    assert check_suggestion("[500,0]", 1.0, 9.0, 0.5, CFG)[0] == "stale"  # out of the box too
+
+
+def test_the_guard_judges_with_the_box_and_logs_its_verdict():
+    from llmnav.planners.fsm.assist import answer_box, judge
+
+    judged = judge("[500,0]", answer_box(CFG))
+    assert judged.value is None and judged.outcome == "bounds"
+    ((kind, fields),) = judged.events
+    assert kind == "guard" and fields["outcome"] == "bounds" and fields["purpose"] == "suggestion"
+    assert judge("[60,-800]", answer_box(CFG)).events[0][1]["outcome"] == "ok"
 
 
 def test_rate_limit_is_first_order():

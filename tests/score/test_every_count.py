@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from llmnav.planners.fsm_tables import FSM_TABLE
+from llmnav.planners.fsm.tables import FSM_TABLE
 from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
 from llmnav.score import MISSING, Run, declared_table, episodes_table, path_table
 from llmnav.tasks import resolve_task

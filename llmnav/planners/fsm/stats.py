@@ -1,0 +1,108 @@
+"""The FSM's counters during an episode, and its metrics.
+
+Those known when `run` ends come from the counters; those of the closed run log (the path it drove, its
+pose samples) from the `summarize` hook.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from llmnav.geometry import Pose2D
+    from llmnav.runlog import RunRecord
+    from llmnav.scenario import Scenario, Task
+
+
+@dataclass
+class FsmStats:
+    """Counters behind the FSM table of `llmnav score`."""
+
+    tick_latency_ms: list[float] = field(default_factory=list)
+    model_latency_ms: list[float] = field(default_factory=list)
+    suggestions: int = 0
+    rejected: dict[str, int] = field(default_factory=lambda: {"stale": 0, "bounds": 0, "parse": 0, "error": 0})
+    accepted: int = 0
+    ticks_using: int = 0
+    missed_deadlines: int = 0
+    scheduling: str = "simulated"  # the loop thread's policy under --realtime (llmnav.realtime)
+    model_in: str = "loop"  # where the model runs: called between ticks, a worker "thread" or a "process"
+
+
+def run_metrics(
+    stats: FsmStats, assist: str, final: Pose2D, start: Pose2D, stop: tuple[float, float] | None, scenario: Scenario
+) -> dict[str, Any]:
+    """The episode's metrics known when `run` ends: e_pos to the stop point, L_opt, ticks and suggestions."""
+    e_pos = final.distance_to(*stop) if stop is not None else None
+    optimal = _shortest_length(scenario, start, stop) if stop is not None else None
+    ticks = max(len(stats.tick_latency_ms), 1)
+    lat = np.asarray(stats.tick_latency_ms or [0.0])
+    model = np.asarray(stats.model_latency_ms) if stats.model_latency_ms else None
+    return {
+        "assist": assist,
+        "e_pos_m": e_pos,
+        "optimal_length_m": optimal,
+        "ticks": len(stats.tick_latency_ms),
+        "missed_deadlines": stats.missed_deadlines,
+        "scheduling": stats.scheduling,
+        "model_in": stats.model_in,
+        "tick_latency_ms": {
+            "mean": float(lat.mean()),
+            "p50": float(np.percentile(lat, 50)),
+            "p99": float(np.percentile(lat, 99)),
+            "max": float(lat.max()),
+        },
+        "model_latency_ms": None
+        if model is None
+        else {
+            "mean": float(model.mean()),
+            "p50": float(np.percentile(model, 50)),
+            "max": float(model.max()),
+        },
+        "suggestions": stats.suggestions,
+        "accepted": stats.accepted,
+        "rejected": dict(stats.rejected),
+        "r_acc": stats.accepted / stats.suggestions if stats.suggestions else None,
+        "r_use": stats.ticks_using / ticks,
+    }
+
+
+def log_metrics(record: RunRecord) -> dict[str, Any]:
+    """The metrics of the closed log: the driven length and eta = L_opt / L_real (L_opt from the `end` event).
+
+    Nothing for an episode whose `end` event carries no FSM metrics (one aborted before its first tick).
+    """
+    from llmnav.geometry import path_length
+
+    ends = record.of_type("end")
+    metrics = ends[-1].get("metrics") if ends else None
+    if not isinstance(metrics, dict) or "optimal_length_m" not in metrics:
+        return {}
+    optimal = metrics["optimal_length_m"]
+    real = path_length(record.poses())
+    return {"eta": (optimal / real) if optimal and real > 0 else None, "real_length_m": real}
+
+
+def _shortest_length(scenario: Scenario, start: Pose2D, target: tuple[float, float]) -> float | None:
+    """L_opt for the trajectory efficiency: the A* length from the start to the target point."""
+    from llmnav.mapping.paths import shortest_path_length
+
+    return shortest_path_length(scenario, (start.x, start.y), target)
+
+
+def stop_point(scenario: Scenario, task: Task, d_goal: float) -> tuple[float, float] | None:
+    """p_target of e_pos: where the FSM should stop, `d_goal` in front of the target sign (None: no target).
+
+    A target with an explicit goal point (or a point target) is used as it is.
+    """
+    from llmnav.planners.fsm_oracle import sign_stop_point
+
+    if not task.targets:
+        return None
+    target = task.targets[0]
+    if target.object is None:
+        return scenario.target_points(task)[0]
+    return sign_stop_point(scenario, scenario.object(target.object), d_goal)
