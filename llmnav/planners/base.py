@@ -26,14 +26,50 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
-from importlib.metadata import entry_points
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol, TypeVar, get_args, get_origin
-
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol
 
 from llmnav.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
+from llmnav.planners.options import (  # re-exported: what planners import from here
+    COMMON_OPTIONS as COMMON_OPTIONS,
+)
+from llmnav.planners.options import (
+    DEFAULT_PLANNER as DEFAULT_PLANNER,
+)
+from llmnav.planners.options import (
+    MODEL_OPTIONS as MODEL_OPTIONS,
+)
+from llmnav.planners.options import (
+    PLANNER_GROUP as PLANNER_GROUP,
+)
+from llmnav.planners.options import (
+    ChoiceOptions as ChoiceOptions,
+)
+from llmnav.planners.options import (
+    Decide as Decide,
+)
+from llmnav.planners.options import (
+    DriveOptions as DriveOptions,
+)
+from llmnav.planners.options import (
+    Information as Information,
+)
+from llmnav.planners.options import (
+    OptionsT as OptionsT,
+)
+from llmnav.planners.options import (
+    _registered_points,
+)
+from llmnav.planners.options import (
+    decides_by_scores as decides_by_scores,
+)
+from llmnav.planners.options import (
+    option_value as option_value,
+)
+from llmnav.planners.options import (
+    planner_names as planner_names,
+)
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
@@ -43,80 +79,7 @@ if TYPE_CHECKING:
     from llmnav.runlog import RunLog, RunRecord
     from llmnav.scenario import Scenario, Task
 
-PLANNER_GROUP = "llmnav.planners"
 Outcome = Literal["completed", "failed", "aborted"]
-# What a planner may know (see llmnav.knowledge): a published map, only its own sensors, or ground truth.
-Information = Literal["map", "sensed", "oracle"]
-# How a model-driven choice is made: scored option texts, generated answers, or scores where the backend can.
-Decide = Literal["auto", "score", "generate"]
-
-
-DEFAULT_PLANNER = "hybrid"
-
-
-class DriveOptions(BaseModel):
-    """The options every episode has: what the runner, the observation and the guard read.
-
-    A planner's own options extend this model: its `Options` class (pydantic, `extra="forbid"`, a unit in
-    every field's description), the way a model in simonw/llm owns its `Options`. `drive_options` builds
-    the right one from a planner name; the run's config line logs it in full.
-    """
-
-    model_config = ConfigDict(extra="forbid")
-
-    planner: str = Field(default=DEFAULT_PLANNER, description="a name registered under the llmnav.planners group")
-    information: Information | None = Field(
-        default=None, description="map | sensed | oracle; None: the planner's default for the scenario"
-    )
-    sensing: tuple[Literal["lidar", "image", "detections"], ...] = Field(
-        default=("lidar", "image"), description="what each observation holds"
-    )
-    lidar_sectors: int = Field(default=8, ge=1, le=72, description="[sectors] in the LiDAR summary")
-    lidar_fov_deg: float = Field(default=90.0, gt=0, le=360, description="[deg] LiDAR summary field of view")
-    max_iterations: int = Field(default=30, ge=1, description="[decisions] before the episode fails")
-    max_corrections: int = Field(default=3, ge=0, description="[turns] guard corrections per model answer")
-    seed: int = Field(default=0, description="simulation and model seed")
-    realtime: bool = Field(default=False, description="pace the simulation to the wall clock")
-    temperature: float = Field(default=0.0, ge=0, le=2, description="model sampling temperature")
-    max_tokens: int = Field(default=512, ge=16, description="[tokens] per model answer")
-    image_width: int = Field(default=640, ge=16, le=640, description="[px] camera image width")
-    image_height: int = Field(default=480, ge=16, le=480, description="[px] camera image height")
-    drop_images: bool = Field(default=False, description="a server that rejects images: go on without them")
-    obstacles: tuple[tuple[float, float], ...] = Field(
-        default=(), description="[m] unexpected box obstacles dropped at X,Y"
-    )
-
-    # Input keys beyond the fields that a before-validator maps onto fields (e.g. `ttl=auto`).
-    input_aliases: ClassVar[frozenset[str]] = frozenset()
-
-    @classmethod
-    def input_keys(cls) -> frozenset[str]:
-        """Every key `-o KEY=VALUE`, a grid or `drive_options` may give this model."""
-        return frozenset(cls.model_fields) | cls.input_aliases
-
-    @field_validator("planner")
-    @classmethod
-    def _registered(cls, name: str) -> str:
-        known = planner_names()
-        if name not in known:
-            raise ValueError(f"unknown planner '{name}' (registered: {', '.join(known)})")
-        return name
-
-
-class ChoiceOptions(DriveOptions):
-    """Options of a planner whose model chooses among options: by scores or by generated answers."""
-
-    decide: Decide = Field(
-        default="auto", description="score option texts | generate an answer | auto: score if the backend can"
-    )
-
-
-OptionsT = TypeVar("OptionsT", bound=DriveOptions)
-
-# Options every planner honours (or that describe the episode rather than the planner).
-COMMON_OPTIONS: frozenset[str] = frozenset({"planner", "seed", "realtime", "obstacles", "information"})
-# The options of a model-driven planner that asks once per decision.
-MODEL_OPTIONS: frozenset[str] = frozenset({"temperature", "max_tokens", "max_corrections"})
 
 
 def drive_options(planner: str = DEFAULT_PLANNER, **fields: Any) -> DriveOptions:
@@ -130,27 +93,6 @@ def as_planner_options(options: DriveOptions) -> DriveOptions:
     if isinstance(options, cls):
         return options
     return cls.model_validate(options.model_dump(exclude_unset=True) | {"planner": options.planner})
-
-
-def option_value(model: type[DriveOptions], name: str, value: Any) -> Any:
-    """A value from a flag or a grid as option `name` takes it.
-
-    A tuple of words is written `lidar+image` (or `lidar,image` on `-o`); a number where the option takes
-    words like "0" is that word (YAML reads `history: [0, 2]` as numbers). Anything else goes to pydantic.
-    """
-    field = model.model_fields.get(name)
-    if field is None or isinstance(value, bool):
-        return value
-    annotation = field.annotation
-    args = get_args(annotation)
-    if get_origin(annotation) is tuple and isinstance(value, str) and args and get_origin(args[0]) is not tuple:
-        parts = tuple(part.strip() for part in value.replace(",", "+").split("+") if part.strip())
-        if len(set(parts)) != len(parts):
-            raise BadInputError(f"{name} {value!r}: lists a value (a sensor, a word) more than once")
-        return parts
-    if get_origin(annotation) is Literal and all(isinstance(a, str) for a in args) and isinstance(value, int):
-        return str(value)
-    return value
 
 
 def planner_options(planner: str, given: dict[str, Any]) -> tuple[DriveOptions, list[str]]:
@@ -306,13 +248,6 @@ class EpisodeOutcome:
     metrics: dict[str, Any] = field(default_factory=dict)
 
 
-def decides_by_scores(options: ChoiceOptions, backend: Backend | None) -> bool:
-    """Whether `decide` asks for scored choices with this backend (`auto`: if the backend can score)."""
-    if options.decide == "generate" or backend is None:
-        return False
-    return options.decide == "score" or backend.can_score
-
-
 class Planner(ABC, Generic[OptionsT]):
     """One navigation strategy. Stateless between episodes; all state lives in `run`."""
 
@@ -366,15 +301,6 @@ class Planner(ABC, Generic[OptionsT]):
         own = cls.Options.input_keys() - set(DriveOptions.model_fields)
         applies = COMMON_OPTIONS | cls.options | own
         return sorted(name for name in given if name not in applies)
-
-
-def _registered_points() -> dict[str, Any]:
-    return {ep.name: ep for ep in entry_points(group=PLANNER_GROUP)}
-
-
-def planner_names() -> list[str]:
-    """Every planner name registered under the `llmnav.planners` entry-point group, sorted."""
-    return sorted(_registered_points())
 
 
 def planner_class(name: str) -> type[Planner[Any]]:
