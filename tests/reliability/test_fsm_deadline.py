@@ -89,7 +89,9 @@ def note_environment(tally: Any, perception: list[float]) -> str:
     return f"detector p50 {p50:.1f} ms, p99 {p99:.1f} ms, max {max(perception or [0]):.1f} ms; load {load:.2f}"
 
 
-def realtime_episode(tmp_path: Path, name: str, ticks: int, backend: Backend) -> dict[str, Any]:
+def realtime_episode(
+    tmp_path: Path, name: str, ticks: int, backend: Backend, view: Any = None
+) -> dict[str, Any]:
     spec = EpisodeSpec(
         scenario="maze_arena",
         task_id="M1",
@@ -97,7 +99,7 @@ def realtime_episode(tmp_path: Path, name: str, ticks: int, backend: Backend) ->
         backend=backend.spec,
         out_dir=tmp_path / name,
     )
-    summary = run_episode(spec, backend_obj=backend)
+    summary = run_episode(spec, backend_obj=backend, view=view)
     metrics = read_run(tmp_path / name).of_type("end")[-1]["metrics"]
     assert not str(summary["reason"]).startswith("crash"), summary["reason"]
     return metrics
@@ -146,6 +148,29 @@ def test_fsm_tick_latency_p99_with_a_slow_model(tmp_path: Path, tally: Any, perc
     context = note_environment(tally, perception_ms)
     assert ticks == 2000 and metrics["suggestions"] > 0, metrics
     assert p99 <= P99_LIMIT_MS, f"{metrics['tick_latency_ms']}; {missed} missed slots; {context}"
+
+
+@pytest.mark.slow
+@pytest.mark.reliability
+def test_fsm_keeps_its_deadline_beside_the_live_view(tmp_path: Path, tally: Any, perception_ms: list[float]) -> None:
+    """`drive --realtime` shows the rich live table: its refresh thread must not delay the loop."""
+    import io
+
+    from rich.console import Console
+
+    from llmnav.reporting.live import LiveView
+
+    backend = SlowModel(0.2)
+    screen = io.StringIO()
+    console = Console(file=screen, force_terminal=True, width=100)
+    spec = EpisodeSpec(scenario="maze_arena", task_id="M1", options=drive_options(planner="fsm"), out_dir=tmp_path)
+    with LiveView(console, spec) as view:
+        metrics = realtime_episode(tmp_path, "live", 2000, backend, view=view)
+    ticks, missed, p99 = record(tally, [metrics])
+    context = note_environment(tally, perception_ms)
+    assert "APPROACH" in screen.getvalue() or "SEARCH" in screen.getvalue()  # the table was drawn
+    assert ticks == 2000 and missed == 0, f"{metrics['tick_latency_ms']}; {missed} missed slots; {context}"
+    assert p99 <= P99_LIMIT_MS, f"{metrics['tick_latency_ms']}; {context}"
 
 
 @contextmanager
