@@ -210,9 +210,6 @@ def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
             keys = planner_class(planner).Options.input_keys()
             drive_options(planner, **{k: v for k, v in grid.options.items() if k in keys})
         _check_fixed_options(grid)
-        for key, values in grid.option_factors().items():  # every value, also where a planner ignores it
-            for value in values:
-                check_option_value(key, value, planners[0])
     except ValidationError as err:
         raise BadInputError(f"{source}: {_validation_message(err)}") from None
     return grid
@@ -428,6 +425,13 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
             )
         pose_counts[task_id] = len(poses)
     check_size(grid, pose_counts, max_episodes)
+    planners = grid.planner or [DriveOptions().planner]
+    for key, values in grid.option_factors().items():  # every value, also where a planner ignores it
+        for value in values:
+            try:
+                check_option_value(key, value, planners[0])
+            except ValidationError as err:
+                raise BadInputError(f"grid value: {_validation_message(err)}") from None
     for backend_spec in dict.fromkeys(grid.backend or [DEFAULT_BACKEND]):
         check_backend(backend_spec)
     factors = grid.factors()

@@ -66,8 +66,8 @@ def test_grid_errors_are_one_line(scenario_file: Path, tmp_path: Path) -> None:
         lib.plan(_grid(scenario_file, poses=[1, 2]), tmp_path)
     with pytest.raises(BadInputError, match="no task 'T99'"):
         lib.plan(_grid(scenario_file, tasks=["T99"]), tmp_path)
-    with pytest.raises(BadInputError, match="lidar_sectors"):
-        lib.grid_from_mapping({"lidar_sectors": ["many"]}, "g.yaml")
+    with pytest.raises(BadInputError, match="lidar_sectors"):  # option values: checked once the size is known
+        lib.plan(_grid(scenario_file, lidar_sectors=["many"]), tmp_path)
     with pytest.raises(BadInputError, match="g.yaml: .*'colour' is no option of any planner"):
         lib.grid_from_mapping({"colour": 1}, "g.yaml")
     with pytest.raises(BadInputError, match="history"):
