@@ -10,14 +10,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from pydantic import ValidationError
 
 from llmnav.commands.common import cli_errors, console, err_console, esc, fail, parse_sensing, path_option, print_data
 from llmnav.errors import BadInputError
-from llmnav.planners.base import DEFAULT_PLANNER
+from llmnav.planners import DEFAULT_PLANNER
 
 if TYPE_CHECKING:
     from collections.abc import Callable
+
+    from pydantic import ValidationError
 
     from llmnav.runner import EpisodeSpec
 
@@ -160,6 +161,8 @@ def drive(
     ] = False,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
+    from pydantic import ValidationError
+
     from llmnav.planners.base import planner_options
     from llmnav.runner import EpisodeSpec, exit_code
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario

@@ -28,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from llmnav.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
+from llmnav.planners import DEFAULT_PLANNER
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
@@ -45,7 +46,6 @@ Information = Literal["map", "sensed", "oracle"]
 Decide = Literal["auto", "score", "generate"]
 
 
-DEFAULT_PLANNER = "hybrid"
 
 
 class DriveOptions(BaseModel):
