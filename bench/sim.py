@@ -1,12 +1,24 @@
-"""Simulation costs: physics step, LiDAR, camera, one decision step, real-time factor (medians)."""
+"""Simulation costs: physics step, LiDAR, camera, one decision step, real-time factor (medians).
+
+Then the profile of a drive without a model (issue 25): simulation and planning per decision of every
+planner that needs no model (policy backends or none), process start to the first model request, the
+trajectory plot, the CLI's import time, and the episodes per minute of a simulation-bound sweep with 1
+and 2 workers. Each row names its target; the load average is printed with the table (2 shared cores).
+"""
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 from llmnav.errors import ScenarioError
 from llmnav.geometry import Pose2D
@@ -27,9 +39,7 @@ def _scenario() -> Scenario:
             {"center": [0.0, 6.0], "size": [12.0, 0.2]},
             {"center": [0.0, -6.0], "size": [12.0, 0.2]},
         ]
-        return parse_scenario(
-            {"name": "bench", "bounds": {"x": [-6, 6], "y": [-6, 6]}, "walls": walls}, "bench"
-        )
+        return parse_scenario({"name": "bench", "bounds": {"x": [-6, 6], "y": [-6, 6]}, "walls": walls}, "bench")
 
 
 _cpu: list[float] = []  # CPU-time median of the last `_median_ms` call [ms]
@@ -82,9 +92,7 @@ def main() -> None:
     start = scenario.default_start.pose()
     world.reset(start)
     load = os.getloadavg()[0]
-    print(
-        f"[bench.sim] scenario {scenario.name} ({scenario.robot}), medians of {REPEATS} runs, load {load:.1f}"
-    )
+    print(f"[bench.sim] scenario {scenario.name} ({scenario.robot}), medians of {REPEATS} runs, load {load:.1f}")
     print(f"  {'':<42} {'wall':>9} {'cpu':>9}")
     _row("connect + world + robot", build_ms, "ms", "(measured ~35 ms, one sample)", cpu=False)
 
@@ -150,6 +158,229 @@ def main() -> None:
     ticks_ms = _median_ms(lambda: [world.motion.velocity_tick(0.0, 0.3) for _ in range(50)], per=50)
     _row("velocity_tick (20 ms sim)", ticks_ms, "ms", f"(real-time factor {20.0 / ticks_ms:.0f}x)")
     world.close()
+    decisions()
+    process_start()
+
+
+# Episodes without a model: (label, EpisodeSpec fields, what one "decision" is, target [ms] per decision).
+# Targets: the issue's 0.1 s per hybrid decision; the others were measured on main before the speed-ups
+# (2 cores, load ~2.5) and must not get worse.
+EPISODES: tuple[tuple[str, dict[str, Any], str, float], ...] = (
+    (
+        "hybrid sensed factory T1 (policy:first)",
+        {"scenario": "factory", "task_id": "T1", "backend": "policy:first", "options": {"planner": "hybrid"}},
+        "decision",
+        100.0,
+    ),
+    (
+        "hybrid map corridor_a (policy:keyword)",
+        {
+            "scenario": "corridor_a",
+            "task_text": "Go to room 101",
+            "backend": "policy:keyword",
+            "options": {"planner": "hybrid", "max_iterations": 4},
+        },
+        "decision",
+        120.0,
+    ),
+    (
+        "stepwise factory T1 (policy:first)",
+        {
+            "scenario": "factory",
+            "task_id": "T1",
+            "backend": "policy:first",
+            "options": {"planner": "stepwise", "max_iterations": 5},
+        },
+        "decision",
+        90.0,
+    ),
+    (
+        "waypoints corridor_a (policy:keyword)",
+        {
+            "scenario": "corridor_a",
+            "task_text": "Go to room 101",
+            "backend": "policy:keyword",
+            "options": {"planner": "waypoints"},
+        },
+        "plan",
+        120.0,
+    ),
+    ("oracle factory T1", {"scenario": "factory", "task_id": "T1", "options": {"planner": "oracle"}}, "leg", 60.0),
+    (
+        "frontier factory T1",
+        {"scenario": "factory", "task_id": "T1", "options": {"planner": "frontier"}},
+        "leg",
+        60.0,
+    ),
+    (
+        "FSM maze_arena M1 (no assist)",
+        {"scenario": "maze_arena", "task_id": "M1", "options": {"planner": "fsm", "assist": "none", "seed": 1}},
+        "50 ticks",
+        90.0,
+    ),
+)
+EPISODE_REPEATS = 3
+TARGET_FIRST_REQUEST_MS = 600.0
+TARGET_SPEEDUP = 1.8
+SWEEP = ["--scenario", "factory", "--planner", "oracle", "--tasks", "all", "--poses", "1,2"]
+CLI = [sys.executable, "-c", "from llmnav.cli import main; main()"]
+
+
+def _episode_costs(fields: dict[str, Any], out: Path) -> tuple[float, float, int]:
+    """(wall [s] inside the episode, CPU [s] of the whole call, decisions) of one episode without plots."""
+    from llmnav.planners.base import drive_options
+    from llmnav.runner import EpisodeSpec, run_episode
+
+    spec = EpisodeSpec(
+        **{k: v for k, v in fields.items() if k != "options"},
+        options=drive_options(**fields["options"]),
+        out_dir=out,
+        plots=False,
+    )
+    cpu0 = time.process_time()
+    summary = run_episode(spec)
+    return float(summary["wall_time_s"]), time.process_time() - cpu0, int(summary["iterations"])
+
+
+def decisions() -> None:
+    """Simulation and planning per decision of each planner without a model (warm: one run first)."""
+    print(
+        f"\n[bench.sim] simulation + planning per decision, no model, median of {EPISODE_REPEATS} warm episodes, "
+        f"load {os.getloadavg()[0]:.1f}"
+    )
+    print(f"  {'':<42} {'wall':>9} {'cpu':>9}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for n, (label, fields, unit, target_ms) in enumerate(EPISODES):
+            per = 50 if unit == "50 ticks" else 1
+            _episode_costs(fields, Path(tmp) / f"{n}-warm")
+            walls, cpus = [], []
+            count = 1
+            for k in range(EPISODE_REPEATS):
+                wall, cpu, count = _episode_costs(fields, Path(tmp) / f"{n}-{k}")
+                walls.append(wall * 1000.0 * per / max(count, 1))
+                cpus.append(cpu * 1000.0 * per / max(count, 1))
+            _cpu[:] = [statistics.median(cpus)]
+            wall_ms = statistics.median(walls)
+            _row(label, wall_ms, "ms", f"per {unit} ({count}) " + _target(wall_ms, target_ms))
+
+
+def _wall_ms(command: list[str], repeats: int = 5) -> tuple[float, float]:
+    """Median wall and CPU time [ms] of a whole process (CPU: user + system of the child).
+
+    Exit codes 0 and 1 count (a drive whose task failed exits 1); anything else is an error.
+    """
+    walls, cpus = [], []
+    for _ in range(repeats):
+        before = os.times()
+        t0 = time.perf_counter()
+        code = subprocess.run(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
+        if code not in (0, 1):
+            raise RuntimeError(f"{command} exited {code}")
+        walls.append((time.perf_counter() - t0) * 1000.0)
+        after = os.times()
+        cpus.append((after.children_user + after.children_system - before.children_user - before.children_system) * 1e3)
+    return statistics.median(walls), statistics.median(cpus)
+
+
+def _first_request_ms(out: Path) -> float:
+    """Process start to the first `llm_call` event in the run log of a `drive` [ms] (the log is flushed per event)."""
+    log = out / "run.jsonl"
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [*CLI, "drive", "--scenario", "factory", "--task-id", "T1", "--backend", "policy:first"]
+        + ["--max-iterations", "1", "--quiet", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    seen = None
+    while seen is None and proc.poll() is None:
+        if log.exists() and '"type": "llm_call"' in log.read_text():
+            seen = time.perf_counter()
+        else:
+            time.sleep(0.002)
+    proc.wait()
+    if seen is None:
+        if '"type": "llm_call"' not in log.read_text():
+            raise RuntimeError("the drive made no model request")
+        seen = time.perf_counter()
+    return (seen - t0) * 1000.0
+
+
+_PLOT_SCRIPT = """
+import json, sys, time
+from pathlib import Path
+t0 = time.perf_counter()
+from llmnav.reporting.trajectory import plot_record
+from llmnav.runlog import read_run
+from llmnav.tasks import resolve_task
+record = read_run(Path(sys.argv[1]))
+resolved = resolve_task("factory", None, "T1", 1)
+t1 = time.perf_counter()
+plot_record(record, resolved.scenario, resolved.task, Path(sys.argv[1]) / "a.png")
+t2 = time.perf_counter()
+plot_record(record, resolved.scenario, resolved.task, Path(sys.argv[1]) / "b.png")
+t3 = time.perf_counter()
+print(json.dumps({"first": (t2 - t1) * 1e3, "again": (t3 - t2) * 1e3}))
+"""
+
+
+def _sweep_s(workers: int, out: Path) -> tuple[float, int]:
+    """Wall time [s] and episodes of one `llmnav ablate` sweep (oracle planner: simulation and planning only)."""
+    t0 = time.perf_counter()
+    subprocess.run(
+        [*CLI, "ablate", *SWEEP, "--workers", str(workers), "--out", str(out)],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    wall = time.perf_counter() - t0
+    manifest = json.loads((out / "manifest.json").read_text())
+    return wall, int(manifest["done"])
+
+
+def process_start() -> None:
+    """Whole-process costs of the CLI: import, start to first request, plot, sweep throughput."""
+    print(f"\n[bench.sim] whole processes (medians of 5 unless said), load {os.getloadavg()[0]:.1f}")
+    print(f"  {'':<42} {'wall':>9} {'cpu':>9}")
+    help_wall, help_cpu = _wall_ms([*CLI, "--help"])
+    _cpu[:] = [help_cpu]
+    _row("llmnav --help (imports + typer)", help_wall, "ms", "(lower is better)")
+    import_wall, import_cpu = _wall_ms([sys.executable, "-c", "import llmnav.commands.drive"])
+    _cpu[:] = [import_cpu]
+    _row("import llmnav.commands.drive", import_wall, "ms", "(lower is better)")
+    with tempfile.TemporaryDirectory() as tmp:
+        firsts = [_first_request_ms(Path(tmp) / f"first-{k}") for k in range(5)]
+        first_ms = statistics.median(firsts)
+        verdict = _verdict(first_ms, TARGET_FIRST_REQUEST_MS)
+        _row(
+            "process start -> first model request",
+            first_ms,
+            "ms",
+            f"target <= {TARGET_FIRST_REQUEST_MS:g} ms (policy:first, no model load): "
+            f"wall {first_ms / TARGET_FIRST_REQUEST_MS:.2f}x {verdict}",
+            cpu=False,
+        )
+        drive_wall, drive_cpu = _wall_ms(
+            [*CLI, "drive", "--scenario", "factory", "--task-id", "T1", "--backend", "policy:first"]
+            + ["--max-iterations", "10", "--quiet", "--out", str(Path(tmp) / "drive")],
+            repeats=1,
+        )
+        _cpu[:] = [drive_cpu]
+        _row("drive hybrid factory T1, 10 decisions", drive_wall, "ms", "(one run; issue 25 measured 3.0 s)")
+        plots = subprocess.run(
+            [sys.executable, "-c", _PLOT_SCRIPT, str(Path(tmp) / "drive")], check=True, capture_output=True, text=True
+        )
+        plot = json.loads(plots.stdout)
+        _row("trajectory.png, first in a process", plot["first"], "ms", "(matplotlib warm-up included)", cpu=False)
+        _row("trajectory.png, again", plot["again"], "ms", "(issue 25 measured ~0.9 s incl. warm-up)", cpu=False)
+        rates = {}
+        for workers in (1, 2):
+            wall, episodes = _sweep_s(workers, Path(tmp) / f"sweep-{workers}")
+            rates[workers] = episodes / wall * 60.0
+            _row(f"ablate oracle, {episodes} episodes, {workers} worker(s)", rates[workers], "/min", "", cpu=False)
+        ratio = rates[2] / rates[1]
+        verdict = "ok" if ratio >= TARGET_SPEEDUP else "BELOW TARGET (the pool is another change)"
+        _row("  episodes/min 2 vs 1 workers", ratio, "x", f"target >= {TARGET_SPEEDUP}x: {verdict}", cpu=False)
 
 
 if __name__ == "__main__":

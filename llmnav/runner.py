@@ -184,10 +184,15 @@ def run_episode(
     view: View | None = None,
     backend_obj: Backend | None = None,
     planner_obj: Planner[Any] | None = None,
+    later: list[Callable[[], None]] | None = None,
 ) -> dict[str, Any]:
     """Run one episode and return its summary (also written to `summary.json`).
 
     `planner_obj`: an instance of the planner `spec.options.planner` names (a probe; see llmnav.testing).
+    `later`: when given, the figures (trajectory.png, the planner's own) are not drawn before returning;
+    a call that draws them and notes them in the returned summary is appended to it instead, so a command
+    can show the result first. The summary names the trajectory's path already. A run that crashed
+    draws its figures at once, as without `later`.
     """
     from llmnav.knowledge import resolve_information
     from llmnav.planners.base import get_planner
@@ -248,7 +253,7 @@ def run_episode(
             # the key and URL credentials the backend holds are never logged or shown, even when echoed
             with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
                 shown = RedactedView(view or NullView(), getattr(backend, "secrets", ()))
-                return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information)
+                return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information, later)
     finally:
         if owns_backend and backend is not None:
             backend.close()
@@ -264,8 +269,9 @@ def _run_logged(
     spec: EpisodeSpec,
     view: View,
     information: Information = "oracle",
+    later: list[Callable[[], None]] | None = None,
 ) -> dict[str, Any]:
-    """Run the planner inside an open log; always end the log, summary and plot.
+    """Run the planner inside an open log; always end the log, summary and plot (or leave the plot to `later`).
 
     The planner gets the scenario as its information mode lets it see it (llmnav.knowledge); the
     summary is computed on the full scenario.
@@ -329,9 +335,17 @@ def _run_logged(
     log.write_summary(summary)
     if not spec.plots:
         summary["trajectory"] = None
+    elif later is not None and crash is None:
+        summary["trajectory"] = str(log.run_dir / TRAJECTORY_FILE)
+
+        def draw() -> None:
+            _plot(record, scenario, task, log.run_dir, summary)
+            _planner_figures(planner, record, log.run_dir, summary)
+
+        later.append(draw)
     else:
-        _plot(record, scenario, task, log, summary)
-        _planner_figures(planner, record, log, summary)
+        _plot(record, scenario, task, log.run_dir, summary)
+        _planner_figures(planner, record, log.run_dir, summary)
     if crash is not None:
         raise crash
     return summary
@@ -365,14 +379,14 @@ FIGURES: dict[str, Callable[[Path], Path | None]] = {
 }
 
 
-def _planner_figures(planner: Planner, record: RunRecord, log: RunLog, summary: dict[str, Any]) -> None:
+def _planner_figures(planner: Planner, record: RunRecord, run_dir: Path, summary: dict[str, Any]) -> None:
     """The figures the planner asks for by kind, then its own (`figures` hook); a failure is noted, never fatal."""
     try:
         unknown = [kind for kind in planner.figure_kinds if kind not in FIGURES]
         if unknown:
             raise ValueError(f"unknown figure kind(s) {', '.join(unknown)} (known: {', '.join(sorted(FIGURES))})")
-        drawn = [FIGURES[kind](log.run_dir) for kind in planner.figure_kinds]
-        written = [path for path in drawn if path is not None] + planner.figures(record, log.run_dir)
+        drawn = [FIGURES[kind](run_dir) for kind in planner.figure_kinds]
+        written = [path for path in drawn if path is not None] + planner.figures(record, run_dir)
     except Exception as err:  # noqa: BLE001 - as for the trajectory: the result matters more than a figure
         summary["figures_error"] = f"{type(err).__name__}: {one_line(err)}"
         return
@@ -380,13 +394,13 @@ def _planner_figures(planner: Planner, record: RunRecord, log: RunLog, summary: 
         summary["figures"] = [str(path) for path in written]
 
 
-def _plot(record: RunRecord, scenario: Scenario, task: Task, log: RunLog, summary: dict[str, Any]) -> None:
+def _plot(record: RunRecord, scenario: Scenario, task: Task, run_dir: Path, summary: dict[str, Any]) -> None:
     """Write trajectory.png and note its path (or the error) in the summary."""
     # The figure is a convenience: a plotting failure must not cost the episode its result.
     try:
         from llmnav.reporting.trajectory import plot_record
 
-        summary["trajectory"] = str(plot_record(record, scenario, task, log.run_dir / TRAJECTORY_FILE))
+        summary["trajectory"] = str(plot_record(record, scenario, task, run_dir / TRAJECTORY_FILE))
     except Exception as err:  # noqa: BLE001
         summary["trajectory"] = None
         summary["trajectory_error"] = f"{type(err).__name__}: {one_line(err)}"

@@ -47,3 +47,19 @@ def test_drive_refuses_to_overwrite_a_run(tmp_path):
     second = llmnav("drive", "--scenario", "corridor_a", "--task-id", "A1", "--planner", "oracle", "--out", str(out))
     assert second.returncode == 2 and "already holds a run" in second.stderr
     assert (out / "run.jsonl").read_bytes() == before
+
+
+def test_the_cli_and_the_planners_import_no_heavy_module() -> None:
+    """`llmnav --help` starts without pydantic or numpy; a drive reaches its first request without plotting
+    or scipy's import until a planner computes a distance transform (the figures come after the result)."""
+    script = (
+        "import sys, llmnav.cli\n"
+        "print(*sorted(m for m in ('pydantic', 'yaml', 'numpy', 'scipy', 'matplotlib', 'pybullet', 'cv2')"
+        " if m in sys.modules))\n"
+        "import llmnav.runner, llmnav.observe, llmnav.sim.world\n"
+        "import llmnav.planners.hybrid, llmnav.planners.fsm, llmnav.planners.stepwise, llmnav.planners.waypoints\n"
+        "import llmnav.baselines.frontier, llmnav.baselines.oracle\n"
+        "print(*sorted(m for m in ('scipy', 'matplotlib', 'cv2', 'PIL') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines() == ["", ""], out

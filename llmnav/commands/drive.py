@@ -10,13 +10,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from pydantic import ValidationError
 
 from llmnav.commands.common import cli_errors, console, err_console, esc, fail, parse_sensing, path_option, print_data
 from llmnav.errors import BadInputError
-from llmnav.planners.base import DEFAULT_PLANNER
+from llmnav.planners import DEFAULT_PLANNER
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from pydantic import ValidationError
+
     from llmnav.runner import EpisodeSpec
 
 
@@ -158,6 +161,8 @@ def drive(
     ] = False,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
+    from pydantic import ValidationError
+
     from llmnav.planners.base import planner_options
     from llmnav.runner import EpisodeSpec, exit_code
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario
@@ -214,14 +219,19 @@ def drive(
         out_dir=out_dir or default_out_dir(options.planner, task_id or (texts[0] if texts else "task")),
         quiet=quiet or json_output,
     )
-    summary = _run_with_view(spec, quiet=quiet, json_output=json_output)
+    later: list[Callable[[], None]] = []  # the figures: drawn after the result is shown
+    summary = _run_with_view(spec, quiet=quiet, json_output=json_output, later=later)
     _note_inapplicable(options.planner, ignored, set(from_o))  # after the run: a failure to start stays one line
     if json_output:
+        for draw in later:  # the JSON names what was written
+            draw()
         print_data(json.dumps(summary, default=str))
     else:
         from llmnav.reporting.live import print_result
 
-        print_result(console, summary)
+        print_result(console, summary)  # summary.json is written: an interrupted plot loses no result
+        for draw in later:
+            draw()
     if view_page:
         from llmnav.view.api import write_view
 
@@ -247,13 +257,15 @@ def _with_replay_mode(backend: str, loose: bool) -> str:
     return backend + ("&" if "?" in backend else "?") + "loose"
 
 
-def _run_with_view(spec: EpisodeSpec, *, quiet: bool, json_output: bool) -> dict[str, Any]:
+def _run_with_view(
+    spec: EpisodeSpec, *, quiet: bool, json_output: bool, later: list[Callable[[], None]]
+) -> dict[str, Any]:
     from llmnav.planners.base import NullView
     from llmnav.reporting.live import LiveView, ProgressView
     from llmnav.runner import run_episode
 
     if json_output:
-        return run_episode(spec, view=NullView())
+        return run_episode(spec, view=NullView(), later=later)
     view = ProgressView(console, spec.options.max_iterations) if quiet else LiveView(console, spec)
     with view:
-        return run_episode(spec, view=view)
+        return run_episode(spec, view=view, later=later)

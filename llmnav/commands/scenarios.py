@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
 from llmnav.commands.common import cli_errors, console, esc, plot_option
 from llmnav.errors import BadInputError
-from llmnav.scenario import Scenario, Task, list_scenarios, load_scenario
+
+if TYPE_CHECKING:
+    from llmnav.scenario import Scenario, Task
 
 app = typer.Typer(
     help="List the bundled scenarios or show one (tasks, start poses, top-view plot).", no_args_is_help=False
@@ -48,6 +50,8 @@ def list_command() -> None:
     table = Table(title="Bundled scenarios")
     for column in ("name", "robot", "size", "objects", "tasks", "description"):
         table.add_column(column, justify="right" if column in ("objects", "tasks") else "left")
+    from llmnav.scenario import list_scenarios, load_scenario
+
     for name in list_scenarios():
         scenario = load_scenario(name)
         table.add_row(
@@ -69,6 +73,8 @@ def show(
     task: Annotated[str | None, typer.Option("--task", help="Only this task (id), also in the plot.")] = None,
 ) -> None:
     """A scenario's tasks (id, kind, difficulty, text, targets, start poses); optionally its top view."""
+    from llmnav.scenario import load_scenario
+
     plot_path = plot_option(plot)
     scenario = load_scenario(name)
     chosen: Task | None = None

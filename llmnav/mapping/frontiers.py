@@ -19,9 +19,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import ndimage
 
-from llmnav.mapping.grid import LidarMap, OccupancyGrid, inflate, near_bounds
+from llmnav.mapping.grid import LidarMap, OccupancyGrid, near_bounds
 
 if TYPE_CHECKING:
     from llmnav.scenario import Bounds
@@ -39,7 +38,7 @@ def sensed_grid(lidar_map: LidarMap, bounds: Bounds, inflation_m: float) -> Occu
     radius plus its clearance).
     """
     geometry = lidar_map.geometry
-    blocked = inflate(lidar_map.occupied | lidar_map.unknown, inflation_m, geometry.resolution)
+    blocked = lidar_map.not_free_within(inflation_m)
     blocked |= near_bounds(geometry, bounds, inflation_m)
     return OccupancyGrid(geometry, lidar_map.occupied, blocked, inflation_m)
 
@@ -49,6 +48,8 @@ def frontier_clusters(lidar_map: LidarMap, min_cells: int, free: np.ndarray | No
 
     `free` narrows the known-free cells that may be frontier cells (default: all of the map's).
     """
+    from scipy import ndimage  # ~0.3 s to import: paid when frontiers are first looked for, not at start
+
     known_free = lidar_map.free if free is None else free
     frontier = known_free & ndimage.binary_dilation(lidar_map.unknown, structure=_EDGE_NEIGHBOURS)
     labels, count = ndimage.label(frontier, structure=_ALL_NEIGHBOURS)
@@ -64,6 +65,8 @@ def goal_cells(labels: np.ndarray, grid: OccupancyGrid, reach_m: float) -> np.nd
 
     Each is labelled by the cluster of its nearest labelled frontier cell (0 elsewhere).
     """
+    from scipy import ndimage
+
     if not labels.any():
         return np.zeros_like(labels)
     distance, (near_r, near_c) = ndimage.distance_transform_edt(labels == 0, return_indices=True)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING, ClassVar, Protocol
 
 import numpy as np
@@ -175,11 +176,21 @@ def build_grid(
 
 
 def near_bounds(geometry: GridGeometry, bounds: Bounds, within_m: float) -> np.ndarray:
-    """Cells whose centre lies closer than `within_m` to the bounds: beyond them counts as a wall."""
+    """Cells whose centre lies closer than `within_m` to the bounds: beyond them counts as a wall.
+
+    Read-only and shared: a planner asks for the same band at every decision.
+    """
+    return _near_bounds(geometry, (bounds.x[0], bounds.x[1]), (bounds.y[0], bounds.y[1]), within_m)
+
+
+@lru_cache(maxsize=16)
+def _near_bounds(geometry: GridGeometry, x: tuple[float, float], y: tuple[float, float], within_m: float) -> np.ndarray:
     xs, ys = geometry.centres()
-    near_x = (xs - bounds.x[0] < within_m) | (bounds.x[1] - xs < within_m)
-    near_y = (ys - bounds.y[0] < within_m) | (bounds.y[1] - ys < within_m)
-    return np.asarray(near_x | near_y)
+    near_x = (xs - x[0] < within_m) | (x[1] - xs < within_m)
+    near_y = (ys - y[0] < within_m) | (y[1] - ys < within_m)
+    near = np.asarray(near_x | near_y)
+    near.flags.writeable = False
+    return near
 
 
 def nearest_free_cell(blocked: np.ndarray, geometry: GridGeometry, x: float, y: float, reach_m: float) -> Cell | None:
@@ -206,12 +217,19 @@ def nearest_free_cell(blocked: np.ndarray, geometry: GridGeometry, x: float, y: 
 
 def inflate(mask: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
     """Cells whose centre lies within `radius_m` of a set cell's centre (Euclidean distance transform)."""
+    distance_cells = _distance_cells(mask)
+    if distance_cells is None:
+        return np.zeros_like(mask, dtype=bool)
+    return np.asarray(distance_cells * resolution_m <= radius_m)
+
+
+def _distance_cells(mask: np.ndarray) -> np.ndarray | None:
+    """Distance [cells] from each cell centre to the nearest set cell's centre (None: no cell is set)."""
     from scipy.ndimage import distance_transform_edt
 
     if not mask.any():
-        return np.zeros_like(mask, dtype=bool)
-    distance_cells = distance_transform_edt(~mask)
-    return np.asarray(distance_cells * resolution_m <= radius_m)
+        return None
+    return np.asarray(distance_transform_edt(~mask))
 
 
 class ScanLike(Protocol):
@@ -237,6 +255,23 @@ class LidarMap:
         self.geometry = geometry
         self.state = np.full(geometry.shape, self.UNKNOWN, dtype=np.int8)
         self.scans = 0
+        # The distance transform of the not-free cells and the state it was computed on (see `not_free_within`).
+        self._distance: tuple[np.ndarray, np.ndarray | None] | None = None
+
+    def not_free_within(self, radius_m: float) -> np.ndarray:
+        """Cells whose centre lies within `radius_m` of an occupied or unknown cell (`inflate` of them).
+
+        The distance transform behind it is kept until the map changes: planners inflate the same map by
+        several margins, and look again between scans.
+        """
+        cached = self._distance
+        if cached is None or not np.array_equal(cached[0], self.state):
+            cached = (self.state.copy(), _distance_cells(self.state != self.FREE))
+            self._distance = cached
+        distance_cells = cached[1]
+        if distance_cells is None:
+            return np.zeros(self.geometry.shape, dtype=bool)
+        return np.asarray(distance_cells * self.geometry.resolution <= radius_m)
 
     def integrate(self, pose: Pose2D, scan: ScanLike) -> None:
         """Add one scan taken at `pose` (LiDAR at the robot centre): free wedges, occupied end points.

@@ -31,45 +31,54 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol
 
 from llmnav.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
-from llmnav.planners.options import (  # re-exported: what planners import from here
-    COMMON_OPTIONS as COMMON_OPTIONS,
-)
 from llmnav.planners.options import (
-    DEFAULT_PLANNER as DEFAULT_PLANNER,
-)
-from llmnav.planners.options import (
-    MODEL_OPTIONS as MODEL_OPTIONS,
-)
-from llmnav.planners.options import (
-    PLANNER_GROUP as PLANNER_GROUP,
-)
-from llmnav.planners.options import (
-    ChoiceOptions as ChoiceOptions,
-)
-from llmnav.planners.options import (
-    Decide as Decide,
-)
-from llmnav.planners.options import (
-    DriveOptions as DriveOptions,
-)
-from llmnav.planners.options import (
-    Information as Information,
-)
-from llmnav.planners.options import (
-    OptionsT as OptionsT,
-)
-from llmnav.planners.options import (
+    COMMON_OPTIONS,
+    DEFAULT_PLANNER,
+    MODEL_OPTIONS,
+    PLANNER_GROUP,
+    ChoiceOptions,
+    Decide,
+    DriveOptions,
+    Information,
+    OptionsT,
     _registered_points,
+    decides_by_scores,
+    option_value,
+    planner_names,
 )
-from llmnav.planners.options import (
-    decides_by_scores as decides_by_scores,
-)
-from llmnav.planners.options import (
-    option_value as option_value,
-)
-from llmnav.planners.options import (
-    planner_names as planner_names,
-)
+
+__all__ = [
+    "COMMON_OPTIONS",
+    "DEFAULT_PLANNER",
+    "MODEL_OPTIONS",
+    "PLANNER_GROUP",
+    "ChoiceOptions",
+    "Decide",
+    "DriveOptions",
+    "EpisodeContext",
+    "EpisodeOutcome",
+    "GeneratedAnswers",
+    "GroundTruth",
+    "Information",
+    "NullView",
+    "OptionsT",
+    "Outcome",
+    "Planner",
+    "RedactedView",
+    "StepInfo",
+    "View",
+    "as_planner_options",
+    "check_option_value",
+    "decides_by_scores",
+    "drive_options",
+    "get_planner",
+    "inapplicable_options",
+    "option_names",
+    "option_value",
+    "planner_class",
+    "planner_names",
+    "planner_options",
+]
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar, get_args, get
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from llmnav.errors import BadInputError
+from llmnav.planners import DEFAULT_PLANNER
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
@@ -25,7 +26,6 @@ Information = Literal["map", "sensed", "oracle"]
 Decide = Literal["auto", "score", "generate"]
 
 
-DEFAULT_PLANNER = "hybrid"
 
 
 class DriveOptions(BaseModel):

@@ -121,6 +121,15 @@ class CameraFrame:
     jpeg_quality: int = 80  # the scenario's JPEG quality, used by `image()`
     _encoded: dict[int, str] = field(default_factory=dict, repr=False, compare=False)
 
+    def copy(self) -> CameraFrame:
+        """The same frame in arrays of its own (a caller may draw on it)."""
+        return CameraFrame(
+            rgb=self.rgb.copy(),
+            segmentation=None if self.segmentation is None else self.segmentation.copy(),
+            fov_deg=self.fov_deg,
+            jpeg_quality=self.jpeg_quality,
+        )
+
     def jpeg_b64(self, quality: int = 80) -> str:
         """The image as base64 JPEG (what multimodal models receive); encoded once per quality."""
         if quality not in self._encoded:
@@ -169,6 +178,8 @@ class Camera:
         # The floor as TinyRenderer would shade a lit, upward face of this colour.
         self._floor_rgb = np.array([round(FLOOR_SHADE * c) for c in floor_color[:3]], dtype=np.uint8)
         self._floor_images: dict[tuple[int, int], np.ndarray] = {}  # (width, rows) -> solid floor image
+        # The last frame of each (width, height, segmentation) and the view it shows (see `capture`).
+        self._last: dict[tuple[int, int, bool], tuple[tuple[Any, ...], CameraFrame]] = {}
 
     @property
     def raycaster(self) -> tuple[Any, int]:
@@ -207,6 +218,20 @@ class Camera:
         proj = p.computeProjectionMatrixFOV(
             cfg.fov_deg, width / height, CAMERA_NEAR, cfg.far_m, physicsClientId=self._client
         )
+        # Only the robot moves and bodies are only ever added: the same view of the same bodies is the same
+        # image. A robot that has not moved since the last frame (the detector looks again after each leg
+        # and at the next decision) gets a copy of it instead of a new render.
+        view_key = (*view, *proj, p.getNumBodies(physicsClientId=self._client))
+        last = self._last.get((width, height, segmentation))
+        if last is not None and last[0] == view_key:
+            return last[1].copy()
+        frame = self._render(width, height, view, proj, segmentation)
+        self._last[(width, height, segmentation)] = (view_key, frame)
+        return frame.copy()
+
+    def _render(self, width: int, height: int, view: Any, proj: Any, segmentation: bool) -> CameraFrame:
+        """One TinyRenderer frame, the floor painted in below the horizon."""
+        p, cfg = self._p, self.config
         flags = 0 if segmentation else p.ER_NO_SEGMENTATION_MASK
         _w, _h, rgba, depth, seg = p.getCameraImage(
             width,

@@ -152,3 +152,20 @@ def test_lidar_map_does_not_free_space_behind_an_edge() -> None:
     assert lidar_map.unknown[geometry.world_to_cell(2.5 + 1.5 * math.cos(0.15), 2.5 + 1.5 * math.sin(0.15))]
     assert lidar_map.free[geometry.world_to_cell(2.5 + 1.5 * math.cos(-0.1), 2.5 + 1.5 * math.sin(-0.1))]
     assert lidar_map.occupied[geometry.world_to_cell(2.5 + math.cos(0.15), 2.5 + math.sin(0.15))]
+
+
+def test_not_free_within_is_inflate_of_the_map_as_it_stands() -> None:
+    sc = parse_scenario({"name": "room", "bounds": {"x": [-3.0, 3.0], "y": [-3.0, 3.0]}, "robot": "burger"}, "room")
+    geometry = GridGeometry.from_bounds(sc.bounds, 0.05)
+    lidar_map = LidarMap(geometry)
+    assert lidar_map.not_free_within(0.3).all()  # all unknown
+    for pose in (Pose2D(-0.5, 0.3, 0.7), Pose2D(0.8, -0.4, -1.0)):
+        lidar_map.integrate(pose, square_room_scan(pose, 2.0, 720, 10.0))
+        for radius in (0.3, 0.45, 0.3):  # the second 0.3 reads the kept transform
+            expected = inflate(lidar_map.occupied | lidar_map.unknown, radius, geometry.resolution)
+            assert np.array_equal(lidar_map.not_free_within(radius), expected)
+    lidar_map.mark_occupied(0.0, 0.0, 0.2)  # a change the cache must see
+    expected = inflate(lidar_map.occupied | lidar_map.unknown, 0.3, geometry.resolution)
+    assert np.array_equal(lidar_map.not_free_within(0.3), expected)
+    lidar_map.state[:] = LidarMap.FREE  # even written directly
+    assert not lidar_map.not_free_within(0.3).any()

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
+import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
@@ -42,3 +44,39 @@ def test_ablation_plots_only_when_asked(tmp_path: Path) -> None:
         assert manifest["done"] == 1
         pngs = list(out.rglob("trajectory.png"))
         assert len(pngs) == (1 if expect_png else 0)
+
+
+def test_drive_shows_the_result_before_it_draws(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import llmnav.reporting.live as live
+    import llmnav.reporting.trajectory as trajectory
+
+    order: list[str] = []
+    print_result, plot_record = live.print_result, trajectory.plot_record
+
+    def printed(*args: Any) -> None:
+        order.append("result")
+        print_result(*args)
+
+    def drawn(*args: Any) -> Path:
+        order.append("plot")
+        assert (tmp_path / "run" / "summary.json").exists()
+        return plot_record(*args)
+
+    monkeypatch.setattr(live, "print_result", printed)
+    monkeypatch.setattr(trajectory, "plot_record", drawn)
+    base = ["drive", "--scenario", SMALL, "--task-id", "T1", "--planner", "oracle", "--quiet"]
+    result = CliRunner().invoke(app, [*base, "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    assert order == ["result", "plot"]
+    assert (tmp_path / "run" / "trajectory.png").exists()
+    assert f"trajectory: {tmp_path / 'run' / 'trajectory.png'}" in " ".join(result.output.split())
+
+    # An interrupted plot keeps the result shown and the summary written.
+    def interrupted(*args: Any) -> Path:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trajectory, "plot_record", interrupted)
+    result = CliRunner().invoke(app, [*base, "--out", str(tmp_path / "cut")])
+    assert result.exit_code != 0
+    assert "completed" in result.output
+    assert json.loads((tmp_path / "cut" / "summary.json").read_text())["outcome"] == "completed"

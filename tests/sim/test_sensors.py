@@ -134,3 +134,37 @@ def test_partial_scan(world: World) -> None:
     assert np.all(np.abs(near.angles) <= math.radians(45) + 1e-9) and np.isinf(_ray(near, 0.0))
     far = world.lidar.scan(half_angle=math.radians(45))
     assert abs(_ray(far, 0.0) - 2.4) < 0.02
+
+
+def test_camera_renders_again_only_when_the_view_changed(world: World, monkeypatch: pytest.MonkeyPatch) -> None:
+    renders: list[int] = []
+    render = world.camera._render
+    monkeypatch.setattr(world.camera, "_render", lambda *a, **k: renders.append(1) or render(*a, **k))
+    first = world.camera.capture(segmentation=True, width=160, height=120)
+    first.rgb[:] = 0  # the caller's copy: drawing on it changes nothing kept
+    again = world.camera.capture(segmentation=True, width=160, height=120)
+    assert len(renders) == 1
+    fresh = render(160, 120, *_view(world, 160, 120), True)
+    assert np.array_equal(again.rgb, fresh.rgb) and np.array_equal(again.segmentation, fresh.segmentation)
+    world.camera.capture()  # another resolution is another frame
+    assert len(renders) == 2
+    world.motion.rotate(0.3)
+    world.camera.capture(segmentation=True, width=160, height=120)
+    assert len(renders) == 3
+    world.add_obstacle(1.0, 0.0)  # the robot stands still, but the scene changed
+    world.camera.capture(segmentation=True, width=160, height=120)
+    assert len(renders) == 4
+
+
+def _view(world: World, width: int, height: int) -> tuple[object, object]:
+    """The view and projection matrices the camera renders with at the robot's pose."""
+    import pybullet as p
+
+    from llmnav.sim.sensors import CAMERA_NEAR
+
+    pose, eye, cfg = world.robot.pose(), world.camera.eye(), world.camera.config
+    target = (eye[0] + math.cos(pose.yaw), eye[1] + math.sin(pose.yaw), eye[2])
+    view = p.computeViewMatrix(eye, target, (0.0, 0.0, 1.0), physicsClientId=world.client)
+    aspect = width / height
+    proj = p.computeProjectionMatrixFOV(cfg.fov_deg, aspect, CAMERA_NEAR, cfg.far_m, physicsClientId=world.client)
+    return view, proj
