@@ -13,8 +13,11 @@ Event vocabulary (field `type`; every event also has `t_wall` [s since start] an
 - `llm_call`     `step`, `purpose` (action | correction | veto | self_check | ground | waypoints |
                  suggestion | choice), `request` (ChatRequest.to_log()), `reply` (ChatResult.to_log()) or
                  `error` (one line).
-- `guard`        `step`, `outcome` (ok | parse | schema | bounds | veto), `error`, `attempt`.
-- `action`       `step`, `command`, `parameters`, `pose_before`, `pose_after`, `collided`, `collision_with`.
+- `guard`        `step`, `outcome` (ok | parse | schema | bounds | veto), `error`, `attempt`, and `value`
+                 (the accepted answer as JSON data, or None).
+- `action`       `step`, `command`, `parameters`, `pose_before`, `pose_after`, `collided`, `collision_with`,
+                 `stopped_reason`; `vetoed` and `veto` for a motion the layer refused; `distance_m`,
+                 `rotated_deg`, `duration_s` where measured (one form: `llmnav.guard.legs.Action`).
 - `pose`         a trajectory sample: `pose` [x, y, yaw]. Path length and final pose come from these.
 - `planner`      planner-specific records (waypoint plans and verdicts, FSM tick statistics, suggestions).
 - `end`          `outcome` (completed | failed | aborted), `reason`.
