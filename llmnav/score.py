@@ -52,8 +52,17 @@ class Run:
 
     @property
     def condition(self) -> dict[str, Any]:
-        """The run's condition values (see llmnav.metrics.CONDITION_KEYS)."""
-        return dict(self.summary.get("condition") or {})
+        """The run's condition values (llmnav.metrics.CONDITION_KEYS), then every other logged option.
+
+        Any planner option may be an ablation factor (`alpha`, `max_replans`, ...): its value comes from
+        the configuration line, a list written as on the command line (`lidar+image`).
+        """
+        found = dict(self.summary.get("condition") or {})
+        options = self.config.get("options")
+        for key, value in (options.items() if isinstance(options, dict) else ()):
+            if key not in found:
+                found[key] = "+".join(map(str, value)) if isinstance(value, list) else value
+        return found
 
     @property
     def planner(self) -> str:
@@ -624,6 +633,13 @@ COMPARE_METRICS: dict[str, Callable[[Run], Any]] = {
 }
 
 
+def is_option_key(key: str) -> bool:
+    """Whether some installed planner takes option `key` (so runs may be grouped or selected by it)."""
+    from llmnav.planners.base import option_names, planner_names
+
+    return any(key in option_names(name) for name in planner_names())
+
+
 def parse_selector(text: str) -> tuple[str, str]:
     """`KEY=VALUE` of `--compare`; KEY a condition key or task/scenario."""
     key, sep, value = text.partition("=")
@@ -631,7 +647,7 @@ def parse_selector(text: str) -> tuple[str, str]:
     allowed = (*CONDITION_KEYS, "task", "scenario")
     if not sep or not key or not value:
         raise BadInputError(f"--compare {text!r}: expected KEY=VALUE, e.g. lidar_sectors=8")
-    if key not in allowed:
+    if key not in allowed and not is_option_key(key):
         raise BadInputError(f"--compare {text!r}: unknown key '{key}' (one of: {', '.join(allowed)})")
     return key, value.strip()
 

@@ -108,11 +108,14 @@ def score(
 def parse_keys(text: str) -> list[str]:
     """`--by lidar_sectors,prompt` → validated condition keys."""
     from llmnav.metrics import CONDITION_KEYS
+    from llmnav.score import is_option_key
 
     keys = [k.strip().replace("-", "_") for k in text.split(",") if k.strip()]
-    unknown = [k for k in keys if k not in CONDITION_KEYS]
+    unknown = [k for k in keys if k not in CONDITION_KEYS and not is_option_key(k)]
     if unknown:
-        raise BadInputError(f"--by: unknown key '{unknown[0]}' (one of: {', '.join(CONDITION_KEYS)})")
+        raise BadInputError(
+            f"--by: unknown key '{unknown[0]}' (one of: {', '.join(CONDITION_KEYS)}, or any planner option)"
+        )
     return keys
 
 

@@ -196,3 +196,22 @@ def test_cli_dry_run_and_errors(scenario_file: Path, tmp_path: Path) -> None:
     assert bad.exit_code == 2 and len(bad.output.strip().splitlines()) == 1
     bad = cli.invoke(app, ["ablate", "--scenario", "nowhere", "--dry-run"])
     assert bad.exit_code == 2 and "nowhere" in bad.output
+
+
+def test_any_planner_option_is_a_factor_the_tables_group_by(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from llmnav.cli import app
+
+    small = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
+    out = tmp_path / "abl"
+    args = ["ablate", "--scenario", small, "--planner", "oracle", "--tasks", "T1", "--poses", "1", "-o",
+            "max_iterations=3,4", "--out", str(out)]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "max_iterations=3" in result.output and "max_iterations=4" in result.output, result.output
+    assert "max_iterations=None" not in result.output
+    by = CliRunner().invoke(app, ["score", str(out), "--by", "max_iterations", "--format", "json"])
+    assert by.exit_code == 0 and '"max_iterations": 3' in by.output, by.output
+    bad = CliRunner().invoke(app, ["ablate", *args[1:-2], "-o", "max_iteratons=3", "--out", str(tmp_path / "b")])
+    assert bad.exit_code == 2 and "max_iteratons" in bad.output and "no option of any planner" in bad.output
