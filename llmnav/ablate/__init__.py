@@ -32,6 +32,7 @@ from llmnav.ablate.grid import (
     parse_poses,
     split_list,
 )
+from llmnav.ablate.layout import LAYOUTS, Layout, choose
 from llmnav.ablate.manifest import (
     MANIFEST_FILE,
     Ablation,
@@ -44,6 +45,9 @@ from llmnav.ablate.manifest import (
 from llmnav.ablate.sweep import ProgressCallback, run
 
 __all__ = [
+    "LAYOUTS",
+    "Layout",
+    "choose",
     "MAX_EPISODES",
     "DEFAULT_BACKEND",
     "CORE_FACTORS",

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from llmnav.ablate.grid import MAX_EPISODES, Episode, GridSpec, expand
+from llmnav.ablate.layout import Layout
 from llmnav.errors import redact_userinfo
 from llmnav.runlog import SUMMARY_FILE, write_json_atomic
 
@@ -82,6 +83,7 @@ class Ablation:
     episodes: list[Episode]
     entries: dict[str, ManifestEntry] = field(default_factory=dict)
     kept: list[tuple[str, str]] = field(default_factory=list)  # folders set aside by the last run: (dir, why)
+    layout: Layout | None = None  # how the last run placed its workers and model
     _grid_part: dict[str, Any] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -138,6 +140,7 @@ class Ablation:
             "done": done,
             "errors": errors,
             "successes": successes,
+            **({"layout": self.layout.record()} if self.layout is not None else {}),
             "episodes": entries,
         }
 
