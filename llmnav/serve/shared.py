@@ -43,17 +43,21 @@ class SharedModel:
     def start(self) -> ServedModel:
         """Start the child and wait until its model is loaded; `ModelUnavailableError` when it cannot serve."""
         key = secrets.token_hex(16)
+        # The child imports the llmnav this process runs, whatever the current folder holds (-P: no
+        # current folder on its path; the folder holding this llmnav first on PYTHONPATH).
         command = [
-            sys.executable, "-m", "llmnav.serve.shared",
+            sys.executable, "-P", "-m", "llmnav.serve.shared",
             str(self.model_path), str(self.slots), str(self.n_ctx), str(self.threads),
         ]  # fmt: skip
+        ours = str(Path(__file__).resolve().parents[2])
+        path = os.pathsep.join(p for p in (ours, os.environ.get("PYTHONPATH", "")) if p)
         self.process = subprocess.Popen(
             command,
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-            env={**os.environ, _KEY_ENV: key},
+            env={**os.environ, "PYTHONPATH": path, _KEY_ENV: key},
         )
         url = _first_line(self.process, READY_TIMEOUT_S)
         if not url.startswith("http://127.0.0.1:"):

@@ -152,3 +152,14 @@ def test_a_server_that_cannot_start_is_one_error(tmp_path: Path) -> None:
     fake.write_bytes(b"GGUF but not a model")
     with pytest.raises(ModelUnavailableError, match="shared model server did not start"):
         SharedModel(fake, slots=2, n_ctx=DEFAULT_N_CTX, threads=1).start()
+
+
+def test_the_server_runs_this_llmnav_whatever_the_current_folder_holds(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    shadow = tmp_path / "llmnav"
+    shadow.mkdir()
+    (shadow / "__init__.py").write_text("raise ImportError('the wrong llmnav')\n")
+    monkeypatch.chdir(tmp_path)
+    with SharedModel(default_model_path(), slots=1, n_ctx=DEFAULT_N_CTX, threads=1) as served:
+        assert served.url.startswith("http://127.0.0.1:")
