@@ -1,14 +1,15 @@
 """Where a sweep's model runs: a copy in every worker, or one shared copy with a slot per worker.
 
-With the local backend and several workers, each worker used to load its own copy of the model, and
-the copies fought over the cores. The other layout loads the model once, in one server process with a
-slot per worker (`llmnav.serve.shared`, on 127.0.0.1 only), and the workers' `local` backends send it the
-same requests they would have answered themselves (`llmnav.backends.served`). `choose` takes the layout
-measured faster (`MEASURED`) unless told which; a sweep with no local model, one worker or Ray has
-nothing to share. The sweep says which layout it took and records it in the manifest.
+With the local backend and several workers, each worker loads its own copy of the model ("per-worker").
+The other layout ("shared") loads the model once, in one server process with a slot per worker
+(`llmnav.serve.shared`, on 127.0.0.1 only), and the workers' `local` backends send it the same requests
+they would have answered themselves (`llmnav.backends.served`). `choose` takes the layout measured
+faster (`MEASURED`) unless told which; a sweep with no local model, one worker or Ray has nothing to
+share. The sweep says which layout it took and records it in the manifest.
 
 Answers do not depend on the layout: at temperature 0 with constrained decoding the shared server gave
-the same answers as the in-process model (checked on whole episodes: `bench.ablate`).
+the same answers and scores as the in-process model (whole episodes compared, timing fields aside:
+`python -m bench ablate`).
 """
 
 from __future__ import annotations
@@ -22,10 +23,13 @@ LAYOUTS: tuple[str, ...] = ("auto", "shared", "per-worker")
 
 # Episodes per minute of a model-bound sweep with 2 workers on this 2-core machine, by layout: hybrid
 # planner, embedded SmolLM2-135M, factory T1 and T5 from poses 1-2, at most 6 decisions (`python -m bench
-# ablate` measures it again), load average 2.4-2.6 from other work. The shared server ran 1 thread beside
-# the workers' simulations; with 2 threads it was 10x slower (its threads wait for each other at every
-# layer, and one of them always waits for a simulating worker's core).
-MEASURED: dict[str, float] = {"per-worker": 10.49, "shared": 14.32}  # [episodes/min]
+# ablate` measures it again), with both cores free (load average 1.4). Each per-worker copy runs 1 thread;
+# the shared server runs 1 thread beside the workers' simulations (with 2 threads it was 10x slower under
+# load: its threads wait for each other at every layer, and one of them always waits for a core). Under
+# load (average 2.3-6) the two layouts were level: shared/per-worker wall time 0.98 in two interleaved
+# A/B series of 3-4 sweeps each. So a copy per worker stays the default; the shared layout saves the
+# memory of all copies but one.
+MEASURED: dict[str, float] = {"per-worker": 21.83, "shared": 17.07}  # [episodes/min]
 
 
 @dataclass(frozen=True)
@@ -58,7 +62,8 @@ class Layout:
                 f"thread(s) on 127.0.0.1 for {self.workers} workers, instead of a copy in each"
             )
         if self.model == "per-worker":
-            return f"model layout: per-worker ({how}) — each of the {self.workers} workers loads its own copy"
+            why = ", measured faster than one shared copy" if self.chosen == "auto" else ""
+            return f"model layout: per-worker ({how}) — each of the {self.workers} workers loads its own copy{why}"
         return f"model layout: {self.model} ({self.workers} worker(s))"
 
 
