@@ -244,6 +244,28 @@ def test_auto_takes_the_layout_recorded_as_faster() -> None:
     assert picked.model == "per-worker" and "measured faster" in picked.describe()
 
 
+def test_cli_says_the_layout_on_one_stderr_line(
+    scenario_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    asked: dict[str, Any] = {}
+
+    def fake_run(ablation: Any, *, layout: str, on_layout: Any, **_: Any) -> Any:
+        asked["layout"] = layout
+        on_layout(lib.choose(["local"], 2, requested=layout))
+        raise BadInputError("stop here")
+
+    monkeypatch.setattr(lib, "run", fake_run)
+    args = ["ablate", "--scenario", str(scenario_file), "--out", str(tmp_path / "x"), "--workers", "2"]
+    result = CliRunner().invoke(app, [*args, "--model-layout", "shared"])
+    assert asked["layout"] == "shared"
+    said = [line for line in result.stderr.splitlines() if line.startswith("model layout")]
+    assert len(said) == 1 and said[0].startswith("model layout: shared (as asked) — one loaded"), result.stderr
+    result = CliRunner().invoke(app, args)
+    assert asked["layout"] == "auto" and "model layout: per-worker (picked)" in result.stderr
+    result = CliRunner().invoke(app, [*args, "--model-layout", "both"])
+    assert result.exit_code == 2 and "--model-layout 'both'" in result.stderr
+
+
 def _server_children() -> list[int]:
     """Pids of this process's children that are shared model servers."""
     import os
