@@ -1,15 +1,22 @@
-"""Ablation throughput: episodes per minute with 1 and 2 worker processes, and the full protocol's time.
+"""Ablation throughput: a sim-bound sweep on 1 and 2 workers, and the model layouts of a model-bound one.
 
-A 40-episode ablation on the factory (LiDAR sectors 3 vs 8 × all 10 tasks × start poses 1–2), stepwise
-planner with LiDAR + 640×480 camera, driven by a deterministic scripted backend that answers at once (a
-fixed plan of turns and moves, then COMPLETE), so the numbers are llmnav's own cost: simulation, sensors,
-prompts, guard, logs, summaries and the process pool. Targets: speed-up of 2 workers over 1 ≥ 1.8×, and the
-full factory protocol (10 tasks × 5 poses × 4 trials = 200 episodes) projected ≤ 5 min with 2 workers.
-Set BENCH_ABLATE_REPEATS (default 1) for medians over several sweeps.
+1. Sim-bound: 40 factory episodes (stepwise planner with LiDAR + 640×480 camera, LiDAR sectors 3 vs 8 ×
+   all 10 tasks × start poses 1–2, at most 12 decisions) answered by `policy:first`, which answers at
+   once with no model, through the real episode runner: the cost is llmnav's own (simulation, sensors,
+   prompts, guard, logs, summaries, the process pool). Targets: 2 workers ≥ 1.8× the episodes/min of 1,
+   and the full factory protocol (200 episodes) projected ≤ 5 min with 2 workers.
+2. Model-bound: 4 factory episodes (hybrid planner, embedded SmolLM2-135M, T1 and T5 from poses 1–2, at
+   most 6 decisions) on 2 workers, with a copy of the model in each worker and with one shared model
+   server (`llmnav.ablate.layout`); the run logs of the two layouts are compared, timing fields aside.
+
+The machine is shared: every table carries the load average, and the sim-bound one the cores that as
+many busy processes got just before each sweep (two workers cannot beat the cores they are left).
+BENCH_ABLATE_REPEATS (default 1) takes medians over several sweeps; BENCH_ABLATE_MODEL=0 skips part 2.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import resource
 import statistics
@@ -19,59 +26,36 @@ from pathlib import Path
 from typing import Any
 
 from llmnav.ablate import grid_from_mapping, plan, run
-from llmnav.backends.base import Backend, ChatRequest, ChatResult
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.ablate import layout as layouts
 
 TARGET_SPEEDUP = 1.8
 TARGET_PROTOCOL_S = 300.0  # [s] 200 episodes with 2 workers
 PROTOCOL_EPISODES = 200
-GRID: dict[str, Any] = {
+SIM_GRID: dict[str, Any] = {
     "scenario": "factory",
     "tasks": "all",
     "poses": [1, 2],
     "trials": 1,
     "lidar_sectors": [3, 8],
     "planner": ["stepwise"],
+    "backend": ["policy:first"],
     "sensing": ["lidar+image"],
     "options": {"max_iterations": 12, "max_vetoes": 5},
 }
-
-# The scripted plan: (command, parameter); a vetoed move is answered with the next entry.
-_PLAN: tuple[tuple[str, float], ...] = (
-    ("ROTATE_LEFT", 45.0),
-    ("FRONT", 1.0),
-    ("ROTATE_RIGHT", 30.0),
-    ("FRONT", 1.0),
-    ("ROTATE_LEFT", 60.0),
-    ("FRONT", 0.5),
-    ("COMPLETE", 0.0),
-)
-
-
-class ScriptedBackend(Backend):
-    """Plays `_PLAN` in order, one entry per call, then keeps answering COMPLETE; zero latency."""
-
-    name = "scripted"
-    deterministic = True
-
-    def __init__(self) -> None:
-        super().__init__(None)
-        self.calls = 0
-
-    def chat(self, request: ChatRequest) -> ChatResult:
-        """The next planned action as the stepwise JSON answer."""
-        command, parameter = _PLAN[min(self.calls, len(_PLAN) - 1)]
-        self.calls += 1
-        text = (
-            '{"goal": "bench", "reasoning": "scripted", "scene_description": "-", '
-            f'"action": {{"command": "{command}", "parameters": {parameter}}}}}'
-        )
-        return ChatResult(text=text, latency_s=0.0, model="scripted")
-
-
-def scripted_episode(spec: EpisodeSpec) -> dict[str, Any]:
-    """The ablation's runner: the real episode runner with a fresh scripted backend (picklable)."""
-    return run_episode(spec, backend_obj=ScriptedBackend())
+MODEL_GRID: dict[str, Any] = {
+    "scenario": "factory",
+    "tasks": ["T1", "T5"],
+    "poses": [1, 2],
+    "planner": ["hybrid"],
+    "backend": ["local"],
+    "options": {"max_iterations": 6},
+}
+# Fields of a run log that measure time, not behaviour (and the prompt cache's state, which depends on
+# what the same process answered before).
+_TIMING = frozenset(
+    {"t_wall", "latency_s", "wall_time_s", "prompt_ms", "generation_ms", "tokens_per_s", "cached_tokens",
+     "new_prompt_tokens"}
+)  # fmt: skip
 
 
 def _cpu_s() -> float:
@@ -107,46 +91,54 @@ def cpu_pressure() -> str:
     return f"{fields.get('avg10', '?')} %"
 
 
-def _sweep(workers: int) -> tuple[float, float, int, int]:
-    """Wall time [s], CPU time [s], episodes and successes of one sweep of the grid in a fresh folder."""
-    with tempfile.TemporaryDirectory() as tmp:
-        ablation = plan(grid_from_mapping(GRID, "bench"), Path(tmp) / "ab")
-        start, cpu_start = time.perf_counter(), _cpu_s()
-        run(ablation, workers=workers, runner=scripted_episode)
-        wall, cpu = time.perf_counter() - start, _cpu_s() - cpu_start
-        entries = list(ablation.entries.values())
-        errors = [e for e in entries if e.status == "error"]
-        if errors:
-            raise RuntimeError(f"{len(errors)} episode(s) failed, first: {errors[0].key}: {errors[0].error}")
-        return wall, cpu, len(entries), sum(1 for e in entries if e.success)
+def _sweep(grid: dict[str, Any], root: Path, workers: int, layout: str = "auto") -> tuple[float, float, int, int]:
+    """Wall time [s], CPU time [s], episodes and successes of one sweep of `grid` into the new folder `root`."""
+    ablation = plan(grid_from_mapping(grid, "bench"), root)
+    start, cpu_start = time.perf_counter(), _cpu_s()
+    run(ablation, workers=workers, layout=layout)
+    wall, cpu = time.perf_counter() - start, _cpu_s() - cpu_start
+    entries = list(ablation.entries.values())
+    errors = [e for e in entries if e.status == "error"]
+    if errors:
+        raise RuntimeError(f"{len(errors)} episode(s) failed, first: {errors[0].key}: {errors[0].error}")
+    return wall, cpu, len(entries), sum(1 for e in entries if e.success)
 
 
-def main() -> None:
-    """Print the throughput table."""
-    repeats = int(os.environ.get("BENCH_ABLATE_REPEATS", "1"))
+def _behaviour(run_dir: Path) -> list[Any]:
+    """A run log without its timing fields: what the episode did and what the model answered."""
+
+    def strip(value: Any) -> Any:
+        if isinstance(value, dict):
+            return {k: strip(v) for k, v in value.items() if k not in _TIMING}
+        if isinstance(value, list):
+            return [strip(v) for v in value]
+        return value
+
+    return [strip(json.loads(line)) for line in (run_dir / "run.jsonl").read_text().splitlines()]
+
+
+def sim_bound(repeats: int) -> None:
+    """Print the sim-bound table: episodes/min at 1 and 2 workers and their ratio."""
     walls: dict[int, list[float]] = {1: [], 2: []}
     cpus: dict[int, list[float]] = {1: [], 2: []}
     cores: dict[int, list[float]] = {1: [], 2: []}
+    loads: list[float] = []
     size = successes = 0
     for _ in range(repeats):
         for workers in (1, 2):
             cores[workers].append(cores_available(workers))
-            wall, cpu, size, successes = _sweep(workers)
+            loads.append(os.getloadavg()[0])
+            with tempfile.TemporaryDirectory() as tmp:
+                wall, cpu, size, successes = _sweep(SIM_GRID, Path(tmp) / "ab", workers)
             walls[workers].append(wall)
             cpus[workers].append(cpu)
+    loads.append(os.getloadavg()[0])
     serial, parallel = statistics.median(walls[1]), statistics.median(walls[2])
     speedup = serial / parallel
     core_ratio = statistics.median(cores[2]) / statistics.median(cores[1])
-    projected = parallel / size * PROTOCOL_EPISODES
-    # On a machine shared with other work the wall times stretch; the CPU time per episode does not.
-    cpu_per_episode = statistics.median(cpus[2]) / size
-    projected_idle = cpu_per_episode * PROTOCOL_EPISODES / 2
-    load = os.getloadavg()[0]
+    print(f"\nbench.ablate — sim-bound: {size} factory episodes (stepwise, LiDAR + 640×480 camera, policy:first)")
     print(
-        f"\nbench.ablate — {size}-episode factory ablation (stepwise, LiDAR + 640×480 camera, scripted model)"
-    )
-    print(
-        f"(median of {repeats} sweep(s); {successes}/{size} scripted episodes succeeded; load avg {load:.1f};"
+        f"(median of {repeats} sweep(s) each; {successes}/{size} succeeded; load avg {min(loads):.1f}–{max(loads):.1f};"
         f" CPU pressure {cpu_pressure()} of the last 10 s)"
     )
     header = f"{'workers':>8} {'wall (s)':>9} {'episodes/min':>13} {'CPU/episode (s)':>16}"
@@ -155,27 +147,60 @@ def main() -> None:
         cpu = statistics.median(cpus[workers]) / size
         free = statistics.median(cores[workers])
         print(
-            f"{workers:>8} {wall:>9.1f} {size / wall * 60:>13.1f} {cpu:>16.2f} {cpu * size / wall:>11.2f}"
-            f" {free:>11.2f}"
+            f"{workers:>8} {wall:>9.1f} {size / wall * 60:>13.1f} {cpu:>16.2f} {cpu * size / wall:>11.2f} {free:>11.2f}"
         )
-    print(
-        "(cores used: CPU time / wall time of the sweep; cores free: CPU that as many busy-looping"
-        " processes got just before it)"
-    )
+    print("(cores used: CPU time / wall time; cores free: CPU that as many busy-looping processes got just before)")
     verdict = "ok" if speedup >= TARGET_SPEEDUP else "BELOW TARGET"
     print(f"speed-up 2 vs 1 workers: {speedup:.2f}× (target ≥ {TARGET_SPEEDUP}×) {verdict}")
     # Two workers cannot beat the cores the machine leaves them; this is the share of that bound reached.
+    cpu_ratio = statistics.median(cpus[2]) / statistics.median(cpus[1])
     print(
         f"  the free cores allowed {core_ratio:.2f}×; reached {speedup / core_ratio:.0%} of it; "
-        f"CPU/episode 2 vs 1 workers {statistics.median(cpus[2]) / statistics.median(cpus[1]):.2f} "
-        "(1.00 = the workers do not slow each other down)"
+        f"CPU/episode 2 vs 1 workers {cpu_ratio:.2f} (1.00 = the workers do not slow each other down)"
     )
+    projected = parallel / size * PROTOCOL_EPISODES
+    projected_idle = statistics.median(cpus[2]) / size * PROTOCOL_EPISODES / 2
     for label, value in (("measured", projected), ("CPU-bound, 2 idle cores", projected_idle)):
         verdict = "ok" if value <= TARGET_PROTOCOL_S else "ABOVE TARGET"
         print(
             f"projected {PROTOCOL_EPISODES}-episode protocol, 2 workers, {label}: {value / 60:.1f} min "
             f"(target ≤ {TARGET_PROTOCOL_S / 60:.0f} min) {verdict}"
         )
+
+
+def model_bound(repeats: int) -> None:
+    """Print the model-bound table: a model copy per worker against one shared server, 2 workers."""
+    rates: dict[str, list[float]] = {"per-worker": [], "shared": []}
+    loads: list[float] = []
+    same = compared = 0
+    size = 0
+    for _ in range(repeats):
+        with tempfile.TemporaryDirectory() as tmp:
+            for layout in rates:
+                loads.append(os.getloadavg()[0])
+                wall, _, size, _ = _sweep(MODEL_GRID, Path(tmp) / layout, 2, layout)
+                rates[layout].append(size / wall * 60)
+            loads.append(os.getloadavg()[0])
+            for folder in sorted(p for p in (Path(tmp) / "shared").iterdir() if p.is_dir()):
+                compared += 1
+                same += _behaviour(folder) == _behaviour(Path(tmp) / "per-worker" / folder.name)
+    per_worker, shared = statistics.median(rates["per-worker"]), statistics.median(rates["shared"])
+    print(f"\nbench.ablate — model-bound: {size} factory episodes (hybrid, embedded model, ≤ 6 decisions), 2 workers")
+    print(f"(median of {repeats} sweep(s) each; load avg {min(loads):.1f}–{max(loads):.1f})")
+    print(f"{'layout':>12} {'episodes/min':>13}")
+    print(f"{'per-worker':>12} {per_worker:>13.2f}   (a copy of the model in each worker)")
+    print(f"{'shared':>12} {shared:>13.2f}   (one server, a slot per worker, on 127.0.0.1)")
+    print(f"shared vs per-worker: {shared / per_worker:.2f}×; run logs identical in {same}/{compared} episodes")
+    recorded = ", ".join(f"{name} {rate:.2f}" for name, rate in layouts.MEASURED.items())
+    print(f"`ablate --model-layout auto` takes: {layouts.faster()} (recorded episodes/min: {recorded})")
+
+
+def main() -> None:
+    """Print both tables."""
+    repeats = int(os.environ.get("BENCH_ABLATE_REPEATS", "1"))
+    sim_bound(repeats)
+    if os.environ.get("BENCH_ABLATE_MODEL", "1") != "0":
+        model_bound(repeats)
 
 
 if __name__ == "__main__":

@@ -8,13 +8,15 @@ trial): every condition sees the same seeds, so differences between conditions c
 from the noise, and results never depend on the order or the process that ran an episode.
 
 `manifest.json` (rewritten atomically after every episode) lists every episode with its key, folder,
-seed, factors, condition hash, status and summary. An ablation folder holds one grid (another grid is
-refused) and one sweep at a time (a lock). Running the same grid again keeps every episode whose folder
-holds a finished run of exactly its condition (`grid.condition`: scenario file, task, pose, trial,
-backend spec, every option, prompt templates) and runs the others into new folders; nothing is ever
-deleted (`resume`). An episode aborted by a backend failure is an error and runs again on the next resume.
+seed, factors, condition hash, status and summary, and the layout the last run took (`layout`). An
+ablation folder holds one grid (another grid is refused) and one sweep at a time (a lock). Running the
+same grid again keeps every episode whose folder holds a finished run of exactly its condition
+(`grid.condition`: scenario file, task, pose, trial, backend spec, every option, prompt templates) and
+runs the others into new folders; nothing is ever deleted (`resume`). An episode aborted by a backend
+failure is an error and runs again on the next resume.
 Episodes run through `llmnav.runner.run_episode` — in this process, in a spawn process pool whose
-workers die with the parent, or as Ray tasks (`executors`); the parent alone writes the manifest.
+workers die with the parent, or as Ray tasks (`executors`); the parent alone writes the manifest. With
+the local model, the pool's workers each load a copy or share one model server (`layout`).
 """
 
 from llmnav.ablate.executors import Runner, execute_episode, worker_model_threads
@@ -32,6 +34,7 @@ from llmnav.ablate.grid import (
     parse_poses,
     split_list,
 )
+from llmnav.ablate.layout import LAYOUTS, Layout, choose
 from llmnav.ablate.manifest import (
     MANIFEST_FILE,
     Ablation,
@@ -44,6 +47,9 @@ from llmnav.ablate.manifest import (
 from llmnav.ablate.sweep import ProgressCallback, run
 
 __all__ = [
+    "LAYOUTS",
+    "Layout",
+    "choose",
     "MAX_EPISODES",
     "DEFAULT_BACKEND",
     "CORE_FACTORS",

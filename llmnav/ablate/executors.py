@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import BadInputError, one_line
@@ -56,16 +56,18 @@ def worker_model_threads(workers: int) -> int:
     return pool_threads(workers)
 
 
-def _init_worker(model_threads: int, parent_pid: int) -> None:
+def _init_worker(model_threads: int, parent_pid: int, env: dict[str, str]) -> None:
     """Pool worker start-up, before numpy, cv2 or a model is imported: cap threads, die with the parent.
 
-    A `kill -9` of the sweep must not leave workers running episodes nobody records.
+    `env`: variables for this worker only (where a shared model is served). A `kill -9` of the sweep must
+    not leave workers running episodes nobody records.
     """
     from llmnav.backends.local import THREADS_ENV
 
     for name in _WORKER_THREAD_VARS:
         os.environ.setdefault(name, "1")
     os.environ.setdefault(THREADS_ENV, str(model_threads))
+    os.environ.update(env)
     exit_with_parent(parent_pid)
 
 
@@ -101,9 +103,12 @@ def exit_with_parent(parent_pid: int, poll_s: float = 0.2) -> None:
 
 
 def run_pool(
-    runner: Runner, specs: Sequence[tuple[Episode, EpisodeSpec]], workers: int
-) -> Iterator[tuple[Episode, Result]]:
-    """Episodes in a spawn process pool (fresh interpreters: no inherited PyBullet or model state)."""
+    runner: Runner, specs: Sequence[tuple[Episode, EpisodeSpec]], workers: int, env: dict[str, str] | None = None
+) -> Generator[tuple[Episode, Result], None, None]:
+    """Episodes in a spawn process pool (fresh interpreters: no inherited PyBullet or model state).
+
+    `env`: environment variables for the workers alone.
+    """
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 
@@ -113,7 +118,7 @@ def run_pool(
         max_workers=count,
         mp_context=context,
         initializer=_init_worker,
-        initargs=(worker_model_threads(count), os.getpid()),
+        initargs=(worker_model_threads(count), os.getpid(), dict(env or {})),
     )
     futures: dict[Future[Result], Episode] = {}
     try:

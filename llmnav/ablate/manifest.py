@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from llmnav.ablate.grid import MAX_EPISODES, Episode, GridSpec, expand
+from llmnav.ablate.layout import Layout
 from llmnav.errors import redact_userinfo
 from llmnav.runlog import SUMMARY_FILE, write_json_atomic
 
@@ -82,6 +83,8 @@ class Ablation:
     episodes: list[Episode]
     entries: dict[str, ManifestEntry] = field(default_factory=dict)
     kept: list[tuple[str, str]] = field(default_factory=list)  # folders set aside by the last run: (dir, why)
+    layout: Layout | None = None  # how the last run placed its workers and model
+    _grid_part: dict[str, Any] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         for ep in self.episodes:
@@ -110,19 +113,34 @@ class Ablation:
         done = [e for e in entries if e.status == "done"]
         return len(done), sum(1 for e in done if e.success), sum(1 for e in entries if e.status == "error")
 
+    def _header(self) -> dict[str, Any]:
+        """The manifest's grid part, worked out once per sweep.
+
+        Naming the factors looks up every registered planner (an entry-point scan of all installed
+        packages, about 50 ms); done per episode it cost a sweep's parent a tenth of a core.
+        """
+        if self._grid_part is None:
+            self._grid_part = without_credentials(
+                {
+                    "name": self.grid.default_name(),
+                    "scenario": self.grid.scenario,
+                    "grid": self.grid.model_dump(mode="json"),
+                    "factors": list(self.grid.factors()),
+                }
+            )
+        return self._grid_part
+
     def manifest(self) -> dict[str, Any]:
         """The manifest as data (no timestamps: an interrupted and resumed sweep gives the same one)."""
         entries = [dict(self.entries[ep.key].__dict__) for ep in self.episodes]
         done, successes, errors = self.counts()
         return {
-            "name": self.grid.default_name(),
-            "scenario": self.grid.scenario,
-            "grid": self.grid.model_dump(mode="json"),
-            "factors": list(self.grid.factors()),
+            **self._header(),
             "size": self.size,
             "done": done,
             "errors": errors,
             "successes": successes,
+            **({"layout": self.layout.record()} if self.layout is not None else {}),
             "episodes": entries,
         }
 

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import closing, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from llmnav.ablate.executors import Runner, default_runner, execute_episode, run_pool
 from llmnav.ablate.grid import Episode, GridSpec
+from llmnav.ablate.layout import Layout, choose
 from llmnav.ablate.manifest import MANIFEST_FILE, Ablation, ManifestEntry, without_credentials
 from llmnav.ablate.resume import locate, set_aside
 from llmnav.errors import BadInputError
@@ -25,6 +28,8 @@ def run(
     ray_address: str | None = None,
     runner: Runner | None = None,
     plots: bool = False,
+    layout: str = "auto",
+    on_layout: Callable[[Layout], None] | None = None,
     on_start: Callable[[int, int, int], None] | None = None,
     on_result: ProgressCallback | None = None,
 ) -> Ablation:
@@ -33,17 +38,35 @@ def run(
     `plots` writes each run's trajectory.png; off by default: drawing it cost more than a scripted
     episode itself, and the tables need only the logs and summaries.
 
+    `layout` ("auto", "shared", "per-worker") says where the local model runs with several workers (see
+    `llmnav.ablate.layout`); `on_layout(layout)` is told the one taken before any episode runs.
     `on_start(total, already_done, successes)` is called once before any episode runs, `on_result` after
     each. `runner` (default `llmnav.runner.run_episode`) must be picklable for `workers > 1` and Ray.
     """
+    default = runner is None
     runner = runner or default_runner()
     root = ablation.root
     check_out_folder(root, ablation)
     # One sweep per folder: a second process (same grid or not) stops here with the holder's pid.
     with FolderLock(root, "ablation folder"):
         check_out_folder(root, ablation)  # again: another sweep may have written it while we waited
-        _run_locked(ablation, runner, workers, ray_address, plots, on_start, on_result)
+        settings = _Settings(workers, ray_address, plots, layout, default, on_layout, on_start, on_result)
+        _run_locked(ablation, runner, settings)
     return ablation
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """How `run` was asked to run the sweep."""
+
+    workers: int
+    ray_address: str | None
+    plots: bool
+    layout: str
+    default_runner: bool  # the episodes build the backends their specs name
+    on_layout: Callable[[Layout], None] | None
+    on_start: Callable[[int, int, int], None] | None
+    on_result: ProgressCallback | None
 
 
 def check_out_folder(root: Path, ablation: Ablation) -> None:
@@ -97,15 +120,7 @@ def _ablation_entry(path: Path) -> bool:
     return path.is_dir() and any((path / name).exists() for name in (RUN_FILE, RUN_FILE + ".tmp", LOCK_FILE))
 
 
-def _run_locked(
-    ablation: Ablation,
-    runner: Runner,
-    workers: int,
-    ray_address: str | None,
-    plots: bool,
-    on_start: Callable[[int, int, int], None] | None,
-    on_result: ProgressCallback | None,
-) -> None:
+def _run_locked(ablation: Ablation, runner: Runner, settings: _Settings) -> None:
     root = ablation.root
     pending: list[tuple[Episode, str]] = []
     ablation.kept = []
@@ -121,10 +136,21 @@ def _run_locked(
         set_aside(root, found.kept, ep.key, found.dir_name)
         entry.reset(found.dir_name)
         pending.append((ep, found.dir_name))
+    workers = settings.workers if len(pending) > 1 else 1
+    layout = choose(
+        _model_backends([ep for ep, _ in pending]),
+        workers,
+        requested=settings.layout,
+        ray=settings.ray_address is not None,
+        runs_backends=settings.default_runner,
+    )
+    ablation.layout = layout if pending else _recorded_layout(root)  # nothing to run: the manifest stays
     ablation.write_manifest()
-    if on_start is not None:
+    if settings.on_layout is not None and pending:
+        settings.on_layout(layout)
+    if settings.on_start is not None:
         done, successes, _ = ablation.counts()
-        on_start(ablation.size, done, successes)
+        settings.on_start(ablation.size, done, successes)
 
     def settle(ep: Episode, result: tuple[dict[str, Any] | None, str | None, bool]) -> None:
         summary, error, fatal = result
@@ -134,20 +160,54 @@ def _run_locked(
         else:
             entry.status, entry.error = "error", error
         ablation.write_manifest()
-        if on_result is not None:
-            on_result(entry, ablation)
+        if settings.on_result is not None:
+            settings.on_result(entry, ablation)
         if fatal:
             raise BadInputError(f"episode {ep.key}: {error}")
 
-    specs = [(ep, ep.spec(root, ablation.grid.scenario, plots=plots, dir_name=name)) for ep, name in pending]
-    if ray_address is not None:
+    specs = [
+        (ep, ep.spec(root, ablation.grid.scenario, plots=settings.plots, dir_name=name)) for ep, name in pending
+    ]
+    if settings.ray_address is not None:
         from llmnav.ablate.ray_tasks import run_ray
 
-        for ep, result in run_ray(runner, specs, ray_address):
+        for ep, result in run_ray(runner, specs, settings.ray_address):
             settle(ep, result)
-    elif workers > 1 and len(specs) > 1:
-        for ep, result in run_pool(runner, specs, workers):
-            settle(ep, result)
+    elif workers > 1:
+        with _model_for(layout) as env, closing(run_pool(runner, specs, workers, env)) as results:
+            for ep, result in results:  # the pool is shut down (running episodes end) before the model is
+                settle(ep, result)
     else:
         for ep, spec in specs:
             settle(ep, execute_episode(runner, spec))
+
+
+def _model_backends(episodes: list[Episode]) -> list[str]:
+    """The backend specs of the episodes whose planner asks a model (the oracle and frontier baselines do not)."""
+    from llmnav.planners.base import planner_class
+
+    asks = {name: planner_class(name).needs_backend for name in {ep.options.planner for ep in episodes}}
+    return sorted({ep.backend for ep in episodes if asks[ep.options.planner]})
+
+
+def _recorded_layout(root: Path) -> Layout | None:
+    """The layout the folder's manifest records (None when it records none, or cannot be read)."""
+    try:
+        recorded = loads(read_bytes(root / MANIFEST_FILE, limit=SUMMARY_LIMIT, root=root)).get("layout")
+        return Layout(**recorded) if isinstance(recorded, dict) else None
+    except (OSError, UnsafeFileError, UnicodeDecodeError, ValueError, TypeError, AttributeError):
+        return None
+
+
+@contextmanager
+def _model_for(layout: Layout) -> Iterator[dict[str, str]]:
+    """The workers' environment: empty, or pointing at the shared model server it starts and stops."""
+    if not layout.shared:
+        yield {}
+        return
+    from llmnav.backends.local import DEFAULT_N_CTX
+    from llmnav.serve.shared import SharedModel
+
+    model = SharedModel(Path(layout.model_path or ""), slots=layout.slots, n_ctx=DEFAULT_N_CTX, threads=layout.threads)
+    with model as served:
+        yield served.env()

@@ -292,7 +292,7 @@ class LlamaCppEngine:
             body["grammar"] = compact_grammar(request.json_schema)
         started = time.perf_counter()
         try:
-            reply = self._server.handle_chat_completions(body)
+            reply = self._chat_completions(body)
         except ValueError as err:  # e.g. a schema llama.cpp cannot turn into a grammar
             raise ModelError(f"local model rejected the request: {one_line(str(err))}") from None
         latency = time.perf_counter() - started
@@ -327,6 +327,17 @@ class LlamaCppEngine:
             meta=meta,
         )
 
+    # How requests reach llama.cpp: its server's handlers in this process (`ServedEngine` sends the same
+    # requests over HTTP to a server another process holds).
+    def _chat_completions(self, body: dict[str, Any]) -> dict[str, Any]:
+        return dict(self._server.handle_chat_completions(body))
+
+    def _completions(self, body: dict[str, Any]) -> dict[str, Any]:
+        return dict(self._server.handle_completions(body))
+
+    def _tokenize_url(self) -> str:
+        return f"{self._server.listening_address}/tokenize"
+
     def tokenize(self, text: str) -> list[int]:
         """The model's token ids for `text` as a prompt (with the model's start token, if it uses one).
 
@@ -339,10 +350,11 @@ class LlamaCppEngine:
 
             try:
                 reply = httpx.post(
-                    f"{self._server.listening_address}/tokenize",
+                    self._tokenize_url(),
                     json={"content": text, "add_special": True},
                     headers={"Authorization": f"Bearer {self._key}"},
                     timeout=30.0,
+                    trust_env=False,  # loopback: never through a proxy
                 )
                 reply.raise_for_status()
                 tokens = reply.json()["tokens"]
@@ -367,7 +379,7 @@ class LlamaCppEngine:
         for text in request.continuations:
             tail = continuation_tokens(prefix, self.tokenize(request.prefix + text), text)
             try:
-                reply = self._server.handle_completions(forced_request(prefix, tail))
+                reply = self._completions(forced_request(prefix, tail))
             except ValueError as err:
                 raise ModelError(f"local model rejected a scoring request: {one_line(str(err))}") from None
             scores.append(ContinuationScore(forced_logprob(reply, tail, text), len(tail)))
@@ -393,7 +405,7 @@ class LlamaCppEngine:
             "grammar": compact_grammar(schema),
         }
         try:
-            reply = self._server.handle_chat_completions(body)
+            reply = self._chat_completions(body)
         except ValueError as err:
             raise ModelError(f"llama.cpp cannot compile the answer schema: {one_line(str(err))}") from None
         choices = reply.get("choices") or [{}]
@@ -504,11 +516,18 @@ class LocalBackend(Backend):
                 key: tuple[Any, ...] = ("hf", str(directory), chosen)
                 factory = lambda: HFEngine(directory, threads=threads)  # noqa: E731
             else:
+                from llmnav.backends.served import ServedEngine, ServedModel
+
                 path = _gguf_path(self.arg)
-                key = ("gguf", str(path), self.n_ctx, chosen, self.verbose)
-                factory = lambda: LlamaCppEngine(  # noqa: E731
-                    path, n_ctx=self.n_ctx, threads=threads, verbose=self.verbose
-                )
+                served = ServedModel.from_env(dict(os.environ))
+                if served is not None and served.serves(path, self.n_ctx):  # a sweep's shared copy
+                    key = ("served", served.url)
+                    factory = lambda: ServedEngine(served)  # noqa: E731
+                else:
+                    key = ("gguf", str(path), self.n_ctx, chosen, self.verbose)
+                    factory = lambda: LlamaCppEngine(  # noqa: E731
+                        path, n_ctx=self.n_ctx, threads=threads, verbose=self.verbose
+                    )
             self._engine, self._lock = shared_engine(key, factory)
         return self._engine
 

@@ -68,6 +68,14 @@ def ablate(
     workers: Annotated[
         int, typer.Option("--workers", min=1, help="Parallel worker processes (at most the usable cores).")
     ] = 1,
+    model_layout: Annotated[
+        str,
+        typer.Option(
+            "--model-layout",
+            help="With the local model and several workers: 'shared' (one loaded model, a slot per worker), "
+            "'per-worker' (a copy in each), or 'auto' (the one measured faster).",
+        ),
+    ] = "auto",
     max_episodes: Annotated[
         int | None,
         typer.Option("--max-episodes", min=1, help="Refuse a grid of more episodes than this (default 20000)."),
@@ -128,6 +136,8 @@ def ablate(
         _print_plan(ablation)
         _note_inapplicable(spec)
         return
+    if model_layout not in lib.LAYOUTS:
+        raise BadInputError(f"--model-layout {model_layout!r}: choose one of {', '.join(lib.LAYOUTS)}")
     workers = _usable_workers(workers)
     with _progress() as progress:
         lib.run(
@@ -135,6 +145,8 @@ def ablate(
             workers=workers,
             ray_address=ray,
             plots=plots,
+            layout=model_layout,
+            on_layout=_say_layout,
             on_start=lambda *_: progress.start(ablation),
             on_result=progress.advance,
         )
@@ -144,6 +156,12 @@ def ablate(
 
         console.print(f"page: {esc(str(write_view(ablation.root).page))}", highlight=False, soft_wrap=True)
     _note_inapplicable(spec)  # after the work: a failure stays one error line
+
+
+def _say_layout(layout: Any) -> None:
+    """One line on stderr when the sweep has a model layout to choose (several workers, the local model)."""
+    if layout.model in ("shared", "per-worker"):
+        err_console.print(esc(layout.describe()), highlight=False, soft_wrap=True)
 
 
 def _usable_workers(workers: int) -> int:

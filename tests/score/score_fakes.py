@@ -227,3 +227,19 @@ class CountingRunner:
     def __call__(self, spec: Any) -> dict[str, Any]:
         self.ran.append(Path(spec.out_dir).name)
         return fake_episode(spec)
+
+
+def served_episode(spec: Any) -> dict[str, Any]:
+    """`fake_episode` in a worker of the shared-model layout, after one answer from the shared server.
+
+    Fails unless the worker's `local` backend reaches the sweep's server (not a copy of its own).
+    """
+    from llmnav.backends.base import ChatRequest, Message
+    from llmnav.backends.local import LocalBackend
+    from llmnav.backends.served import ServedEngine
+
+    backend = LocalBackend(None)
+    if not isinstance(backend.load(), ServedEngine):
+        raise RuntimeError("the worker loaded its own model")
+    backend.chat(ChatRequest(messages=(Message("user", "Say OK."),), temperature=0.0, max_tokens=2))
+    return fake_episode(spec)

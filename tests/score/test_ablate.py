@@ -11,7 +11,13 @@ import pytest
 from typer.testing import CliRunner
 
 sys.path.insert(0, str(Path(__file__).parent))
-from score_fakes import CountingRunner, InterruptingRunner, fake_episode, write_scenario_file  # noqa: E402
+from score_fakes import (  # noqa: E402
+    CountingRunner,
+    InterruptingRunner,
+    fake_episode,
+    served_episode,
+    write_scenario_file,
+)
 
 from llmnav import ablate as lib  # noqa: E402
 from llmnav.cli import app  # noqa: E402
@@ -37,6 +43,10 @@ def _grid(scenario_file: Path, **extra: Any) -> lib.GridSpec:
 
 def _manifest(root: Path) -> dict[str, Any]:
     return json.loads((root / "manifest.json").read_text())
+
+
+def _without_layout(manifest: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in manifest.items() if k != "layout"}
 
 
 def test_expand_keys_seeds_and_options(scenario_file: Path, tmp_path: Path) -> None:
@@ -135,7 +145,8 @@ def test_parallel_equals_serial(scenario_file: Path, tmp_path: Path) -> None:
     grid = _grid(scenario_file)
     serial = lib.run(lib.plan(grid, tmp_path / "serial"), runner=fake_episode)
     parallel = lib.run(lib.plan(grid, tmp_path / "parallel"), runner=fake_episode, workers=2)
-    assert _manifest(tmp_path / "serial") == _manifest(tmp_path / "parallel")
+    assert _without_layout(_manifest(tmp_path / "serial")) == _without_layout(_manifest(tmp_path / "parallel"))
+    assert _manifest(tmp_path / "parallel")["layout"]["workers"] == 2
     for ep in serial.episodes:
         a = json.loads((tmp_path / "serial" / ep.dir_name / "summary.json").read_text())
         b = json.loads((tmp_path / "parallel" / ep.dir_name / "summary.json").read_text())
@@ -215,3 +226,123 @@ def test_any_planner_option_is_a_factor_the_tables_group_by(tmp_path: Path) -> N
     assert by.exit_code == 0 and '"max_iterations": 3' in by.output, by.output
     bad = CliRunner().invoke(app, ["ablate", *args[1:-2], "-o", "max_iteratons=3", "--out", str(tmp_path / "b")])
     assert bad.exit_code == 2 and "max_iteratons" in bad.output and "no option of any planner" in bad.output
+
+
+# --- where the model runs: a copy per worker, or one shared server ---------------------------------------
+
+
+def test_layout_choice(monkeypatch: pytest.MonkeyPatch) -> None:
+    from llmnav.ablate import layout as layouts
+
+    monkeypatch.setitem(layouts.MEASURED, "shared", 2.0)
+    monkeypatch.setitem(layouts.MEASURED, "per-worker", 1.0)
+    shared = lib.choose(["local"], 2)
+    assert shared.model == "shared" and shared.slots == 2 and shared.threads >= 1 and shared.model_path
+    assert shared.model_path.endswith(".gguf") and "shared (picked)" in shared.describe()
+    assert lib.choose(["local"], 2, requested="per-worker").model == "per-worker"
+    assert lib.choose(["local"], 1).model == "in-process"  # one worker: nothing to share
+    assert lib.choose(["policy:first", "policy:oracle"], 2).model == "none"  # no model at all
+    assert lib.choose(["local:hf:/some/dir"], 2).model == "none"  # transformers models are not served
+    assert lib.choose(["local"], 2, ray=True).model == "ray"
+    assert lib.choose(["local"], 2, runs_backends=False).model == "runner's own"  # a custom runner, not asked
+    assert lib.choose(["local"], 2, runs_backends=False, requested="shared").model == "shared"
+    # measured slower: a copy per worker
+    monkeypatch.setitem(layouts.MEASURED, "shared", 0.5)
+    assert lib.choose(["local"], 2).model == "per-worker"
+    monkeypatch.setitem(layouts.MEASURED, "shared", 2.0)
+    monkeypatch.setenv("LLMNAV_LOCAL_THREADS", "3")
+    assert lib.choose(["local"], 2).threads == 3
+
+
+def test_auto_takes_the_layout_recorded_as_faster() -> None:
+    """The measurement behind `auto` (bench.ablate): a copy per worker was faster than one shared copy."""
+    from llmnav.ablate import layout as layouts
+
+    assert layouts.faster() == max(layouts.MEASURED, key=layouts.MEASURED.__getitem__) == "per-worker"
+    picked = lib.choose(["local"], 2)
+    assert picked.model == "per-worker" and "measured faster" in picked.describe()
+
+
+def test_cli_says_the_layout_on_one_stderr_line(
+    scenario_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    asked: dict[str, Any] = {}
+
+    def fake_run(ablation: Any, *, layout: str, on_layout: Any, **_: Any) -> Any:
+        asked["layout"] = layout
+        on_layout(lib.choose(["local"], 2, requested=layout))
+        raise BadInputError("stop here")
+
+    monkeypatch.setattr(lib, "run", fake_run)
+    args = ["ablate", "--scenario", str(scenario_file), "--out", str(tmp_path / "x"), "--workers", "2"]
+    result = CliRunner().invoke(app, [*args, "--model-layout", "shared"])
+    assert asked["layout"] == "shared"
+    said = [line for line in result.stderr.splitlines() if line.startswith("model layout")]
+    assert len(said) == 1 and said[0].startswith("model layout: shared (as asked) — one loaded"), result.stderr
+    result = CliRunner().invoke(app, args)
+    assert asked["layout"] == "auto" and "model layout: per-worker (picked)" in result.stderr
+    result = CliRunner().invoke(app, [*args, "--model-layout", "both"])
+    assert result.exit_code == 2 and "--model-layout 'both'" in result.stderr
+
+
+def _server_children() -> list[int]:
+    """Pids of this process's children that are shared model servers."""
+    import os
+
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ")
+            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+        if b"llmnav.serve.shared" in cmdline and ppid == os.getpid():
+            found.append(int(entry.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_shared_layout_serves_the_workers_and_stops_after_the_sweep(scenario_file: Path, tmp_path: Path) -> None:
+    grid = _grid(scenario_file, backend=["local"])
+    lib.run(lib.plan(grid, tmp_path / "serial"), runner=fake_episode)
+    seen: list[Any] = []
+    ab = lib.run(
+        lib.plan(grid, tmp_path / "shared"),
+        runner=served_episode,
+        workers=2,
+        layout="shared",
+        on_layout=seen.append,
+        on_result=lambda *_: seen.append(_server_children()),
+    )
+    layout = seen[0]
+    assert layout.model == "shared" and layout.slots == 2 and layout.chosen == "shared"
+    assert all(len(pids) == 1 for pids in seen[1:]), seen  # one server, alive for every episode
+    assert _server_children() == []  # and gone at the end
+    assert all(e.status == "done" for e in ab.entries.values()), [e.error for e in ab.entries.values()]
+    shared, serial = _manifest(tmp_path / "shared"), _manifest(tmp_path / "serial")
+    assert _without_layout(shared) == _without_layout(serial)  # nothing else in the manifest changes
+    assert shared["layout"] == layout.record() and shared["layout"]["model"] == "shared"
+    assert serial["layout"]["model"] == "runner's own" and serial["layout"]["workers"] == 1
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_shared_server_stops_when_the_sweep_is_interrupted(scenario_file: Path, tmp_path: Path) -> None:
+    servers: list[list[int]] = []
+
+    def interrupt(*_: Any) -> None:
+        servers.append(_server_children())
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        lib.run(
+            lib.plan(_grid(scenario_file, backend=["local"]), tmp_path / "ab"),
+            runner=served_episode,
+            workers=2,
+            layout="shared",
+            on_result=interrupt,
+        )
+    assert len(servers[0]) == 1 and _server_children() == []
+    manifest = _manifest(tmp_path / "ab")
+    assert manifest["layout"]["model"] == "shared" and manifest["done"] >= 1  # resumable as ever
