@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from llmnav.commands.common import cli_errors, console, err_console, esc, path_option
+from llmnav.commands.common import cli_errors, console, err_console, esc, parse_option_pairs, path_option
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -100,7 +100,6 @@ def ablate(
 ) -> None:
     """Run an ablation grid (resumable: run it again to finish it), then print the tables by factor."""
     from llmnav import ablate as lib
-    from llmnav.commands.drive import parse_option_pairs
 
     data: dict[str, Any] = lib.load_grid_file(grid) if grid is not None else {}
     flags: dict[str, Any] = {"scenario": scenario, "trials": trials, "seed": seed, "name": name}

@@ -34,6 +34,7 @@ __all__ = [
     "err_console",
     "esc",
     "fail",
+    "parse_option_pairs",
     "path_option",
     "plot_option",
     "print_data",
@@ -222,3 +223,17 @@ def parse_sensing(text: str) -> tuple[str, ...]:
     if repeated:
         raise BadInputError(f"--sensing {text!r}: lists {', '.join(repeated)} more than once")
     return parts
+
+
+def parse_option_pairs(pairs: list[str] | None) -> dict[str, str]:
+    """`-o KEY=VALUE` (repeatable) as a mapping; the planner's options model checks keys and values."""
+    given: dict[str, str] = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        key = key.strip().replace("-", "_")
+        if not sep or not key.isidentifier():
+            raise BadInputError(f"-o {pair!r}: expected KEY=VALUE, e.g. -o max_iterations=10")
+        if key == "planner":
+            raise BadInputError("-o planner: give the planner with --planner")
+        given[key] = value.strip()
+    return given

@@ -11,7 +11,17 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from llmnav.commands.common import cli_errors, console, err_console, esc, fail, parse_sensing, path_option, print_data
+from llmnav.commands.common import (
+    cli_errors,
+    console,
+    err_console,
+    esc,
+    fail,
+    parse_option_pairs,
+    parse_sensing,
+    path_option,
+    print_data,
+)
 from llmnav.errors import BadInputError
 from llmnav.planners import DEFAULT_PLANNER
 
@@ -33,20 +43,6 @@ def _option_error(err: ValidationError, from_o: set[str]) -> BadInputError:
     field = str(first["loc"][0]) if first["loc"] else "options"
     flag = f"-o {field}" if field in from_o else _FLAGS.get(field, "--" + field.replace("_", "-"))
     return BadInputError(f"{flag}: {first['msg'].removeprefix('Value error, ')} (got {first.get('input')!r})")
-
-
-def parse_option_pairs(pairs: list[str] | None) -> dict[str, str]:
-    """`-o KEY=VALUE` (repeatable) as a mapping; the planner's options model checks keys and values."""
-    given: dict[str, str] = {}
-    for pair in pairs or []:
-        key, sep, value = pair.partition("=")
-        key = key.strip().replace("-", "_")
-        if not sep or not key.isidentifier():
-            raise BadInputError(f"-o {pair!r}: expected KEY=VALUE, e.g. -o max_iterations=10")
-        if key == "planner":
-            raise BadInputError("-o planner: give the planner with --planner")
-        given[key] = value.strip()
-    return given
 
 
 def _parse_obstacle(text: str) -> tuple[float, float]:

@@ -136,3 +136,12 @@ def test_no_module_above_the_planners_names_one() -> None:
     # The runner used to special-case the FSM by name; hooks replaced that.
     runner_source = (Path(__file__).parents[2] / "llmnav" / "runner.py").read_text()
     assert '"fsm"' not in runner_source and "'fsm'" not in runner_source
+
+
+def test_malformed_option_pairs_are_one_line_errors(tmp_path: Path) -> None:
+    runner = CliRunner()
+    for pair, needle in (("alpha", "expected KEY=VALUE"), ("planner=fsm", "--planner"), ("asist=llm", "'asist'")):
+        result = runner.invoke(app, ["drive", "--scenario", SMALL, "--task-id", "T1", "--planner", "fsm", "-o", pair,
+                                     "--out", str(tmp_path / pair)])  # fmt: skip
+        assert result.exit_code == 2 and needle in result.output, (pair, result.output)
+        assert len(result.output.strip().splitlines()) == 1 and not (tmp_path / pair).exists()
