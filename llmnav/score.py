@@ -635,9 +635,9 @@ COMPARE_METRICS: dict[str, Callable[[Run], Any]] = {
 
 def is_option_key(key: str) -> bool:
     """Whether some installed planner takes option `key` (so runs may be grouped or selected by it)."""
-    from llmnav.planners.base import option_names, planner_names
+    from llmnav.planners.base import planner_taking
 
-    return any(key in option_names(name) for name in planner_names())
+    return planner_taking(key) is not None
 
 
 def parse_selector(text: str) -> tuple[str, str]:

@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from llmnav.errors import BadInputError, redact_userinfo, validation_message
 from llmnav.planners.base import (
+    DEFAULT_PLANNER,
     DriveOptions,
     check_option_value,
     drive_options,
@@ -24,6 +25,7 @@ from llmnav.planners.base import (
     option_value,
     planner_class,
     planner_names,
+    planner_taking,
 )
 
 if TYPE_CHECKING:
@@ -105,12 +107,16 @@ class GridSpec(BaseModel):
     def _option_factors(self) -> GridSpec:
         # each extra key must be an option of some planner (one the grid's planners ignore gets a note)
         for name, values in (self.model_extra or {}).items():
-            if not any(name in option_names(p) for p in planner_names()):
-                planners = self.planner or [DriveOptions().planner]
+            if planner_taking(name) is None:
+                planners = self.planners()
                 known = ", ".join(sorted({k for p in planners for k in option_names(p)}))
                 raise ValueError(f"'{name}' is no option of any planner (options of {', '.join(planners)}: {known})")
             setattr(self, name, _factor_values(values if isinstance(values, list) else [values]))
         return self
+
+    def planners(self) -> list[str]:
+        """The grid's planners (the default planner when `planner` is not a factor)."""
+        return list(self.planner or [DEFAULT_PLANNER])
 
     def option_factors(self) -> dict[str, list[Any]]:
         """The planner options varied (the extra keys), in `factor_order`."""
@@ -205,10 +211,8 @@ def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
     """Validate grid data (from a file and/or flags); one-line BadInputError naming the source."""
     try:
         grid = GridSpec.model_validate(data)
-        planners = grid.planner or [DriveOptions().planner]
-        for planner in planners:  # the fixed options one planner takes
-            keys = planner_class(planner).Options.input_keys()
-            drive_options(planner, **{k: v for k, v in grid.options.items() if k in keys})
+        for planner in grid.planners():  # the fixed options one planner takes
+            episode_options(planner, grid.options, {}, grid.seed)
         _check_fixed_options(grid)
     except ValidationError as err:
         raise BadInputError(f"{source}: {_validation_message(err)}") from None
@@ -217,9 +221,9 @@ def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
 
 def _check_fixed_options(grid: GridSpec) -> None:
     """A fixed option no planner takes is a typo: refused, naming what the grid's planners take."""
-    planners = grid.planner or [DriveOptions().planner]
+    planners = grid.planners()
     known = {k for p in planners for k in option_names(p)}
-    unknown = sorted(k for k in grid.options if not any(k in option_names(p) for p in planner_names()))
+    unknown = sorted(k for k in grid.options if planner_taking(k) is None)
     if unknown:
         raise BadInputError(
             f"options {', '.join(unknown)}: no option of planner {', '.join(planners)} "
@@ -425,11 +429,10 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
             )
         pose_counts[task_id] = len(poses)
     check_size(grid, pose_counts, max_episodes)
-    planners = grid.planner or [DriveOptions().planner]
     for key, values in grid.option_factors().items():  # every value, also where a planner ignores it
         for value in values:
             try:
-                check_option_value(key, value, planners[0])
+                check_option_value(key, value, grid.planners()[0])
             except ValidationError as err:
                 raise BadInputError(f"grid value: {_validation_message(err)}") from None
     for backend_spec in dict.fromkeys(grid.backend or [DEFAULT_BACKEND]):
@@ -449,7 +452,7 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
             seed = episode_seed(grid.seed, task_id, pose, trial)
             try:
                 options = episode_options(
-                    str(combo.get("planner", (grid.planner or [DriveOptions().planner])[0])), grid.options, combo, seed
+                    str(combo.get("planner", grid.planners()[0])), grid.options, combo, seed
                 )
             except ValidationError as err:
                 raise BadInputError(f"grid value: {_validation_message(err)}") from None

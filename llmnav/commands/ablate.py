@@ -179,10 +179,10 @@ def _usable_workers(workers: int) -> int:
 
 def _note_inapplicable(spec: Any) -> None:
     """One line on stderr per planner that ignores some of the grid's factors or fixed options."""
-    from llmnav.planners.base import DriveOptions, inapplicable_options
+    from llmnav.planners.base import inapplicable_options
 
     given = set(spec.options) | set(spec.option_factors())
-    for planner in spec.planner or [DriveOptions().planner]:
+    for planner in spec.planners():
         unused = inapplicable_options(planner, given)
         if unused:
             err_console.print(f"note: {', '.join(unused)} do(es) not apply to planner '{planner}'", highlight=False)

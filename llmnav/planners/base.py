@@ -78,6 +78,7 @@ __all__ = [
     "planner_class",
     "planner_names",
     "planner_options",
+    "planner_taking",
 ]
 
 if TYPE_CHECKING:
@@ -124,14 +125,20 @@ def check_option_value(key: str, value: Any, planner: str) -> None:
 
     Raises `BadInputError` for an unknown key and pydantic's `ValidationError` for a bad value.
     """
-    takers = [planner, *planner_names()]
-    for name in takers:
-        model = planner_class(name).Options
-        if key in model.input_keys():
-            model.model_validate({"planner": name, key: option_value(model, key, value)})
-            return
-    takes = ", ".join(option_names(planner))
-    raise BadInputError(f"option {key!r}: no planner takes it; planner '{planner}' takes: {takes}")
+    taker = planner_taking(key, first=planner)
+    if taker is None:
+        takes = ", ".join(option_names(planner))
+        raise BadInputError(f"option {key!r}: no planner takes it; planner '{planner}' takes: {takes}")
+    model = planner_class(taker).Options
+    model.model_validate({"planner": taker, key: option_value(model, key, value)})
+
+
+def planner_taking(key: str, first: str | None = None) -> str | None:
+    """A registered planner that takes option `key` (`first` when it does), or None when none does."""
+    for name in [first, *planner_names()] if first else planner_names():
+        if key in planner_class(name).Options.input_keys():
+            return name
+    return None
 
 
 def option_names(planner: str) -> list[str]:
