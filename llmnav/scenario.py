@@ -473,10 +473,15 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
     raise ScenarioError(f"{text}: no such scenario file or bundled scenario (bundled: {known})")
 
 
+# libyaml's parser when PyYAML was built with it: the same documents, ~8x faster (the factory file
+# parsed in 66 ms with the pure-Python one, a tenth of a drive's start).
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 @lru_cache(maxsize=32)
 def _load_cached(path: str, mtime: float) -> Scenario:
     try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        data = yaml.load(Path(path).read_text(encoding="utf-8"), Loader=_SAFE_LOADER)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "(file)"

@@ -21,14 +21,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from llmnav.mapping.grid import LidarMap, OccupancyGrid, near_bounds
+from llmnav.mapping.nearest import dilate4, inside, label8, nearest_within, reach_cells
 
 if TYPE_CHECKING:
     from llmnav.scenario import Bounds
-
-# Edge neighbours: the unknown cells a free cell's frontier status depends on.
-_EDGE_NEIGHBOURS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool)
-# Clusters join across corners too: a diagonal run of frontier cells is one opening.
-_ALL_NEIGHBOURS = np.ones((3, 3), dtype=bool)
 
 
 def sensed_grid(lidar_map: LidarMap, bounds: Bounds, inflation_m: float) -> OccupancyGrid:
@@ -48,11 +44,11 @@ def frontier_clusters(lidar_map: LidarMap, min_cells: int, free: np.ndarray | No
 
     `free` narrows the known-free cells that may be frontier cells (default: all of the map's).
     """
-    from scipy import ndimage  # ~0.3 s to import: paid when frontiers are first looked for, not at start
-
     known_free = lidar_map.free if free is None else free
-    frontier = known_free & ndimage.binary_dilation(lidar_map.unknown, structure=_EDGE_NEIGHBOURS)
-    labels, count = ndimage.label(frontier, structure=_ALL_NEIGHBOURS)
+    # Edge neighbours decide frontier status; clusters join across corners too (a diagonal run of
+    # frontier cells is one opening).
+    frontier = known_free & dilate4(lidar_map.unknown)
+    labels, count = label8(frontier)
     if count == 0:
         return np.asarray(labels)
     big = np.bincount(labels.ravel()) >= min_cells
@@ -65,10 +61,9 @@ def goal_cells(labels: np.ndarray, grid: OccupancyGrid, reach_m: float) -> np.nd
 
     Each is labelled by the cluster of its nearest labelled frontier cell (0 elsewhere).
     """
-    from scipy import ndimage
-
     if not labels.any():
         return np.zeros_like(labels)
-    distance, (near_r, near_c) = ndimage.distance_transform_edt(labels == 0, return_indices=True)
-    within = (distance * grid.geometry.resolution <= reach_m) & ~grid.blocked
-    return np.where(within, labels[near_r, near_c], 0)
+    resolution = grid.geometry.resolution
+    squared, nearest = nearest_within(labels != 0, reach_cells(reach_m, resolution), carry=labels)
+    assert nearest is not None
+    return np.where(inside(squared, reach_m, resolution) & ~grid.blocked, nearest, 0)

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, ClassVar, Protocol
 import numpy as np
 
 from llmnav.errors import BadInputError
+from llmnav.mapping.nearest import inside, nearest_within, reach_cells, within
 
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
@@ -216,20 +217,8 @@ def nearest_free_cell(blocked: np.ndarray, geometry: GridGeometry, x: float, y: 
 
 
 def inflate(mask: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
-    """Cells whose centre lies within `radius_m` of a set cell's centre (Euclidean distance transform)."""
-    distance_cells = _distance_cells(mask)
-    if distance_cells is None:
-        return np.zeros_like(mask, dtype=bool)
-    return np.asarray(distance_cells * resolution_m <= radius_m)
-
-
-def _distance_cells(mask: np.ndarray) -> np.ndarray | None:
-    """Distance [cells] from each cell centre to the nearest set cell's centre (None: no cell is set)."""
-    from scipy.ndimage import distance_transform_edt
-
-    if not mask.any():
-        return None
-    return np.asarray(distance_transform_edt(~mask))
+    """Cells whose centre lies within `radius_m` of a set cell's centre (exact Euclidean distance)."""
+    return within(mask, radius_m, resolution_m)
 
 
 class ScanLike(Protocol):
@@ -255,23 +244,27 @@ class LidarMap:
         self.geometry = geometry
         self.state = np.full(geometry.shape, self.UNKNOWN, dtype=np.int8)
         self.scans = 0
-        # The distance transform of the not-free cells and the state it was computed on (see `not_free_within`).
-        self._distance: tuple[np.ndarray, np.ndarray | None] | None = None
+        # The state, reach [cells] and squared distances to not-free cells last computed (`not_free_within`).
+        self._distance: tuple[np.ndarray, int, np.ndarray | None] | None = None
 
     def not_free_within(self, radius_m: float) -> np.ndarray:
         """Cells whose centre lies within `radius_m` of an occupied or unknown cell (`inflate` of them).
 
-        The distance transform behind it is kept until the map changes: planners inflate the same map by
+        The squared distances behind it are kept until the map changes: planners inflate the same map by
         several margins, and look again between scans.
         """
+        resolution = self.geometry.resolution
+        reach = reach_cells(radius_m, resolution)
         cached = self._distance
-        if cached is None or not np.array_equal(cached[0], self.state):
-            cached = (self.state.copy(), _distance_cells(self.state != self.FREE))
+        if cached is None or cached[1] < reach or not np.array_equal(cached[0], self.state):
+            not_free = self.state != self.FREE
+            squared = nearest_within(not_free, reach)[0] if not_free.any() else None
+            cached = (self.state.copy(), reach, squared)
             self._distance = cached
-        distance_cells = cached[1]
-        if distance_cells is None:
+        squared = cached[2]
+        if squared is None or radius_m < 0:
             return np.zeros(self.geometry.shape, dtype=bool)
-        return np.asarray(distance_cells * self.geometry.resolution <= radius_m)
+        return inside(squared, radius_m, resolution)
 
     def integrate(self, pose: Pose2D, scan: ScanLike) -> None:
         """Add one scan taken at `pose` (LiDAR at the robot centre): free wedges, occupied end points.
