@@ -14,6 +14,7 @@ MODULES = [
     "bench.calibrate",
     "bench.information",
     "bench.rl",
+    # bench.protocol (the 200-episode sweep, ~15 min) runs only when named: `python -m bench protocol`.
 ]
 
 
