@@ -29,7 +29,7 @@ from llmnav.mapping.frontiers import frontier_clusters, goal_cells
 from llmnav.planners.hybrid.memory import Memory, relevance_order
 
 if TYPE_CHECKING:
-    from llmnav.mapping.grid import LidarMap, OccupancyGrid
+    from llmnav.mapping.grid import GridGeometry, LidarMap, OccupancyGrid
     from llmnav.planners.base import EpisodeContext
     from llmnav.planners.hybrid.planner import HybridConfig
 
@@ -254,14 +254,29 @@ def approach(inputs: MenuInputs, goal: Point | None, position: Point) -> Point |
     if goal is not None and grids[-1].is_free(*goal):
         return goal
     for grid in grids:
-        xs, ys = grid.geometry.centres()
+        # Only the window around the ring can hold a stand-off cell (the whole grid is ~30x larger);
+        # row-major order within it is the grid's, so argmin breaks ties the same way.
+        rows, cols = _window(grid.geometry, position, cfg.approach_max_m)
+        xs, ys = grid.geometry.centres(rows, cols)
         ring = np.hypot(xs - position[0], ys - position[1])
-        ok = (~grid.blocked) & (ring >= cfg.approach_min_m) & (ring <= cfg.approach_max_m)
+        ok = (~grid.blocked[rows, cols]) & (ring >= cfg.approach_min_m) & (ring <= cfg.approach_max_m)
         if ok.any():
             cost = np.where(ok, np.hypot(xs - pose.x, ys - pose.y), np.inf)
             row, col = np.unravel_index(int(np.argmin(cost)), cost.shape)
-            return grid.geometry.cell_to_world(int(row), int(col))
+            return grid.geometry.cell_to_world(rows.start + int(row), cols.start + int(col))
     return None
+
+
+def _window(geometry: GridGeometry, centre: Point, radius_m: float) -> tuple[slice, slice]:
+    """Row and column slices covering every cell whose centre lies within `radius_m` of `centre`.
+
+    One cell of padding on each side absorbs rounding at the edges; empty when the disc misses the grid.
+    """
+    row0, col0 = geometry.world_to_cell(centre[0] - radius_m, centre[1] - radius_m)
+    row1, col1 = geometry.world_to_cell(centre[0] + radius_m, centre[1] + radius_m)
+    rows = slice(min(max(0, row0 - 1), geometry.rows), max(0, min(geometry.rows, row1 + 2)))
+    cols = slice(min(max(0, col0 - 1), geometry.cols), max(0, min(geometry.cols, col1 + 2)))
+    return rows, cols
 
 
 def frontier_points(inputs: MenuInputs) -> list[Point]:
