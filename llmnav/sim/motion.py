@@ -261,8 +261,9 @@ class Motion:
                 break
             robot.set_velocity(*command)
             world.step(1)
-            track.update(robot.pose())
-            self._maybe_sample(robot.pose(), world.sim_time)
+            pose = robot.pose()
+            track.update(pose)
+            self._maybe_sample(pose, world.sim_time)
             hit = self._blocking_contact()
             if hit is not None:
                 break
