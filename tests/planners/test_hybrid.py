@@ -350,3 +350,26 @@ def test_a_leg_the_motion_layer_refuses_is_a_veto_of_that_decision(
     assert replanned["pose_before"] == refused["pose_after"]  # the next leg starts where the robot stands
     assert "Last: safety stop (scripted: an obstacle only the layer sees)" in user_turns(record)[1]
     assert summary["safety_vetoes"] == 1 and summary["outcome"] == "completed" and summary["success"]
+
+
+def test_each_frontier_cluster_targets_its_cell_nearest_the_centroid() -> None:
+    import numpy as np
+
+    from llmnav.planners.hybrid.menu import _nearest_to_centroids
+
+    labels = np.array(
+        [
+            [1, 1, 1, 0, 3],
+            [0, 0, 0, 0, 3],
+            [2, 0, 0, 0, 0],
+        ]
+    )
+    targets = np.array(
+        [
+            [1, 0, 1, 0, 0],  # cluster 1: centroid (0, 1); its two target cells tie: the first in row order wins
+            [0, 0, 0, 0, 0],  # cluster 3 has no target cell: left out
+            [2, 2, 0, 0, 0],  # cluster 2: its own cell, at its centroid
+        ]
+    )
+    assert _nearest_to_centroids(labels, targets) == [(0, 0), (2, 0)]
+    assert _nearest_to_centroids(np.zeros((2, 2), dtype=int), np.zeros((2, 2), dtype=int)) == []

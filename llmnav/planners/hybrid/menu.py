@@ -290,17 +290,35 @@ def frontier_points(inputs: MenuInputs) -> list[Point]:
     free = None if inputs.sensed else lidar_map.free & ~grid.blocked
     labels = frontier_clusters(lidar_map, inputs.cfg.frontier_min_cells, free)
     targets = goal_cells(labels, grid, grid.inflation_m + FRONTIER_GOAL_BAND_M) if inputs.sensed else labels
-    points: list[Point] = []
-    for index in np.unique(labels[labels > 0]):
-        rows, cols = np.nonzero(labels == index)
-        centre_r, centre_c = rows.mean(), cols.mean()
-        rows_t, cols_t = np.nonzero(targets == index)
-        if rows_t.size == 0:
-            continue
-        best = int(np.argmin((rows_t - centre_r) ** 2 + (cols_t - centre_c) ** 2))
-        points.append(grid.geometry.cell_to_world(int(rows_t[best]), int(cols_t[best])))
+    points = [grid.geometry.cell_to_world(row, col) for row, col in _nearest_to_centroids(labels, targets)]
     points.sort(key=lambda point: pose.distance_to(*point))
     return points
+
+
+def _nearest_to_centroids(labels: np.ndarray, targets: np.ndarray) -> list[tuple[int, int]]:
+    """Per cluster of `labels` (ascending), its cell in `targets` nearest the cluster's centroid.
+
+    First in row-major order among equals; clusters without target cells are left out. One pass over
+    the grid for all clusters: the sums of whole cell indices are exact, so the centroids and distances
+    are the same floats a per-cluster `mean` gives.
+    """
+    rows, cols = np.nonzero(labels)
+    ids = labels[rows, cols]
+    size = int(max(labels.max(initial=0), targets.max(initial=0))) + 1
+    count = np.bincount(ids, minlength=size)
+    centre_r = np.bincount(ids, weights=rows, minlength=size) / np.maximum(count, 1)
+    centre_c = np.bincount(ids, weights=cols, minlength=size) / np.maximum(count, 1)
+    rows_t, cols_t = np.nonzero(targets)
+    owner = targets[rows_t, cols_t]
+    keep = count[owner] > 0  # a target cell of no cluster (none from `goal_cells`) is no one's
+    rows_t, cols_t, owner = rows_t[keep], cols_t[keep], owner[keep]
+    if owner.size == 0:
+        return []
+    distance = (rows_t - centre_r[owner]) ** 2 + (cols_t - centre_c[owner]) ** 2
+    order = np.lexsort((distance, owner))  # by cluster, then distance; stable: row-major among ties
+    owner = owner[order]
+    first = order[np.concatenate(([True], owner[1:] != owner[:-1]))]
+    return [(int(r), int(c)) for r, c in zip(rows_t[first], cols_t[first], strict=True)]
 
 
 def where(pose: Pose2D, point: Point) -> str:
