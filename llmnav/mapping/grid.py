@@ -300,14 +300,17 @@ class LidarMap:
         if col0 < col1 and row0 < row1:
             window = self.state[row0:row1, col0:col1]
             # Only unknown cells can change (occupied ones stay, free ones are free already), and only
-            # those within the longest free ray: the trigonometry runs on them alone. Their centres are
-            # computed as `GridGeometry.centres` does, so every float is the same.
-            rows, cols = np.nonzero(window == self.UNKNOWN)
-            xs = geometry.origin_x + (cols + col0 + 0.5) * geometry.resolution
-            ys = geometry.origin_y + (rows + row0 + 0.5) * geometry.resolution
-            dx, dy = xs - pose.x, ys - pose.y
+            # those within the longest free ray: the trigonometry runs on them alone. Their offsets are
+            # computed as `GridGeometry.centres` does, so every float is the same; a squared distance
+            # with a margin far above rounding picks the candidates, the exact distance decides.
+            dxs = geometry.origin_x + (np.arange(col0, col1) + 0.5) * geometry.resolution - pose.x
+            dys = geometry.origin_y + (np.arange(row0, row1) + 0.5) * geometry.resolution - pose.y
+            longest = float(free_len.max())
+            candidate = dys[:, None] ** 2 + dxs[None, :] ** 2 <= (longest * (1.0 + 1e-9)) ** 2
+            rows, cols = np.nonzero(candidate & (window == self.UNKNOWN))
+            dx, dy = dxs[cols], dys[rows]
             distance = np.hypot(dx, dy)
-            near = distance <= free_len.max()
+            near = distance <= longest
             rows, cols, dx, dy, distance = rows[near], cols[near], dx[near], dy[near], distance[near]
             bearing = np.mod(np.arctan2(dy, dx) - pose.yaw - angles[0], 2.0 * math.pi)  # [rad] from ray 0
             relative = angles - angles[0]  # [rad] ascending from 0
