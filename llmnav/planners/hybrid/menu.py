@@ -270,10 +270,14 @@ def approach(inputs: MenuInputs, goal: Point | None, position: Point) -> Point |
 def _window(geometry: GridGeometry, centre: Point, radius_m: float) -> tuple[slice, slice]:
     """Row and column slices covering every cell whose centre lies within `radius_m` of `centre`.
 
-    One cell of padding on each side absorbs rounding at the edges; empty when the disc misses the grid.
+    One cell of padding on each side absorbs rounding at the edges; empty when the disc misses the grid
+    (or lies where no cell index reaches: NaN, or beyond what an index can hold).
     """
-    row0, col0 = geometry.world_to_cell(centre[0] - radius_m, centre[1] - radius_m)
-    row1, col1 = geometry.world_to_cell(centre[0] + radius_m, centre[1] + radius_m)
+    try:
+        row0, col0 = geometry.world_to_cell(centre[0] - radius_m, centre[1] - radius_m)
+        row1, col1 = geometry.world_to_cell(centre[0] + radius_m, centre[1] + radius_m)
+    except (OverflowError, ValueError):  # floor of inf or NaN
+        return slice(0, 0), slice(0, 0)
     rows = slice(min(max(0, row0 - 1), geometry.rows), max(0, min(geometry.rows, row1 + 2)))
     cols = slice(min(max(0, col0 - 1), geometry.cols), max(0, min(geometry.cols, col1 + 2)))
     return rows, cols
