@@ -113,19 +113,23 @@ def compact_lidar_line(summary: LidarSummary) -> str:
     return f"LiDAR front {metres(summary.front_m)} m; closest m@deg per sector, left to right: {' '.join(cells)}"
 
 
-def observe(world: PlannerWorld, options: DriveOptions, log: RunLog, step: int) -> Observation:
-    """Read the sensors `options.sensing` asks for, log the `observation` event, return it."""
+def observe(
+    world: PlannerWorld, options: DriveOptions, log: RunLog, step: int, *, image_needed: bool = True
+) -> Observation:
+    """Read the sensors `options.sensing` asks for, log the `observation` event, return it.
+
+    `image_needed=False`: the caller sends the model no image (a text-only backend), so the camera frame,
+    the costliest reading, is not rendered, and the observation has none.
+    """
     from llmnav.perception import detections_text
 
     sensing = set(options.sensing)
     scan = world.lidar.scan()
     summary = lidar_summary(scan, options)
     front, sectors = summary.front_m, compact_lidar_line(summary)
-    frame = None
     image = None
-    if "image" in sensing:
-        frame = world.camera.capture()
-        image = frame.image()
+    if "image" in sensing and image_needed:
+        image = world.camera.capture().image()
     detections: list[Detection] = []
     det_text = None
     if "detections" in sensing:

@@ -291,9 +291,20 @@ class LidarMap:
         row0 = max(0, math.floor((pose.y - reach - geometry.origin_y) / geometry.resolution))
         row1 = min(geometry.rows, math.ceil((pose.y + reach - geometry.origin_y) / geometry.resolution) + 1)
         if col0 < col1 and row0 < row1:
-            xs, ys = geometry.centres(slice(row0, row1), slice(col0, col1))
-            dx, dy = xs - pose.x, ys - pose.y
+            window = self.state[row0:row1, col0:col1]
+            # Only unknown cells can change (occupied ones stay, free ones are free already), and only
+            # those within the longest free ray: the trigonometry runs on them alone. Their offsets are
+            # computed as `GridGeometry.centres` does, so every float is the same; a squared distance
+            # with a margin far above rounding picks the candidates, the exact distance decides.
+            dxs = geometry.origin_x + (np.arange(col0, col1) + 0.5) * geometry.resolution - pose.x
+            dys = geometry.origin_y + (np.arange(row0, row1) + 0.5) * geometry.resolution - pose.y
+            longest = float(free_len.max())
+            candidate = dys[:, None] ** 2 + dxs[None, :] ** 2 <= (longest * (1.0 + 1e-9)) ** 2
+            rows, cols = np.nonzero(candidate & (window == self.UNKNOWN))
+            dx, dy = dxs[cols], dys[rows]
             distance = np.hypot(dx, dy)
+            near = distance <= longest
+            rows, cols, dx, dy, distance = rows[near], cols[near], dx[near], dy[near], distance[near]
             bearing = np.mod(np.arctan2(dy, dx) - pose.yaw - angles[0], 2.0 * math.pi)  # [rad] from ray 0
             relative = angles - angles[0]  # [rad] ascending from 0
             step = float(relative[1] - relative[0])
@@ -307,8 +318,7 @@ class LidarMap:
                 inside = bearing <= relative[-1]
                 bound = np.minimum(free_len[np.clip(upper - 1, 0, n - 1)], free_len[np.clip(upper, 0, n - 1)])
             free = inside & (distance <= bound)
-            window = self.state[row0:row1, col0:col1]
-            window[free & (window != self.OCCUPIED)] = self.FREE
+            window[rows[free], cols[free]] = self.FREE
             self.state[geometry.world_to_cell(pose.x, pose.y)] = self.FREE  # the robot stands on free floor
 
         world_angles = angles[hit] + pose.yaw

@@ -171,8 +171,12 @@ class Motion:
         steps = 0
         stop_reason: str | None = None
 
-        # Without a sample consumer only the half plane ahead, out to the larger stop distance, matters.
+        # Without a sample consumer only the rays the stops read matter, out to the larger stop distance:
+        # the half plane ahead, or the obstacle window alone without an emergency stop. Noisy rays draw
+        # one noise value each, so a noisy LiDAR still casts the half plane (the same draws as ever).
         reach = max(d for d in (obstacle_stop_m, emergency_stop_m, 0.0) if d is not None) + 0.5  # [m]
+        narrow = emergency_stop_m is None and world.lidar.config.noise_std_m == 0.0
+        window = OBSTACLE_HALF_ANGLE if narrow else EMERGENCY_HALF_ANGLE  # [rad]
 
         def check_lidar(driving: bool) -> str | None:
             if on_sample is None and not driving:
@@ -181,12 +185,13 @@ class Motion:
                 scan = world.lidar.scan()
                 on_sample(robot.pose(), scan)
             else:
-                scan = world.lidar.scan(half_angle=EMERGENCY_HALF_ANGLE, max_range=reach)
+                scan = world.lidar.scan(half_angle=window, max_range=reach)
             if not driving:
                 return None
-            ahead = scan.min_in(-EMERGENCY_HALF_ANGLE, EMERGENCY_HALF_ANGLE)  # [m]
-            if emergency_stop_m is not None and ahead < emergency_stop_m:
-                return "emergency"
+            if emergency_stop_m is not None:
+                ahead = scan.min_in(-EMERGENCY_HALF_ANGLE, EMERGENCY_HALF_ANGLE)  # [m]
+                if ahead < emergency_stop_m:
+                    return "emergency"
             front = scan.min_in(-OBSTACLE_HALF_ANGLE, OBSTACLE_HALF_ANGLE)  # [m]
             if obstacle_stop_m is not None and front < obstacle_stop_m:
                 return "obstacle"
@@ -256,8 +261,9 @@ class Motion:
                 break
             robot.set_velocity(*command)
             world.step(1)
-            track.update(robot.pose())
-            self._maybe_sample(robot.pose(), world.sim_time)
+            pose = robot.pose()
+            track.update(pose)
+            self._maybe_sample(pose, world.sim_time)
             hit = self._blocking_contact()
             if hit is not None:
                 break

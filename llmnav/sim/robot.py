@@ -19,6 +19,7 @@ pose. The errors are drawn from the episode seed, so a run repeats exactly.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -98,17 +99,18 @@ class Robot:
         self._rng = np.random.default_rng(0)
         self._wheel_scale = (1.0, 1.0)  # this episode's (right, left) travel factors
         self._track_scale = 1.0  # this episode's factor on the track width odometry assumes
+        self._noise_scale = self.odometry.wheel_noise_m_per_sqrt_m  # [m/sqrt(m)] random walk of each wheel
         self._noise: list[list[float]] = []  # pre-drawn standard normals, [right, left] per physics step
         self._noise_at = 0
         self._cmd = (0.0, 0.0)  # commanded (v, w), already limited
         self._vel = (0.0, 0.0)  # acceleration-limited (v, w) applied to the body
-        self._x = self._y = self._yaw = 0.0  # ground truth cache, refreshed after each step
+        self._pose = Pose2D(0.0, 0.0, 0.0)  # ground truth, refreshed after each step (read several times a step)
         self._odom = Pose2D(0.0, 0.0, 0.0)
 
     # --- public interface ---------------------------------------------------------------------
     def pose(self) -> Pose2D:
         """Ground-truth pose (link frame = centre of mass for this body)."""
-        return Pose2D(self._x, self._y, self._yaw)
+        return self._pose
 
     def odom(self) -> Pose2D:
         """Odometry pose: integrated from the measured wheel motion since the last reset."""
@@ -172,11 +174,12 @@ class Robot:
         right, left, track = self._rng.standard_normal(3)  # the episode's systematic errors
         self._wheel_scale = (1.0 + odo.wheel_scale_std * float(right), 1.0 + odo.wheel_scale_std * float(left))
         self._track_scale = 1.0 + odo.track_scale_std * float(track)
+        self._noise_scale = odo.wheel_noise_m_per_sqrt_m  # [m/sqrt(m)]
         self._noise, self._noise_at = [], 0
         self._cmd = (0.0, 0.0)
         self._vel = (0.0, 0.0)
-        self._x, self._y, self._yaw = start.x, start.y, wrap_angle(start.yaw)
-        self._odom = Pose2D(start.x, start.y, self._yaw)
+        self._pose = Pose2D(start.x, start.y, wrap_angle(start.yaw))
+        self._odom = self._pose
 
     def _before_step(self) -> None:
         # Move the applied velocity toward the command within the acceleration limits, then set it.
@@ -187,7 +190,8 @@ class Robot:
         v += min(max(cv - v, -dv), dv)
         w += min(max(cw - w, -dw), dw)
         self._vel = (v, w)
-        c, s = math.cos(self._yaw), math.sin(self._yaw)
+        yaw = self._pose.yaw
+        c, s = math.cos(yaw), math.sin(yaw)
         self._p.resetBaseVelocity(self.body, (v * c, v * s, 0.0), (0.0, 0.0, w), physicsClientId=self._client)
 
     def _after_step(self) -> None:
@@ -203,15 +207,16 @@ class Robot:
                 physicsClientId=client,
             )
         # Odometry: the heading-wise displacement and the yaw change, as wheel encoders would see them.
-        dyaw = wrap_angle(yaw - self._yaw)
-        mid = self._yaw + dyaw / 2.0
-        ds = (x - self._x) * math.cos(mid) + (y - self._y) * math.sin(mid)
+        last = self._pose
+        dyaw = wrap_angle(yaw - last.yaw)
+        mid = last.yaw + dyaw / 2.0
+        ds = (x - last.x) * math.cos(mid) + (y - last.y) * math.sin(mid)
         if not self._odometry_exact:
             ds, dyaw = self._measured(ds, dyaw)
         o = self._odom
         omid = o.yaw + dyaw / 2.0
         self._odom = Pose2D(o.x + ds * math.cos(omid), o.y + ds * math.sin(omid), wrap_angle(o.yaw + dyaw))
-        self._x, self._y, self._yaw = x, y, yaw
+        self._pose = Pose2D(x, y, yaw)
 
     def _measured(self, ds: float, dyaw: float) -> tuple[float, float]:
         """What the encoders report for a true step of `ds` [m] along the heading and `dyaw` [rad]."""
@@ -219,26 +224,20 @@ class Robot:
             self._noise, self._noise_at = self._rng.standard_normal((NOISE_BLOCK, 2)).tolist(), 0
         normals = self._noise[self._noise_at]
         self._noise_at += 1
+        # Positional: this runs every physics step, where keyword passing is a measurable share.
         return wheel_odometry(
-            ds,
-            dyaw,
-            half_track_m=self.spec.half_track_m,
-            wheel_scale=self._wheel_scale,
-            track_scale=self._track_scale,
-            noise_m_per_sqrt_m=self.odometry.wheel_noise_m_per_sqrt_m,
-            normals=(normals[0], normals[1]),
+            ds, dyaw, self.spec.half_track_m, self._wheel_scale, self._track_scale, self._noise_scale, normals
         )
 
 
 def wheel_odometry(
     ds: float,
     dyaw: float,
-    *,
     half_track_m: float,
     wheel_scale: tuple[float, float],
     track_scale: float,
     noise_m_per_sqrt_m: float,
-    normals: tuple[float, float],
+    normals: Sequence[float],
 ) -> tuple[float, float]:
     """One odometry increment (ds [m], dyaw [rad]) as wheel encoders measure a true (ds, dyaw).
 

@@ -126,6 +126,25 @@ def test_corridor_room_by_option_number_then_finish(tmp_path: Path) -> None:
     assert times == sorted(times) and times[-1] > 3.0
 
 
+@pytest.mark.parametrize("multimodal", [True, False])
+def test_the_camera_image_is_rendered_only_when_the_model_sees_it(tmp_path: Path, multimodal: bool) -> None:
+    from llmnav.view.api import write_view
+
+    replay = ReplayBackend(script(tmp_path / "script", [choice(1), choice(1)]))
+    replay.multimodal = multimodal  # the scripted replies stand for a multimodal model unless told
+    _summary, record = drive(tmp_path, replay, task_text="Go to room 101", sensing=("lidar", "image"))
+    observed = [e["image"] for e in record.of_type("observation")]
+    sent = [m.get("images", []) for c in record.of_type("llm_call") for m in c["request"]["messages"]]
+    stored = sorted(p.stem for p in (tmp_path / "run" / "images").glob("*.jpg"))
+    if multimodal:  # each decision's request carries the frame its observation logged
+        assert len(observed) == 2 and all(observed) and [i for i in sent if i] == [[h] for h in observed]
+        assert stored == sorted(set(observed))
+    else:  # a text-only model: no frame is rendered, logged or stored, and the view shows none
+        assert observed == [None, None] and not any(sent) and stored == []
+        page = write_view(tmp_path / "run", tmp_path / "run.html").page.read_text(encoding="utf-8")
+        assert "data:image/jpeg" not in page and "Camera image sent" not in page
+
+
 def wanting(target: str, *, scan_first: bool) -> Callable[[dict[int, str], int], int]:
     """A policy: finish at the target, else go to it when listed, else scan (once) or explore."""
     scanned: list[bool] = []
@@ -331,3 +350,26 @@ def test_a_leg_the_motion_layer_refuses_is_a_veto_of_that_decision(
     assert replanned["pose_before"] == refused["pose_after"]  # the next leg starts where the robot stands
     assert "Last: safety stop (scripted: an obstacle only the layer sees)" in user_turns(record)[1]
     assert summary["safety_vetoes"] == 1 and summary["outcome"] == "completed" and summary["success"]
+
+
+def test_each_frontier_cluster_targets_its_cell_nearest_the_centroid() -> None:
+    import numpy as np
+
+    from llmnav.planners.hybrid.menu import _nearest_to_centroids
+
+    labels = np.array(
+        [
+            [1, 1, 1, 0, 3],
+            [0, 0, 0, 0, 3],
+            [2, 0, 0, 0, 0],
+        ]
+    )
+    targets = np.array(
+        [
+            [1, 0, 1, 0, 0],  # cluster 1: centroid (0, 1); its two target cells tie: the first in row order wins
+            [0, 0, 0, 0, 0],  # cluster 3 has no target cell: left out
+            [2, 2, 0, 0, 0],  # cluster 2: its own cell, at its centroid
+        ]
+    )
+    assert _nearest_to_centroids(labels, targets) == [(0, 0), (2, 0)]
+    assert _nearest_to_centroids(np.zeros((2, 2), dtype=int), np.zeros((2, 2), dtype=int)) == []

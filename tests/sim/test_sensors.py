@@ -136,6 +136,17 @@ def test_partial_scan(world: World) -> None:
     assert abs(_ray(far, 0.0) - 2.4) < 0.02
 
 
+def test_a_ray_reads_the_same_in_a_narrower_scan(world: World) -> None:
+    # go_to's obstacle stop casts only its own window: each ray must not depend on the others cast.
+    for pose in (Pose2D(0.5, 0.0, 0.0), Pose2D(2.2, 0.6, 0.3), Pose2D(-3.5, 3.4, 2.4)):
+        world.reset(pose)
+        wide = world.lidar.scan(half_angle=math.radians(90), max_range=0.85)
+        narrow = world.lidar.scan(half_angle=math.radians(15), max_range=0.85)
+        keep = np.abs(wide.angles) <= math.radians(15)
+        assert np.array_equal(wide.angles[keep], narrow.angles)
+        assert np.array_equal(wide.ranges[keep], narrow.ranges)
+
+
 def test_camera_renders_again_only_when_the_view_changed(world: World, monkeypatch: pytest.MonkeyPatch) -> None:
     renders: list[int] = []
     render = world.camera._render

@@ -29,7 +29,7 @@ from llmnav.mapping.frontiers import frontier_clusters, goal_cells
 from llmnav.planners.hybrid.memory import Memory, relevance_order
 
 if TYPE_CHECKING:
-    from llmnav.mapping.grid import LidarMap, OccupancyGrid
+    from llmnav.mapping.grid import GridGeometry, LidarMap, OccupancyGrid
     from llmnav.planners.base import EpisodeContext
     from llmnav.planners.hybrid.planner import HybridConfig
 
@@ -254,14 +254,33 @@ def approach(inputs: MenuInputs, goal: Point | None, position: Point) -> Point |
     if goal is not None and grids[-1].is_free(*goal):
         return goal
     for grid in grids:
-        xs, ys = grid.geometry.centres()
+        # Only the window around the ring can hold a stand-off cell (the whole grid is ~30x larger);
+        # row-major order within it is the grid's, so argmin breaks ties the same way.
+        rows, cols = _window(grid.geometry, position, cfg.approach_max_m)
+        xs, ys = grid.geometry.centres(rows, cols)
         ring = np.hypot(xs - position[0], ys - position[1])
-        ok = (~grid.blocked) & (ring >= cfg.approach_min_m) & (ring <= cfg.approach_max_m)
+        ok = (~grid.blocked[rows, cols]) & (ring >= cfg.approach_min_m) & (ring <= cfg.approach_max_m)
         if ok.any():
             cost = np.where(ok, np.hypot(xs - pose.x, ys - pose.y), np.inf)
             row, col = np.unravel_index(int(np.argmin(cost)), cost.shape)
-            return grid.geometry.cell_to_world(int(row), int(col))
+            return grid.geometry.cell_to_world(rows.start + int(row), cols.start + int(col))
     return None
+
+
+def _window(geometry: GridGeometry, centre: Point, radius_m: float) -> tuple[slice, slice]:
+    """Row and column slices covering every cell whose centre lies within `radius_m` of `centre`.
+
+    One cell of padding on each side absorbs rounding at the edges; empty when the disc misses the grid
+    (or lies where no cell index reaches: NaN, or beyond what an index can hold).
+    """
+    try:
+        row0, col0 = geometry.world_to_cell(centre[0] - radius_m, centre[1] - radius_m)
+        row1, col1 = geometry.world_to_cell(centre[0] + radius_m, centre[1] + radius_m)
+    except (OverflowError, ValueError):  # floor of inf or NaN
+        return slice(0, 0), slice(0, 0)
+    rows = slice(min(max(0, row0 - 1), geometry.rows), max(0, min(geometry.rows, row1 + 2)))
+    cols = slice(min(max(0, col0 - 1), geometry.cols), max(0, min(geometry.cols, col1 + 2)))
+    return rows, cols
 
 
 def frontier_points(inputs: MenuInputs) -> list[Point]:
@@ -275,17 +294,35 @@ def frontier_points(inputs: MenuInputs) -> list[Point]:
     free = None if inputs.sensed else lidar_map.free & ~grid.blocked
     labels = frontier_clusters(lidar_map, inputs.cfg.frontier_min_cells, free)
     targets = goal_cells(labels, grid, grid.inflation_m + FRONTIER_GOAL_BAND_M) if inputs.sensed else labels
-    points: list[Point] = []
-    for index in np.unique(labels[labels > 0]):
-        rows, cols = np.nonzero(labels == index)
-        centre_r, centre_c = rows.mean(), cols.mean()
-        rows_t, cols_t = np.nonzero(targets == index)
-        if rows_t.size == 0:
-            continue
-        best = int(np.argmin((rows_t - centre_r) ** 2 + (cols_t - centre_c) ** 2))
-        points.append(grid.geometry.cell_to_world(int(rows_t[best]), int(cols_t[best])))
+    points = [grid.geometry.cell_to_world(row, col) for row, col in _nearest_to_centroids(labels, targets)]
     points.sort(key=lambda point: pose.distance_to(*point))
     return points
+
+
+def _nearest_to_centroids(labels: np.ndarray, targets: np.ndarray) -> list[tuple[int, int]]:
+    """Per cluster of `labels` (ascending), its cell in `targets` nearest the cluster's centroid.
+
+    First in row-major order among equals; clusters without target cells are left out. One pass over
+    the grid for all clusters: the sums of whole cell indices are exact, so the centroids and distances
+    are the same floats a per-cluster `mean` gives.
+    """
+    rows, cols = np.nonzero(labels)
+    ids = labels[rows, cols]
+    size = int(max(labels.max(initial=0), targets.max(initial=0))) + 1
+    count = np.bincount(ids, minlength=size)
+    centre_r = np.bincount(ids, weights=rows, minlength=size) / np.maximum(count, 1)
+    centre_c = np.bincount(ids, weights=cols, minlength=size) / np.maximum(count, 1)
+    rows_t, cols_t = np.nonzero(targets)
+    owner = targets[rows_t, cols_t]
+    keep = count[owner] > 0  # a target cell of no cluster (none from `goal_cells`) is no one's
+    rows_t, cols_t, owner = rows_t[keep], cols_t[keep], owner[keep]
+    if owner.size == 0:
+        return []
+    distance = (rows_t - centre_r[owner]) ** 2 + (cols_t - centre_c[owner]) ** 2
+    order = np.lexsort((distance, owner))  # by cluster, then distance; stable: row-major among ties
+    owner = owner[order]
+    first = order[np.concatenate(([True], owner[1:] != owner[:-1]))]
+    return [(int(r), int(c)) for r, c in zip(rows_t[first], cols_t[first], strict=True)]
 
 
 def where(pose: Pose2D, point: Point) -> str:

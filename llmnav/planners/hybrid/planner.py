@@ -66,7 +66,7 @@ from llmnav.planners.hybrid.execute import Executor, with_seen_obstacles
 from llmnav.planners.hybrid.memory import look, remember, start_memory
 from llmnav.planners.hybrid.menu import MenuInputs, build_menu
 from llmnav.planners.hybrid.options import HybridOptions
-from llmnav.planners.hybrid.prompt import ask_choice, scored_choice
+from llmnav.planners.hybrid.prompt import ask_choice, scored_choice, sends_image
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
@@ -170,7 +170,8 @@ class HybridPlanner(Planner):
 
         for step in range(1, ctx.options.max_iterations + 1):
             ctx.log.sim_time = world.sim_time
-            obs = observe(world, ctx.options, ctx.log, step)
+            # Render the camera image only for a request that carries it (scored decisions send none).
+            obs = observe(world, ctx.options, ctx.log, step, image_needed=mode == "generate" and sends_image(ctx))
             pose = obs.odom if ctx.information == "sensed" else obs.pose
             maps.lidar_map.integrate(pose, obs.scan)
             remember(ctx, memory, pose, obs.detections)

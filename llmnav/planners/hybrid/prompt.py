@@ -41,6 +41,11 @@ def choice_schema(options: list[Option]) -> tuple[Any, dict[str, Any]]:
     return model, schema
 
 
+def sends_image(ctx: EpisodeContext) -> bool:
+    """Whether a generated choice's request carries the camera image: only a multimodal backend sees it."""
+    return ctx.backend is not None and ctx.backend.multimodal
+
+
 def ask_choice(
     ctx: EpisodeContext, obs: Observation, options: list[Option], memory: Memory, step: int, max_tokens: int
 ) -> tuple[int | None, int]:
@@ -58,8 +63,7 @@ def ask_choice(
         observation=f"{obs.detections_text}\n" if obs.detections_text else "",
         options=menu,
     )
-    # An image travels beside the text to a multimodal backend.
-    images = (obs.image,) if obs.image is not None and ctx.backend is not None and ctx.backend.multimodal else ()
+    images = (obs.image,) if obs.image is not None and sends_image(ctx) else ()
     request = ChatRequest(
         (Message("system", system), Message("user", user, images)),
         schema,
