@@ -120,12 +120,24 @@ def main() -> None:
         _target(lidar_ms, 3.0),
     )
 
-    cam_big = _median_ms(lambda: world.camera.capture().jpeg_b64(80), repeats=5)
+    # The camera renders again only when the view changed: turn the robot by one physics step before
+    # each frame so that every one is a real render (the step costs ~0.02 ms).
+    world.robot.set_velocity(0.0, world.robot.spec.max_angular)
+
+    def turned(fn: Callable[[], object]) -> Callable[[], object]:
+        def run() -> object:
+            world.step(1)
+            return fn()
+
+        return run
+
+    cam_big = _median_ms(turned(lambda: world.camera.capture().jpeg_b64(80)), repeats=5)
     _row("camera 640x480 + JPEG/base64", cam_big, "ms", "(measured ~100 ms)")
-    cam_small = _median_ms(lambda: world.camera.capture(width=320, height=240).jpeg_b64(80), repeats=5)
+    cam_small = _median_ms(turned(lambda: world.camera.capture(width=320, height=240).jpeg_b64(80)), repeats=5)
     _row("camera 320x240 + JPEG/base64", cam_small, "ms", "(measured ~25 ms)")
-    detect_ms = _median_ms(world.detector.detect, repeats=5)
+    detect_ms = _median_ms(turned(world.detector.detect), repeats=5)
     _row("detector (own 160x120 segmentation frame)", detect_ms, "ms", "")
+    world.robot.halt()
 
     # One decision step: a 1 m move (alternating forward and back) then a LiDAR scan.
     world.reset(start)
@@ -379,8 +391,9 @@ def process_start() -> None:
             rates[workers] = episodes / wall * 60.0
             _row(f"ablate oracle, {episodes} episodes, {workers} worker(s)", rates[workers], "/min", "", cpu=False)
         ratio = rates[2] / rates[1]
-        verdict = "ok" if ratio >= TARGET_SPEEDUP else "BELOW TARGET (the pool is another change)"
-        _row("  episodes/min 2 vs 1 workers", ratio, "x", f"target >= {TARGET_SPEEDUP}x: {verdict}", cpu=False)
+        verdict = "ok" if ratio >= TARGET_SPEEDUP else "below"
+        note = "whole CLI runs, their start and tables included; the pool alone: python -m bench ablate"
+        _row("  episodes/min 2 vs 1 workers", ratio, "x", f"target >= {TARGET_SPEEDUP}x: {verdict} ({note})", cpu=False)
 
 
 if __name__ == "__main__":
