@@ -6,8 +6,8 @@ M1). Every model call is read back from the run log: new and cached prompt token
 latency. "Cold" is a planner's first call (its fixed prompt not yet in the prompt cache), "warm" every
 later call. Then it projects the 200-episode factory protocol (hybrid; 10 tasks x 5 poses x 4 trials)
 from the measured wall time of a hybrid decision with its simulation, for episodes of the bench's 8
-decisions and of a drive's default cap (the tiny model seldom finishes earlier), at the pool layout
-`llmnav.backends.local.pool_layout` picks. For the FSM it prints the share of suggestions accepted.
+decisions and of a drive's default cap, at the pool layout `llmnav.backends.local.pool_layout` picks
+(`python -m bench protocol` runs the protocol itself). For the FSM it prints the share of suggestions accepted.
 
 `BENCH_POOL=1` also measures episodes/min of an ablation pool, 1 worker x N threads against N workers
 x 1 thread (the measurement behind `pool_layout`). Numbers depend on the machine's load: the load
