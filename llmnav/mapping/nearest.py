@@ -39,6 +39,7 @@ def nearest_within(
     # Worked on the transpose: a shift across columns is then a shift of contiguous rows (3x faster).
     cells = np.ascontiguousarray(np.asarray(mask, dtype=bool).T)  # [col, row]
     cols, rows = cells.shape
+    reach = min(reach, rows + cols)  # every set cell of the grid lies within that
     far = 2 * (reach + 1) ** 2 + 1  # more than any squared distance within the reach
     # Pass 1, along each column: the nearest set row before (or at) and after each cell; ties go to
     # the lower row.
@@ -51,9 +52,11 @@ def nearest_within(
     # distance times `span` plus the shift's rank (0 = the lowest column), so one minimum per shift
     # picks the nearest, and among equally near ones the lowest column.
     span = 2 * reach + 1
-    # int16 when every key fits (even a missing row plus the widest shift): half the memory traffic.
-    dtype = np.int16 if (far + reach * reach + 1) * span < np.iinfo(np.int16).max else np.int32
-    key = (np.where(gap <= reach, gap * gap, far) * span).astype(dtype)
+    # The narrowest integers that hold every key (a missing row plus the widest shift): int16 for the
+    # usual reaches halves the memory traffic; a reach as wide as a large grid needs int64.
+    top = (far + reach * reach + 1) * span
+    dtype = next(t for t in (np.int16, np.int32, np.int64) if top < np.iinfo(t).max)
+    key = (np.where(gap <= reach, gap.astype(np.int64) ** 2, far) * span).astype(dtype)
     best = np.full(cells.shape, far * span, dtype=dtype)
     candidate = np.empty(cells.shape, dtype=dtype)
     for rank, shift in enumerate(range(-reach, reach + 1)):
@@ -63,7 +66,7 @@ def nearest_within(
         into, cand = best[lo:hi], candidate[lo:hi]
         np.add(key[lo + shift : hi + shift], dtype(shift * shift * span + rank), out=cand)
         np.minimum(into, cand, out=into)
-    squared, rank_of = np.divmod(best.astype(np.int32), span)
+    squared, rank_of = np.divmod(best.astype(np.int64), span)
     if carry is None:
         return np.ascontiguousarray(squared.T), None
     column = np.clip(np.arange(cols, dtype=np.int32)[:, None] + rank_of - reach, 0, cols - 1)

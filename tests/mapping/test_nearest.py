@@ -21,7 +21,7 @@ def _masks(seed: int, count: int) -> list[np.ndarray]:
     return masks
 
 
-@pytest.mark.parametrize("reach", [0, 1, 3, 7, 12])
+@pytest.mark.parametrize("reach", [0, 1, 3, 7, 12, 100])
 def test_nearest_within_matches_scipys_distances_and_its_choice_among_equally_near_cells(reach: int) -> None:
     ties = 0
     for mask in _masks(reach, 120):
@@ -42,6 +42,17 @@ def test_nearest_within_matches_scipys_distances_and_its_choice_among_equally_ne
             d2 = (set_r - r) ** 2 + (set_c - c) ** 2
             ties += int((d2 == d2.min()).sum() > 1)
     assert reach == 0 or ties > 20  # the comparison really exercised equally near cells
+
+
+def test_a_reach_wider_than_a_large_grid_is_still_exact() -> None:
+    """Past about 800 cells of reach the keys need 64 bits; the reach is cut at the grid's size."""
+    mask = np.random.default_rng(3).random((600, 300)) < 0.0005
+    distance, (rows, cols) = ndimage.distance_transform_edt(~mask, return_indices=True)
+    flat = np.arange(mask.size).reshape(mask.shape)
+    squared, chosen = nearest_within(mask, 10_000, carry=flat)
+    assert chosen is not None
+    assert np.array_equal(np.sqrt(squared.astype(float)), distance)
+    assert np.array_equal(chosen, rows * mask.shape[1] + cols)
 
 
 @pytest.mark.parametrize("radius_m", [0.0, 0.05, 0.35, 0.45, 0.3 + 0.05, 0.88])
