@@ -145,6 +145,23 @@ def test_the_camera_image_is_rendered_only_when_the_model_sees_it(tmp_path: Path
         assert "data:image/jpeg" not in page and "Camera image sent" not in page
 
 
+def test_frames_always_keeps_every_frame_for_the_viewer_without_sending_it(tmp_path: Path) -> None:
+    from llmnav.view.api import write_view
+
+    replay = ReplayBackend(script(tmp_path / "script", [choice(1), choice(1)]))
+    replay.multimodal = False
+    _summary, record = drive(
+        tmp_path, replay, task_text="Go to room 101", sensing=("lidar", "image"), frames="always"
+    )
+    observed = [e["image"] for e in record.of_type("observation")]
+    sent = [m.get("images", []) for c in record.of_type("llm_call") for m in c["request"]["messages"]]
+    stored = sorted(p.stem for p in (tmp_path / "run" / "images").glob("*.jpg"))
+    assert len(observed) == 2 and all(observed) and stored == sorted(set(observed))
+    assert not any(sent)  # kept for the viewer, still not sent to a text-only model
+    page = write_view(tmp_path / "run", tmp_path / "run.html").page.read_text(encoding="utf-8")
+    assert "data:image/jpeg" in page
+
+
 def wanting(target: str, *, scan_first: bool) -> Callable[[dict[int, str], int], int]:
     """A policy: finish at the target, else go to it when listed, else scan (once) or explore."""
     scanned: list[bool] = []

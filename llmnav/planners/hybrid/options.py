@@ -15,3 +15,10 @@ class HybridOptions(ChoiceOptions):
     menu_order: Literal["distance", "relevance"] = Field(
         default="distance", description="menu order: neutral by distance, or task-name matches first"
     )
+    frames: Literal["sent", "always"] = Field(
+        default="sent",
+        description=(
+            "camera frames rendered and stored: only those the model is sent, or every observation's "
+            "(for the run viewer; 35-85 ms of CPU a decision)"
+        ),
+    )

@@ -170,8 +170,10 @@ class HybridPlanner(Planner):
 
         for step in range(1, ctx.options.max_iterations + 1):
             ctx.log.sim_time = world.sim_time
-            # Render the camera image only for a request that carries it (scored decisions send none).
-            obs = observe(world, ctx.options, ctx.log, step, image_needed=mode == "generate" and sends_image(ctx))
+            # Render the camera image only for a request that carries it (scored decisions send none),
+            # unless the user keeps every frame for the viewer.
+            sent = mode == "generate" and sends_image(ctx)
+            obs = observe(world, ctx.options, ctx.log, step, image_needed=sent or ctx.options.frames == "always")
             pose = obs.odom if ctx.information == "sensed" else obs.pose
             maps.lidar_map.integrate(pose, obs.scan)
             remember(ctx, memory, pose, obs.detections)
