@@ -60,6 +60,9 @@ def main() -> None:
         load1 = os.getloadavg()[0]
         runs = _summaries(out)
         manifest = json.loads((out / "manifest.json").read_text())
+    if not runs:
+        print(f"[bench.protocol] no episode finished ({manifest.get('errors', 0)} errors): see {out}/manifest.json")
+        return
     layout = manifest.get("layout", {})
     decisions = [int(r["iterations"]) for r in runs]
     calls = [int(r["llm_calls"]) for r in runs]
