@@ -26,6 +26,7 @@ from typing import Any
 
 TARGET_MIN = 30.0  # [min] the protocol on 2 cores
 TRIALS = 4
+PROTOCOL_EPISODES = 200  # 10 tasks x 5 start poses x TRIALS
 WORKERS = 2
 CLI = [sys.executable, "-c", "from llmnav.cli import main; main()"]
 
@@ -40,8 +41,7 @@ def _sweep(out: Path, trials: int, tasks: str) -> float:
     return time.perf_counter() - t0
 
 
-def _summaries(out: Path) -> list[dict[str, Any]]:
-    manifest = json.loads((out / "manifest.json").read_text())
+def _summaries(out: Path, manifest: dict[str, Any]) -> list[dict[str, Any]]:
     return [
         json.loads((out / row["summary"]).read_text()) for row in manifest["episodes"] if row.get("status") == "done"
     ]
@@ -58,17 +58,18 @@ def main() -> None:
         load0 = os.getloadavg()[0]
         wall = _sweep(out, trials, tasks)
         load1 = os.getloadavg()[0]
-        runs = _summaries(out)
         manifest = json.loads((out / "manifest.json").read_text())
+        runs = _summaries(out, manifest)
     if not runs:
-        print(f"[bench.protocol] no episode finished ({manifest.get('errors', 0)} errors): see {out}/manifest.json")
+        where = f"see {out}/manifest.json" if kept else "set BENCH_PROTOCOL_OUT=DIR to keep the folder"
+        print(f"[bench.protocol] no episode finished ({manifest.get('errors', 0)} errors): {where}")
         return
     layout = manifest.get("layout", {})
     decisions = [int(r["iterations"]) for r in runs]
     calls = [int(r["llm_calls"]) for r in runs]
     episode_s = [float(r["wall_time_s"]) for r in runs]
     successes = sum(bool(r["success"]) for r in runs)
-    scaled = wall / 60.0 * (10 * 5 * TRIALS) / max(len(runs), 1)  # [min] at the full 200 when fewer ran
+    scaled = wall / 60.0 * PROTOCOL_EPISODES / len(runs)  # [min] at the full 200 when fewer ran
     print(
         f"\n[bench.protocol] factory, hybrid (sensed), default backend, {len(runs)} episodes, "
         f"{layout.get('workers')} workers ({layout.get('chosen')} -> model {layout.get('model')}), "

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-_FAR = np.iinfo(np.int32).max // 4  # a squared distance larger than any reach can give
+_FAR = np.iinfo(np.int32).max // 4  # a row index past any grid: "no set cell on this side of the column"
 
 
 def reach_cells(radius_m: float, resolution_m: float) -> int:

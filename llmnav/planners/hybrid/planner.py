@@ -167,13 +167,13 @@ class HybridPlanner(Planner):
         ctx.event("planner", decide=mode, requested=ctx.options.decide)
         chooser = ScoredChooser(ctx, ctx.task.text, mapped=bool(scenario.corridors)) if mode == "score" else None
         done = {"json_errors": 0, "vetoes": 0, "decide": mode}
+        # Render the camera image only for a request that carries it (scored decisions send none),
+        # unless the user keeps every frame for the viewer.
+        frames = (mode == "generate" and sends_image(ctx)) or ctx.options.frames == "always"
 
         for step in range(1, ctx.options.max_iterations + 1):
             ctx.log.sim_time = world.sim_time
-            # Render the camera image only for a request that carries it (scored decisions send none),
-            # unless the user keeps every frame for the viewer.
-            sent = mode == "generate" and sends_image(ctx)
-            obs = observe(world, ctx.options, ctx.log, step, image_needed=sent or ctx.options.frames == "always")
+            obs = observe(world, ctx.options, ctx.log, step, image_needed=frames)
             pose = obs.odom if ctx.information == "sensed" else obs.pose
             maps.lidar_map.integrate(pose, obs.scan)
             remember(ctx, memory, pose, obs.detections)
