@@ -10,7 +10,7 @@ class RobotSpec:
     """A round differential-drive base; every number carries its unit."""
 
     name: str
-    radius_m: float  # [m] footprint radius (collision cylinder)
+    radius_m: float  # [m] footprint radius: the collision cylinder's, or the circumradius of a box base
     height_m: float  # [m] body height
     mass_kg: float  # [kg]
     wheel_radius_m: float  # [m]
@@ -21,11 +21,14 @@ class RobotSpec:
     lidar_height_m: float  # [m]
     camera_height_m: float  # [m]
     color: tuple[float, float, float, float]
+    # [m] (length along the heading, width) of a rectangular base; None: the base is the disc of `radius_m`
+    box_m: tuple[float, float] | None = None
 
     @property
     def width_m(self) -> float:
         """Footprint width [m] (what the safety veto sweeps)."""
-        return 2.0 * self.radius_m
+        return self.box_m[1] if self.box_m is not None else 2.0 * self.radius_m
+
 
 
 # PR2-like base for the factory: wheel 0.08 m, 6 rad/s max wheel speed (~0.48 m/s), half track 0.318 m
@@ -62,4 +65,22 @@ BURGER = RobotSpec(
     color=(0.2, 0.2, 0.25, 1.0),
 )
 
-ROBOT_SPECS: dict[str, RobotSpec] = {"pr2": PR2, "burger": BURGER}
+# The PR2's real base: a 0.668 m square. Turning in place sweeps its circumcircle (radius 0.47 m), so a
+# turn beside a wall end can touch it, which the round `pr2` never does; maps inflate by that radius.
+PR2_SQUARE = RobotSpec(
+    name="pr2-square",
+    radius_m=0.4724,
+    height_m=PR2.height_m,
+    mass_kg=PR2.mass_kg,
+    wheel_radius_m=PR2.wheel_radius_m,
+    half_track_m=PR2.half_track_m,
+    max_wheel_speed=PR2.max_wheel_speed,
+    max_linear=PR2.max_linear,
+    max_angular=PR2.max_angular,
+    lidar_height_m=PR2.lidar_height_m,
+    camera_height_m=PR2.camera_height_m,
+    color=PR2.color,
+    box_m=(0.668, 0.668),
+)
+
+ROBOT_SPECS: dict[str, RobotSpec] = {"pr2": PR2, "burger": BURGER, "pr2-square": PR2_SQUARE}

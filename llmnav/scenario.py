@@ -291,6 +291,10 @@ class SensorConfig(_Strict):
     """Sensor defaults of a scenario."""
 
     lidar: LidarConfig = LidarConfig()
+    # A second planar scanner just above the floor, as safety scanners are mounted: it sees what lies below
+    # the LiDAR's plane (a pallet, a step, a low table) for the collision monitor, the motion checks and
+    # the planners' maps. Short range: it only has to see what the robot could reach soon.
+    low_lidar: LidarConfig = LidarConfig(rays=360, range_m=3.0, mount_height_m=0.06)
     camera: CameraConfig = CameraConfig()
     detector: DetectorConfig = DetectorConfig()
     odometry: OdometryConfig = OdometryConfig()
@@ -321,7 +325,7 @@ class Scenario(_Strict):
 
     name: str
     description: str = ""
-    robot: Literal["pr2", "burger"] = "pr2"
+    robot: Literal["pr2", "burger", "pr2-square"] = "pr2"
     bounds: Bounds
     floor_color: RGBA = (0.55, 0.55, 0.5, 1.0)
     wall_height: float = Field(default=2.5, gt=0)

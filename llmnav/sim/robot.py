@@ -1,9 +1,10 @@
 """A physics-stepped differential-drive base: one cylinder body driven by its base velocity.
 
-Design: the base is a single cylinder with mass, floating a millimetre above the floor plane in a
-gravity-free world (there is no floor body, so no floor contacts accumulate). Before every physics
-step its velocity is set from the commanded (v, w), limited by the wheel-speed and acceleration limits;
-walls and obstacles are static bodies, so the solver stops it at them and nothing passes through.
+Design: the base is a single cylinder (a box for a rectangular `RobotSpec.box_m`) with mass, floating a
+millimetre above the floor plane in a gravity-free world (there is no floor body, so no floor contacts
+accumulate). Before every physics step its velocity is set from the commanded (v, w), limited by the
+wheel-speed and acceleration limits; walls and obstacles are static bodies, so the solver stops it at
+them and nothing passes through.
 Roll, pitch and height are pinned back whenever a contact disturbs them.
 
 The body's inertial frame is its link frame, so `getBasePositionAndOrientation` (which reports the
@@ -65,16 +66,21 @@ class Robot:
         )  # [m/s^2]
         self.max_angular_acc = max_angular_acc if max_angular_acc is not None else 2.0 * spec.max_angular  # [rad/s^2]
         self._z = spec.height_m / 2.0 + 0.001  # [m] base centre height (a hair above the floor)
-        col = p.createCollisionShape(
-            p.GEOM_CYLINDER, radius=spec.radius_m, height=spec.height_m, physicsClientId=client
-        )
-        vis = p.createVisualShape(
-            p.GEOM_CYLINDER,
-            radius=spec.radius_m,
-            length=spec.height_m,
-            rgbaColor=spec.color,
-            physicsClientId=client,
-        )
+        if spec.box_m is not None:  # a rectangular base: its true shape, not its circumcircle
+            half = (spec.box_m[0] / 2.0, spec.box_m[1] / 2.0, spec.height_m / 2.0)
+            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client)
+            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=spec.color, physicsClientId=client)
+        else:
+            col = p.createCollisionShape(
+                p.GEOM_CYLINDER, radius=spec.radius_m, height=spec.height_m, physicsClientId=client
+            )
+            vis = p.createVisualShape(
+                p.GEOM_CYLINDER,
+                radius=spec.radius_m,
+                length=spec.height_m,
+                rgbaColor=spec.color,
+                physicsClientId=client,
+            )
         self.body = int(
             p.createMultiBody(
                 baseMass=spec.mass_kg,
@@ -148,6 +154,14 @@ class Robot:
         for c in self._p.getContactPoints(bodyA=self.body, physicsClientId=self._client):
             if c[8] < CONTACT_DISTANCE:
                 out.append((int(c[2]), float(c[7][0]), float(c[7][1]), float(c[8])))
+        return out
+
+    def contact_points_at(self) -> list[tuple[int, float, float, float, float, float]]:
+        """Touching contacts with where they are: (body, normal x, normal y, distance [m], x [m], y [m])."""
+        out = []
+        for c in self._p.getContactPoints(bodyA=self.body, physicsClientId=self._client):
+            if c[8] < CONTACT_DISTANCE:
+                out.append((int(c[2]), float(c[7][0]), float(c[7][1]), float(c[8]), float(c[5][0]), float(c[5][1])))
         return out
 
     def contacts(self) -> list[str]:

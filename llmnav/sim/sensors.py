@@ -69,8 +69,16 @@ class Lidar:
         fov = math.radians(config.fov_deg)
         full_circle = config.fov_deg >= 360.0
         self.angles = np.linspace(-fov / 2.0, fov / 2.0, config.rays, endpoint=not full_circle)  # [rad]
-        self._start = robot.spec.radius_m + LIDAR_CLEARANCE  # [m] ray origin distance from the centre
         self._cos, self._sin = np.cos(self.angles), np.sin(self.angles)
+        # [m] ray origins' distance from the centre: just outside the body, along each ray (a box base's
+        # edge is nearer than its corners, and what stands between them must still be seen).
+        box = robot.spec.box_m
+        if box is None:
+            self._start: float | np.ndarray = robot.spec.radius_m + LIDAR_CLEARANCE
+        else:
+            with np.errstate(divide="ignore"):
+                edge = np.minimum(box[0] / 2.0 / np.abs(self._cos), box[1] / 2.0 / np.abs(self._sin))
+            self._start = edge + LIDAR_CLEARANCE
         self._z = np.full(config.rays, self.mount_height_m)
         self._rng = np.random.default_rng(0)
 
@@ -78,25 +86,33 @@ class Lidar:
         """Restart the noise stream."""
         self._rng = np.random.default_rng(seed)
 
-    def scan(self, *, half_angle: float | None = None, max_range: float | None = None) -> LidarScan:
+    def scan(
+        self,
+        *,
+        half_angle: float | None = None,
+        max_range: float | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> LidarScan:
         """Cast the rays from the current ground-truth pose.
 
         `half_angle` [rad] casts only the rays with |angle| <= it, `max_range` [m] shortens them: cheap
-        partial scans for stop checks (ray cost grows with count and length).
+        partial scans for stop checks (ray cost grows with count and length). `rng` draws the range noise
+        instead of the sensor's own stream (the collision monitor's scans then leave the planners' scans
+        exactly as they were).
         """
         cfg = self.config
         range_m = cfg.range_m if max_range is None else min(max_range, cfg.range_m)  # [m]
-        angles, cos, sin, z = self.angles, self._cos, self._sin, self._z
+        angles, cos, sin, z, start = self.angles, self._cos, self._sin, self._z, self._start
         if half_angle is not None:
             keep = np.abs(angles) <= half_angle
             angles, cos, sin, z = angles[keep], cos[keep], sin[keep], z[keep]
+            start = start[keep] if isinstance(start, np.ndarray) else start
         pose = self._robot.pose()
         cy, sy = math.cos(pose.yaw), math.sin(pose.yaw)
         # Ray directions in the world frame: the fixed body-frame fan rotated by the heading.
         dx = cos * cy - sin * sy
         dy = sin * cy + cos * sy
         n = len(angles)
-        start = self._start
         starts = np.column_stack((pose.x + start * dx, pose.y + start * dy, z))
         ends = np.column_stack((pose.x + range_m * dx, pose.y + range_m * dy, z))
         # In the calling thread: Bullet's helper threads run at ordinary priority, so a real-time control
@@ -106,7 +122,7 @@ class Lidar:
         fractions = np.fromiter((h[2] if h[0] >= 0 else np.inf for h in hits), dtype=float, count=n)
         ranges = start + fractions * (range_m - start)  # inf where nothing was hit
         if cfg.noise_std_m > 0.0:
-            ranges = ranges + self._rng.normal(0.0, cfg.noise_std_m, n)  # inf stays inf
+            ranges = ranges + (rng or self._rng).normal(0.0, cfg.noise_std_m, n)  # inf stays inf
             ranges = np.where(np.isfinite(ranges), np.clip(ranges, cfg.min_range_m, range_m), np.inf)
         return LidarScan(angles=angles.copy(), ranges=ranges, range_max=range_m, range_min=cfg.min_range_m)
 

@@ -37,7 +37,8 @@ ADDED_OBSTACLE_COLOR = (0.8, 0.45, 0.1, 1.0)
 class World:
     """The simulated world of one episode.
 
-    Fields: `scenario`; `robot` (Robot); `lidar` (Lidar); `camera` (Camera); `detector` (Detector);
+    Fields: `scenario`; `robot` (Robot); `lidar` (Lidar); `low_lidar` (Lidar, just above the floor);
+    `camera` (Camera); `detector` (Detector);
     `motion` (Motion); `sim_time` [s] since reset; `step_count`; `dt` [s] physics step; `seed`;
     `client` (the PyBullet physicsClientId); `body_names` (body id -> wall/obstacle
     name or object id); `object_bodies` (object id -> body id); `labelled` (body id -> LabelledObject).
@@ -108,6 +109,7 @@ class World:
             camera_cfg.mount_height_m if "mount_height_m" in camera_cfg.model_fields_set else spec.camera_height_m
         )
         self.lidar = Lidar(p, client, self.robot, lidar_cfg, mount_height_m=lidar_h)
+        self.low_lidar = Lidar(p, client, self.robot, sensors.low_lidar)
         self.camera = Camera(
             p, client, self.robot, camera_cfg, mount_height_m=camera_h, floor_color=scenario.floor_color
         )
@@ -139,6 +141,7 @@ class World:
         self.robot._reset(start, seed=base + 1)
         self.lidar.reseed(base + 2)
         self.detector.reseed(base + 3)
+        self.low_lidar.reseed(base + 4)
         self.motion._reset()
 
     def step(self, n: int = 1) -> None:
