@@ -62,6 +62,15 @@ class VetoedMotionError(LlmnavError):
     """The safety veto blocked every action the model proposed within the allowed negotiation turns."""
 
 
+class SensorFailure(LlmnavError):
+    """A range sensor the collision monitor relies on gave no usable data.
+
+    The robot is stopped and the run ends aborted (an outage), never driven on without it.
+    """
+
+    exit_code = 4
+
+
 class FolderLockedError(BadInputError):
     """Another process holds the lock of the ablation or run folder asked for (the message names its pid)."""
 

@@ -33,14 +33,18 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from llmnav.geometry import Pose2D
 from llmnav.guard.schemas import VelocityLimits
 from llmnav.guard.veto import VetoResult, check_motion
+from llmnav.sim.sensors import LidarScan
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
+    from llmnav.nav.monitor import CollisionMonitor
     from llmnav.robot_specs import RobotSpec
     from llmnav.sim.motion import Motion, MotionResult
-    from llmnav.sim.sensors import LidarScan
+
+
+BACK_OFF_M = 0.15  # [m] reverse after a monitor stop, so a new plan starts clear of what stopped the robot
 
 
 class EventSink(Protocol):
@@ -66,6 +70,10 @@ class PoseSource(Protocol):
 
     def pose(self) -> Any:
         """Ground-truth pose."""
+        ...
+
+    def odom(self) -> Any:
+        """Odometry pose (the frame go_to steers in)."""
         ...
 
 
@@ -94,16 +102,22 @@ class GuardedMotion:
         *,
         robot_max_linear_acc: float,
         config: MotionGuardConfig | None = None,
+        low_scans: ScanSource | None = None,
+        monitor: CollisionMonitor | None = None,
     ) -> None:
+        """`low_scans` (the low scanner) joins every check; `monitor` is the one installed in `motion`."""
         self.__motion = motion
         self.__robot = robot
-        self.__scans = scans
+        self.__scans = _Merged(scans, low_scans) if low_scans is not None else scans
+        self.__low = low_scans
+        self.__monitor = monitor
         self.__log = log
         self.__brake = robot_max_linear_acc  # [m/s^2]
         self.__cfg = config or MotionGuardConfig()
         spec = robot.spec
         self.__box = VelocityLimits(spec.max_linear, spec.max_angular)
         self.__overriding = False
+        self.__held = False  # was the last velocity tick stopped by the monitor
         self.vetoes = 0  # motions this layer refused (velocity overrides count once per run of ticks)
 
     # --- checks (no motion) ---------------------------------------------------------------------
@@ -113,9 +127,13 @@ class GuardedMotion:
         `scan` defaults to the latest scan at the current pose (the one an observation just took).
         """
         spec = self.__robot.spec
+        if scan is None:
+            scan = self.__scans.latest(0.0)[0]
+        elif self.__low is not None:
+            scan = merge_scans(scan, self.__low.latest(0.0)[0])
         return check_motion(
             distance_m,
-            scan if scan is not None else self.__scans.latest(0.0)[0],
+            scan,
             robot_width_m=spec.width_m,
             robot_radius_m=spec.radius_m,
             margin_m=self.__cfg.drive_margin_m,
@@ -123,8 +141,12 @@ class GuardedMotion:
         )
 
     def check_leg(self, x: float, y: float) -> VetoResult:
-        """The veto's verdict on a straight leg from the robot to the world point (x, y) [m]."""
-        pose = self.__robot.pose()
+        """The veto's verdict on a straight leg from the robot to the point (x, y) [m] of go_to's frame.
+
+        go_to steers on odometry, so the leg the robot will drive is the one from its odometry pose to
+        (x, y): that is the one judged (against the scan, which is in the robot's own frame).
+        """
+        pose = self.__robot.odom()
         length = math.hypot(x - pose.x, y - pose.y)
         if length < self.__cfg.leg_min_m:
             return VetoResult(True, math.inf, None)
@@ -144,20 +166,22 @@ class GuardedMotion:
     def drive(self, distance_m: float, *, timeout_s: float | None = None) -> MotionResult:
         """Drive straight `distance_m` [m] (+ forward, - backward) unless the veto blocks it."""
         verdict = self.check_straight(distance_m)
+        command = "FRONT" if distance_m >= 0 else "BACK"
         if not verdict.allowed:
-            return self.__refuse("FRONT" if distance_m >= 0 else "BACK", distance_m, verdict)
-        return self.__motion.drive(distance_m, timeout_s=timeout_s)
+            return self.__refuse(command, distance_m, verdict)
+        return self.__watched(command, distance_m, self.__motion.drive(distance_m, timeout_s=timeout_s))
 
     def rotate(self, angle_rad: float, *, timeout_s: float | None = None) -> MotionResult:
-        """Turn in place by `angle_rad` [rad] (+ CCW). Not checked: a round base sweeps nothing new."""
-        return self.__motion.rotate(angle_rad, timeout_s=timeout_s)
+        """Turn in place by `angle_rad` [rad] (+ CCW), watched by the monitor (a box base's corners sweep)."""
+        command = "ROTATE_LEFT" if angle_rad >= 0 else "ROTATE_RIGHT"
+        return self.__watched(command, round(angle_rad, 4), self.__motion.rotate(angle_rad, timeout_s=timeout_s))
 
     def go_to(self, x: float, y: float, **options: Any) -> MotionResult:
         """P-control to (x, y) [m] (see `Motion.go_to` for the options) unless the leg is vetoed."""
         verdict = self.check_leg(x, y)
         if not verdict.allowed:
             return self.refuse_leg(x, y, verdict)
-        return self.__motion.go_to(x, y, **options)
+        return self.__watched("GO_TO", [round(x, 3), round(y, 3)], self.__motion.go_to(x, y, **options))
 
     def refuse_leg(self, x: float, y: float, verdict: VetoResult, *, step: int | None = None) -> MotionResult:
         """Record a leg to (x, y) [m] that `check_leg` refused, without moving; its vetoed result.
@@ -178,7 +202,26 @@ class GuardedMotion:
                 self.vetoes += 1
                 self.__log.event("guard", step=None, attempt=1, outcome="veto", error=reason, motion="velocity")
         self.__overriding = differs
-        return self.__motion.velocity_tick(applied_v, applied_w, dt)
+        result = self.__motion.velocity_tick(applied_v, applied_w, dt)
+        if result.stopped_reason == "monitor" and not self.__held:
+            self.__watched("velocity", [_num(applied_v), _num(applied_w)], result)
+        self.__held = result.stopped_reason == "monitor"
+        return result
+
+    def back_off(self, distance_m: float = BACK_OFF_M) -> MotionResult:
+        """Recovery after a stop: reverse `distance_m` [m] if nothing is behind (nav2's BackUp behaviour).
+
+        The reverse goes through the same veto and monitor as any motion; a `recovery` event records it.
+        """
+        result = self.drive(-abs(distance_m))
+        self.__log.event(
+            "recovery",
+            behaviour="back_off",
+            distance_m=round(abs(distance_m), 3),
+            travelled_m=round(result.distance_m, 4),
+            outcome="done" if result.ok else (result.stopped_reason or "failed"),
+        )
+        return result
 
     @property
     def collisions(self) -> int:
@@ -186,6 +229,26 @@ class GuardedMotion:
         return self.__motion.collisions
 
     # --- machinery ------------------------------------------------------------------------------
+    def __watched(self, command: str, parameters: Any, result: MotionResult) -> MotionResult:
+        """A motion's result; a collision-monitor stop on the way is counted and logged as a veto."""
+        if result.stopped_reason != "monitor":
+            return result
+        self.vetoes += 1
+        stop = self.__monitor.last_stop if self.__monitor is not None else None
+        self.__log.event(
+            "guard",
+            step=None,
+            attempt=1,
+            outcome="veto",
+            error=result.veto,
+            motion=command,
+            parameters=parameters,
+            source=stop.source if stop is not None else None,
+            zone="stop",
+            distance_m=round(stop.distance_m, 3) if stop is not None else None,
+        )
+        return result
+
     def __refuse(self, command: str, parameters: Any, verdict: VetoResult, *, step: int | None = None) -> MotionResult:
         from llmnav.sim.motion import MotionResult
 
@@ -273,3 +336,41 @@ def _num(value: Any) -> Any:
         if isinstance(value, int)
         else str(value)
     )
+
+
+def merge_scans(first: LidarScan, second: LidarScan) -> LidarScan:
+    """Both scanners' rays as one scan (both measure from the robot's centre): every check sees either's returns."""
+    return LidarScan(
+        angles=np.concatenate((first.angles, second.angles)),
+        ranges=np.concatenate((first.ranges, second.ranges)),
+        range_max=max(first.range_max, second.range_max),
+        range_min=min(first.range_min, second.range_min),
+    )
+
+
+class _Merged:
+    """Two scan sources read as one (the LiDAR and the low scanner)."""
+
+    def __init__(self, first: ScanSource, second: ScanSource) -> None:
+        self.__first = first
+        self.__second = second
+
+    def latest(self, max_age_s: float) -> tuple[LidarScan, Pose2D]:
+        """Both latest scans merged, with the pose the first was taken from."""
+        scan, pose = self.__first.latest(max_age_s)
+        low, low_pose = self.__second.latest(max_age_s)
+        return merge_scans(scan, _seen_from(low, low_pose, pose)), pose
+
+
+def _seen_from(scan: LidarScan, taken_at: Pose2D, here: Pose2D) -> LidarScan:
+    """`scan`, taken at `taken_at`, as polar returns from `here` (rays without a return keep their direction)."""
+    if (taken_at.x, taken_at.y, taken_at.yaw) == (here.x, here.y, here.yaw):
+        return scan
+    a = scan.angles + taken_at.yaw
+    finite = np.isfinite(scan.ranges)
+    r = np.where(finite, scan.ranges, 0.0)
+    wx, wy = taken_at.x + r * np.cos(a) - here.x, taken_at.y + r * np.sin(a) - here.y
+    angles = np.where(finite, np.arctan2(wy, wx) - here.yaw, a - here.yaw)
+    angles = (angles + np.pi) % (2.0 * np.pi) - np.pi
+    ranges = np.where(finite, np.hypot(wx, wy), np.inf)
+    return LidarScan(angles=angles, ranges=ranges, range_max=scan.range_max, range_min=scan.range_min)

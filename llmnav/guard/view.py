@@ -1,9 +1,12 @@
 """What a planner may touch of the simulated world: read-only sensors and the guarded motion layer.
 
 `PlannerWorld` is the `world` of a planner's `EpisodeContext`. It mirrors the public reading surface of
-`llmnav.sim.world.World` (`robot.pose()`, `robot.odom()`, `robot.spec`, `lidar.scan()`, `camera.capture()`,
+`llmnav.sim.world.World` (`robot.pose()`, `robot.odom()`, `robot.spec`, `lidar.scan()`, `low_lidar.scan()`,
+`camera.capture()`,
 `camera.config`, `detector.detect()`, `sim_time`) so planner code reads the same, but it holds no public
-handle to the physics, the raw robot or the raw `Motion`: every motion goes through `GuardedMotion`.
+handle to the physics, the raw robot or the raw `Motion`: every motion goes through `GuardedMotion`, and
+the world's `Motion` gets the collision monitor (`llmnav.nav.monitor`), which judges every command on
+every physics step from then on.
 (Python cannot hide an object from a determined caller; the handles here are name-mangled private
 attributes, and `tests/guard/test_no_raw_access.py` walks every registered planner's context and source.)
 """
@@ -12,14 +15,21 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from llmnav.guard.motion import GuardedMotion, MotionGuardConfig
+from llmnav.nav.monitor import CollisionMonitor
 
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
     from llmnav.robot_specs import RobotSpec
     from llmnav.scenario import CameraConfig, LidarConfig
-    from llmnav.sim.sensors import CameraFrame, Detection, LidarScan
+    from llmnav.sim.sensors import CameraFrame, Detection, Lidar, LidarScan
     from llmnav.sim.world import World
+
+
+# Noise streams of the monitor's casts (the world's own sources use 1-4 of each seed's 8).
+MONITOR_STREAMS = (5, 6)
 
 
 class RobotView:
@@ -43,17 +53,19 @@ class RobotView:
 
 
 class LidarView:
-    """The LiDAR; remembers the latest full scan so the motion layer checks what the planner just saw."""
+    """A planar scanner; remembers the latest full scan so the motion layer checks what the planner just saw."""
 
-    def __init__(self, world: World) -> None:
+    def __init__(self, world: World, lidar: Lidar | None = None) -> None:
+        """The LiDAR, or another scanner of the world's (`world.low_lidar`)."""
         self.__world = world
-        self.config: LidarConfig = world.lidar.config
+        self.__lidar = lidar if lidar is not None else world.lidar
+        self.config: LidarConfig = self.__lidar.config
         self.__last: tuple[LidarScan, Pose2D, int] | None = None  # (scan, pose, physics step) of the latest
 
     def scan(self, *, half_angle: float | None = None, max_range: float | None = None) -> LidarScan:
         """One scan (see `Lidar.scan`); full scans are remembered for the motion layer."""
         world = self.__world
-        scan = world.lidar.scan(half_angle=half_angle, max_range=max_range)
+        scan = self.__lidar.scan(half_angle=half_angle, max_range=max_range)
         if half_angle is None and max_range is None:
             self.__last = (scan, world.robot.pose(), world.step_count)
         return scan
@@ -67,6 +79,30 @@ class LidarView:
             last = self.__last
         assert last is not None
         return last[0], last[1]
+
+
+class _MonitorSource:
+    """A scanner as the collision monitor casts it, with a noise stream of its own.
+
+    The monitor's casts draw their range noise from their own generator (restarted from the world's seed
+    with each episode), so the scans planners take read exactly what they would without the monitor.
+    """
+
+    def __init__(self, name: str, lidar: Lidar, world: World, stream: int) -> None:
+        self.name = name
+        self.__lidar = lidar
+        self.__world = world
+        self.__stream = stream
+        self.__rng = np.random.default_rng(0)
+        self.reset()
+
+    def reset(self) -> None:
+        """Restart the noise stream from the world's seed."""
+        self.__rng = np.random.default_rng((self.__world.seed % 2**32) * 8 + self.__stream)
+
+    def cast(self, max_range_m: float) -> LidarScan:
+        """A fresh full scan cut at `max_range_m` [m]."""
+        return self.__lidar.scan(max_range=max_range_m, rng=self.__rng)
 
 
 class CameraView:
@@ -112,15 +148,34 @@ class PlannerWorld:
         self.__world = world
         self.robot = RobotView(world)
         self.lidar = LidarView(world)
+        self.low_lidar = LidarView(world, world.low_lidar)
         self.camera = CameraView(world)
         self.detector = DetectorView(world)
+        robot = world.robot
+        # The collision monitor judges every command of every motion from here on; nothing a planner holds
+        # can take it out again.
+        monitor = CollisionMonitor(
+            robot.spec,
+            [
+                _MonitorSource("LiDAR", world.lidar, world, MONITOR_STREAMS[0]),
+                _MonitorSource("low scanner", world.low_lidar, world, MONITOR_STREAMS[1]),
+            ],
+            robot.odom,
+            lambda: world.sim_time,
+            dt=world.dt,
+            max_linear_acc=robot.max_linear_acc,
+            max_angular_acc=robot.max_angular_acc,
+        )
+        world.motion.monitor = monitor
         self.motion = GuardedMotion(
             world.motion,
             self.robot,
             self.lidar,
             _TimedLog(log, world),
-            robot_max_linear_acc=world.robot.max_linear_acc,
+            robot_max_linear_acc=robot.max_linear_acc,
             config=config,
+            low_scans=self.low_lidar,
+            monitor=monitor,
         )
 
     @property

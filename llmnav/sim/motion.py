@@ -18,13 +18,25 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 from llmnav.geometry import Pose2D, wrap_angle
 
 if TYPE_CHECKING:
     from llmnav.sim.sensors import LidarScan
     from llmnav.sim.world import World
+
+class CommandMonitor(Protocol):
+    """What judges every command before the wheels get it (`llmnav.nav.monitor.CollisionMonitor`)."""
+
+    def admit(self, v: float, w: float) -> tuple[float, float, Any]:
+        """(v [m/s], w [rad/s]) allowed now, and a stop (with `reason` and `points`) when the robot must halt."""
+        ...
+
+    def reset(self) -> None:
+        """Forget what was sensed (the episode restarts)."""
+        ...
+
 
 PoseCallback = Callable[[Pose2D, float], None]  # (ground-truth pose, sim time [s])
 SampleCallback = Callable[[Pose2D, "LidarScan"], None]  # (ground-truth pose, scan) at each LiDAR check
@@ -57,9 +69,14 @@ class MotionResult:
     distance_m: float  # travelled (ground truth)
     rotated_rad: float  # signed, accumulated (ground truth)
     duration_s: float  # sim time
-    stopped_reason: str | None  # "collision" | "obstacle" | "emergency" | "timeout" | "vetoed" | None
-    veto: str | None = None  # why the guarded motion layer refused the motion (the robot did not move)
+    # "collision" | "obstacle" | "emergency" | "timeout" | "vetoed" | "monitor" | None
+    stopped_reason: str | None
+    # why the guarded motion layer refused the motion ("vetoed": the robot did not move) or the collision
+    # monitor stopped it on the way ("monitor")
+    veto: str | None = None
     veto_hit: tuple[float, float] | None = None  # [m] robot-frame position of the return that blocked it
+    # [m] every return that blocked a monitor stop, in the robot's frame where it stopped (x ahead, y left)
+    veto_points: tuple[tuple[float, float], ...] = ()
 
 
 class _Track:
@@ -89,8 +106,12 @@ class Motion:
         self._blocked = False  # velocity_tick: was the robot pushing into something last tick
         self._sample_pose: Pose2D | None = None
         self._sample_t = 0.0
+        # Judges every command on every physics step; the guarded layer installs it for every planner.
+        self.monitor: CommandMonitor | None = None
 
     def _reset(self) -> None:
+        if self.monitor is not None:
+            self.monitor.reset()
         self.collisions = 0
         self._step_debt = 0.0
         self._blocked = False
@@ -233,8 +254,15 @@ class Motion:
         self._step_debt -= steps
         track = _Track(robot.pose(), world.sim_time)
         robot.set_velocity(v, w)
+        monitor = self.monitor
+        held: Any = None  # the monitor's last stop within this tick
         hit: str | None = None
         for _ in range(steps):
+            if monitor is not None:
+                robot.set_velocity(v, w)
+                av, aw, stop = monitor.admit(*robot.command())
+                robot.set_velocity(av, aw)
+                held = stop if stop is not None else held
             world.step(1)
             track.update(robot.pose())
             self._maybe_sample(robot.pose(), world.sim_time)
@@ -245,21 +273,33 @@ class Motion:
         if hit is not None and not self._blocked:
             self.collisions += 1
         self._blocked = hit is not None
-        return self._result(track, ok=hit is None, hit=hit, reason="collision" if hit else None)
+        result = self._result(track, ok=hit is None, hit=hit, reason="collision" if hit else None)
+        if held is not None and hit is None:
+            _mark_stop(result, held)
+        return result
 
     # --- machinery ------------------------------------------------------------------------------
     def _run(self, control: Callable[[], tuple[float, float] | None], timeout_s: float) -> MotionResult:
         world, robot = self._world, self._world.robot
         track = _Track(robot.pose(), world.sim_time)
         max_steps = int(math.ceil(timeout_s / world.dt))
+        monitor = self.monitor
         hit: str | None = None
+        held: Any = None  # the monitor's stop: the motion brakes to rest, then ends
         reached = False
         for _ in range(max_steps):
-            command = control()
+            command = control() if held is None else (0.0, 0.0)
             if command is None:
                 reached = True
                 break
             robot.set_velocity(*command)
+            if monitor is not None and held is None:
+                av, aw, held = monitor.admit(*robot.command())
+                robot.set_velocity(*((0.0, 0.0) if held is not None else (av, aw)))
+            if held is not None:
+                moving_v, moving_w = robot.velocity()
+                if moving_v == 0.0 and moving_w == 0.0:
+                    break
             world.step(1)
             pose = robot.pose()
             track.update(pose)
@@ -272,19 +312,23 @@ class Motion:
         if hit is not None:
             self.collisions += 1
             return self._result(track, ok=False, hit=hit, reason="collision")
+        if held is not None:
+            return _mark_stop(self._result(track, ok=False, hit=None, reason="monitor"), held)
         return self._result(track, ok=reached, hit=None, reason=None if reached else "timeout")
 
     def _blocking_contact(self) -> str | None:
         """Name of a body the robot touches while moving into it (or deeply penetrates), else None."""
         robot = self._world.robot
-        points = robot.contact_points()
+        points = robot.contact_points_at()
         if not points:
             return None
-        v, _w = robot.velocity()
-        yaw = robot.pose().yaw
-        vx, vy = v * math.cos(yaw), v * math.sin(yaw)
-        for body, nx, ny, dist in points:
-            if vx * nx + vy * ny < -1e-4 or dist < -0.005:  # the normal points from the obstacle to the robot
+        v, w = robot.velocity()
+        pose = robot.pose()
+        vx, vy = v * math.cos(pose.yaw), v * math.sin(pose.yaw)
+        for body, nx, ny, dist, px, py in points:
+            # The contact point's own velocity: the base's, plus the turn's (a box's corner sweeps while turning).
+            cvx, cvy = vx - w * (py - pose.y), vy + w * (px - pose.x)
+            if cvx * nx + cvy * ny < -1e-4 or dist < -0.005:  # the normal points from the obstacle to the robot
                 return self._world.body_names.get(body, f"body:{body}")
         return None
 
@@ -319,3 +363,13 @@ class Motion:
         self._sample_pose = pose
         self._sample_t = t
         self.on_pose(pose, t)
+
+
+def _mark_stop(result: MotionResult, stop: Any) -> MotionResult:
+    """`result` carrying the monitor's stop: its reason, nearest blocking return and all of them."""
+    points = tuple(stop.points)
+    result.stopped_reason = "monitor"
+    result.veto = stop.reason
+    result.veto_hit = min(points, key=lambda p: math.hypot(*p)) if points else None
+    result.veto_points = points
+    return result
