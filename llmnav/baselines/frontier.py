@@ -105,8 +105,10 @@ class _Explorer:
 
     # --- sensing ------------------------------------------------------------------------------
     def scan_now(self) -> None:
-        """Take one scan at the current pose and add it to the map."""
-        self.map.integrate(self.robot.pose(), self.world.lidar.scan())
+        """Take one scan at the current pose and add it to the map, with what the low scanner hits."""
+        pose = self.robot.pose()
+        self.map.integrate(pose, self.world.lidar.scan())
+        self.map.mark_hits(pose, self.world.low_lidar.scan())
 
     def detect(self) -> _Found | None:
         """An acceptable target in view (camera), or a point target already seen free in the map."""

@@ -15,6 +15,7 @@ from typing import ClassVar
 from llmnav.baselines.drive import Drive, drive_waypoints, face_point, failure_reason, run_untargeted
 from llmnav.mapping.targets import OracleConfig, OraclePath, oracle_path, with_added_obstacles
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner
+from llmnav.scenario import Scenario
 
 
 class OraclePlanner(Planner):
@@ -26,9 +27,23 @@ class OraclePlanner(Planner):
 
     replans_after_veto: ClassVar[int] = 2  # plans from the true pose after a leg the motion layer refused
     veto_margin_step_m: ClassVar[float] = 0.1  # [m] more clearance on each such plan
+    narrow_margins_m: ClassVar[tuple[float, ...]] = (0.05, 0.02)  # [m] clearances tried when none fits
 
     def __init__(self, config: OracleConfig | None = None) -> None:
         self.config = config or OracleConfig()
+
+    def _plan(self, ctx: EpisodeContext, scenario: Scenario, config: OracleConfig) -> OraclePath | None:
+        """The shortest path with the configured clearance, else through narrower passages.
+
+        A doorway of the robot's width + 0.3 m leaves no room at the full margin; with less, the leg check
+        and the collision monitor still keep the robot off the frame.
+        """
+        pose = ctx.world.robot.pose()
+        for margin in (config.grid.margin_m, *(m for m in self.narrow_margins_m if m < config.grid.margin_m)):
+            path = oracle_path(scenario, ctx.task, pose, config=_narrower(config, margin))
+            if path is not None:
+                return path
+        return None
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Plan from the current pose, drive the path, turn to the target; replan wider after a vetoed leg."""
@@ -41,7 +56,7 @@ class OraclePlanner(Planner):
         config = self.config
         face = (0.0, 0.0)  # what to face at the end: the target of the last plan
         for attempt in range(1 + self.replans_after_veto):
-            path = oracle_path(scenario, ctx.task, ctx.world.robot.pose(), config=config)
+            path = self._plan(ctx, scenario, config)
             if path is None:
                 ctx.log.event("planner", kind="oracle_path", found=False)
                 return EpisodeOutcome("failed", "no collision-free path to any target", metrics=metrics)
@@ -63,6 +78,10 @@ class OraclePlanner(Planner):
         if not drive.ok:
             return EpisodeOutcome("failed", failure_reason(drive.last), iterations=drive.steps, metrics=metrics)
         return EpisodeOutcome("completed", "reached target", iterations=drive.steps, metrics=metrics)
+
+
+def _narrower(config: OracleConfig, margin_m: float) -> OracleConfig:
+    return replace(config, grid=replace(config.grid, margin_m=margin_m))
 
 
 def _log_path(ctx: EpisodeContext, path: OraclePath) -> None:

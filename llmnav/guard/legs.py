@@ -5,9 +5,13 @@ oracle's and the frontier baseline's paths) drives each leg with `drive_leg`, so
 recorded the same way whoever plans it:
 
 1. check the leg with the layer's own check (`GuardedMotion.check_leg`: the round base's swept disc on
-   the latest scan). A refused leg is not commanded: the layer records the refusal (a `guard` veto
+   the latest scans). A refused leg is not commanded: the layer records the refusal (a `guard` veto
    event naming the step) and the robot stays where it is;
-2. otherwise command `go_to` through the layer. A veto it returns is a refused leg too, never success.
+2. otherwise command `go_to` through the layer. A veto it returns is a refused leg too, never success;
+3. a leg the collision monitor stopped on the way is a refused leg as well, after the first rung of
+   recovery: the robot backs off a little (`GuardedMotion.back_off`) so a new plan starts clear of it.
+   The rest of the ladder (mark it on the map, plan around it, try again, give up when no way is left)
+   is the planner's, which owns the map.
 
 `Action` is the one form of the `action` event (what the view and the metrics read): every motion a
 planner or baseline logs is built from the motion's result, so the fields mean the same everywhere.
@@ -125,6 +129,12 @@ def drive_leg(
         result = motion.go_to(x, y, **go_to_options)
     else:
         result = motion.refuse_leg(x, y, verdict, step=step)
+    if result.stopped_reason == "monitor":
+        # The first rung of recovery, for every planner alike: back away from what stopped the robot, so
+        # the planner's next leg (around it, on a map that now holds it) starts clear of it.
+        back = motion.back_off()
+        result.distance_m += back.distance_m
+        result.end = back.end
     if log is not None:
         log.sim_time = world.sim_time
         shown = parameters if parameters is not None else [round(x, 3), round(y, 3)]

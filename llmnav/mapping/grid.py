@@ -321,13 +321,28 @@ class LidarMap:
             window[rows[free], cols[free]] = self.FREE
             self.state[geometry.world_to_cell(pose.x, pose.y)] = self.FREE  # the robot stands on free floor
 
-        world_angles = angles[hit] + pose.yaw
-        rows, cols = geometry.world_to_cells(
-            pose.x + np.cos(world_angles) * ranges[hit], pose.y + np.sin(world_angles) * ranges[hit]
-        )
+        self._occupy(pose, angles[hit], ranges[hit])
+        self.scans += 1
+
+    def mark_hits(self, pose: Pose2D, scan: ScanLike) -> None:
+        """Mark the returns of a scan taken at `pose` occupied, freeing nothing.
+
+        For a scanner below the LiDAR's plane: its rays pass under what stands higher up (a table top), so
+        the free space it crosses proves nothing at the LiDAR's height; only what it hits is certain.
+        """
+        angles = np.asarray(scan.angles, dtype=float)
+        ranges = np.asarray(scan.ranges, dtype=float)
+        hit = np.isfinite(ranges) & np.isfinite(angles) & (ranges < scan.range_max)
+        self._occupy(pose, angles[hit], ranges[hit])
+
+    def _occupy(self, pose: Pose2D, angles: np.ndarray, ranges: np.ndarray) -> None:
+        """Mark the cells of returns (`angles` [rad] from the heading, `ranges` [m]) seen from `pose` occupied."""
+        geometry = self.geometry
+        world_angles = angles + pose.yaw
+        xs = pose.x + np.cos(world_angles) * ranges
+        rows, cols = geometry.world_to_cells(xs, pose.y + np.sin(world_angles) * ranges)
         inside_grid = (rows >= 0) & (rows < geometry.rows) & (cols >= 0) & (cols < geometry.cols)
         self.state[rows[inside_grid], cols[inside_grid]] = self.OCCUPIED
-        self.scans += 1
 
     def mark_occupied(self, x: float, y: float, radius_m: float) -> None:
         """Mark a disc occupied (a bump into something the LiDAR cannot see)."""

@@ -96,8 +96,14 @@ class Executor:
         if abs(turn) > self.cfg.turn_first_rad:
             world.motion.rotate(turn)
         # What the leg is checked on goes into the map, so a plan after a refusal routes around it.
-        self.lidar_map.integrate(believed_pose(self.ctx), world.lidar.scan())
-        return drive_leg(world, x, y, step=step, obstacle_stop_m=self.cfg.obstacle_stop_m)
+        pose = believed_pose(self.ctx)
+        self.lidar_map.integrate(pose, world.lidar.scan())
+        self.lidar_map.mark_hits(pose, world.low_lidar.scan())
+        result = drive_leg(world, x, y, step=step, obstacle_stop_m=self.cfg.obstacle_stop_m)
+        if result.stopped_reason == "monitor":  # what stopped it goes into the map too
+            self.lidar_map.mark_hits(believed_pose(self.ctx), world.low_lidar.scan())
+            self.lidar_map.integrate(believed_pose(self.ctx), world.lidar.scan())
+        return result
 
     def _arrive(self, option: Option, before: Pose2D, step: int) -> Executed:
         """Face what the option went to, note the visit, say how close the robot got."""

@@ -176,6 +176,7 @@ class HybridPlanner(Planner):
             obs = observe(world, ctx.options, ctx.log, step, image_needed=frames)
             pose = obs.odom if ctx.information == "sensed" else obs.pose
             maps.lidar_map.integrate(pose, obs.scan)
+            maps.lidar_map.mark_hits(pose, world.low_lidar.scan())
             remember(ctx, memory, pose, obs.detections)
             if "detections" not in ctx.options.sensing:
                 # The menu is built from what the detector sees, whether or not the model is shown it.

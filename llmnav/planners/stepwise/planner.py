@@ -297,7 +297,12 @@ class _Episode:
         else:
             result = motion.rotate(-math.radians(p))
         self.feedback = ""
-        if result.veto is not None:  # cannot happen after _decide's check on the same scan; told if it does
+        if result.stopped_reason == "monitor":  # something the check before it could not see came close
+            self.feedback = (
+                f"Your last action ({describe_action(answer)}) was stopped after {result.distance_m:.2f} m: "
+                f"{result.veto}."
+            )
+        elif result.veto is not None:  # cannot happen after _decide's check on the same scan; told if it does
             self.feedback = f"Your last action ({describe_action(answer)}) was not executed: {result.veto}."
         elif result.collided:
             self.counters.collisions += 1

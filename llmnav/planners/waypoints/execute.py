@@ -233,7 +233,7 @@ class WaypointPlanner(Planner):
                 if stop in ("obstacle", "emergency"):  # a LiDAR reading below the stop distance
                     metrics["collision_events"] += 1
                     obstacle = self._obstacle_ahead(ctx, wide=stop == "emergency")
-                elif stop == "vetoed":  # the motion layer refused the next segment: something is on it
+                elif stop in ("vetoed", "monitor"):  # the motion layer refused the segment or stopped it on the way
                     metrics["vetoed_segments"] += 1
                     obstacle = self._obstacle_at(ctx, last.veto_hit if last is not None else None)
                 if obstacle is not None:
