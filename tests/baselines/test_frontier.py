@@ -90,9 +90,22 @@ def test_frontier_explores_round_a_wall(tmp_path: Path) -> None:
     assert detection["pose"][1] > 2.0  # seen only after getting round the divider's open end
 
 
-def test_frontier_recovers_from_bumping_into_what_the_lidar_cannot_see(tmp_path: Path) -> None:
-    # A 0.1 m high box: below the Burger's LiDAR (0.17 m), above nothing the robot can climb.
+def test_frontier_maps_a_box_below_the_lidar_with_the_low_scanner_and_never_touches_it(tmp_path: Path) -> None:
+    # A 0.1 m high box: below the Burger's LiDAR (0.17 m), in the low scanner's plane (0.06 m).
     data = dict(HIDDEN, obstacles=[{"center": [2.0, 2.0], "size": [0.4, 0.4], "height": 0.1}])
+    sc = parse_scenario(data, "hidden-low-box")
+    outcome, final, collisions, _record = run(sc, "find", tmp_path)
+    assert outcome.outcome == "completed", outcome.reason
+    assert 1.4 <= final.distance_to(6.5, 1.0) <= 2.5
+    assert collisions == 0
+    assert outcome.metrics["bumps"] == 0
+
+
+def test_frontier_recovers_from_bumping_into_what_no_scanner_can_see(tmp_path: Path) -> None:
+    # A shelf from 0.09 to 0.15 m: above the low scanner (0.06 m), below the Burger's LiDAR (0.17 m), within
+    # the height of the robot's body, so the robot can touch it.
+    shelf = {"center": [2.0, 2.0], "size": [0.4, 0.4], "height": 0.06, "z": 0.09}
+    data = dict(HIDDEN, obstacles=[shelf])
     sc = parse_scenario(data, "hidden-low-box")
     outcome, final, collisions, record = run(sc, "find", tmp_path)
     assert outcome.outcome == "completed", outcome.reason
