@@ -2,22 +2,28 @@
 
 Each helper commands the guarded motion layer (`ctx.world.motion`; legs through `llmnav.guard.legs`),
 logs one `action` event per motion and keeps a running `Drive` tally. A leg the layer vetoes ends the
-drive like any failed motion.
+drive like any failed motion; `drive_planned` then recovers: it marks what blocked the leg and plans again.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 from llmnav.geometry import Point
 from llmnav.guard.legs import Action, drive_leg
+from llmnav.mapping.grid import margins_from
+from llmnav.mapping.targets import OracleConfig, OraclePath, plan_to_targets, scenario_grid, with_added_obstacles
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, StepInfo
 
 if TYPE_CHECKING:
+    from llmnav.scenario import Scenario, Target
     from llmnav.sim.motion import MotionResult
+
+REPLANS_AFTER_REFUSAL = 4  # plans after legs the motion layer refused, per drive to a target
+REFUSAL_MARK_M = 0.05  # [m] side of the box marked where a refused leg's blocking return was
 
 
 @dataclass
@@ -78,6 +84,55 @@ def drive_waypoints(
         if not result.ok:
             break
     return drive
+
+
+def plan_to(scenario: Scenario, targets: Sequence[Target], start: Point, config: OracleConfig) -> OraclePath | None:
+    """The shortest path to the targets on the true map with `config`'s clearance, else through narrower passages.
+
+    A doorway of the robot's width + 0.3 m leaves no room at the full margin; with less, the leg check and
+    the collision monitor still keep the robot off the frame.
+    """
+    for margin in margins_from(config.grid.margin_m):
+        narrow = replace(config, grid=replace(config.grid, margin_m=margin))
+        path = plan_to_targets(scenario_grid(scenario, narrow.grid), scenario, targets, start, narrow)
+        if path is not None:
+            return path
+    return None
+
+
+def drive_planned(
+    ctx: EpisodeContext,
+    scenario: Scenario,
+    targets: Sequence[Target],
+    config: OracleConfig,
+    drive: Drive,
+    *,
+    on_path: Callable[[OraclePath, int], None],
+    replans: int = REPLANS_AFTER_REFUSAL,
+) -> OraclePath | None:
+    """Plan on the true map from the true pose and drive it; recover from refused legs. None: no path.
+
+    A leg the motion layer refuses, or the collision monitor stops (it has backed off already), saw a
+    return the map lacks or the plan grazed (a leg starts off its corner, cells are coarse, a doorway is
+    tight): the return is marked on the map as a small box and the path is planned again from where the
+    robot stands, `replans` times at most. `on_path(path, attempt)` sees every plan before it is driven.
+    """
+    path: OraclePath | None = None
+    for attempt in range(1 + replans):
+        pose = ctx.world.robot.pose()
+        path = plan_to(scenario, targets, (pose.x, pose.y), config)
+        if path is None:
+            return None
+        on_path(path, attempt)
+        drive_waypoints(ctx, path.waypoints, drive, tol_m=config.waypoint_tol_m, final_tol_m=config.final_tol_m)
+        last = drive.last
+        if drive.ok or last is None or last.veto_hit is None:
+            break
+        here = ctx.world.robot.pose()
+        mark = here.point_at(math.atan2(last.veto_hit[1], last.veto_hit[0]), math.hypot(*last.veto_hit))
+        scenario = with_added_obstacles(scenario, [mark], REFUSAL_MARK_M, prefix="refused")
+        ctx.log.event("planner", kind="refusal_mark", point=[round(mark[0], 3), round(mark[1], 3)])
+    return path
 
 
 def rotate_by(ctx: EpisodeContext, angle_rad: float, drive: Drive) -> Drive:

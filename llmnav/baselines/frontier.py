@@ -31,13 +31,14 @@ Reference: B. Yamauchi, "A frontier-based approach for autonomous exploration", 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
 from llmnav.baselines.drive import (
     Drive,
+    drive_planned,
     drive_waypoints,
     face_point,
     failure_reason,
@@ -49,8 +50,15 @@ from llmnav.declarations import Declarations, ReferencePath
 from llmnav.geometry import Point
 from llmnav.mapping.astar import astar, densify, shortcut
 from llmnav.mapping.frontiers import frontier_clusters, goal_cells, sensed_grid
-from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, OccupancyGrid, nearest_free_cell
-from llmnav.mapping.targets import OracleConfig, plan_to_targets, scenario_grid, with_added_obstacles
+from llmnav.mapping.grid import (
+    GridConfig,
+    GridGeometry,
+    LidarMap,
+    OccupancyGrid,
+    margins_from,
+    nearest_free_cell,
+)
+from llmnav.mapping.targets import OracleConfig, OraclePath, with_added_obstacles
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner
 
 if TYPE_CHECKING:
@@ -152,12 +160,14 @@ class _Explorer:
         return None
 
     # --- planning -----------------------------------------------------------------------------
-    def planning_grid(self) -> OccupancyGrid:
+    def planning_grid(self, margin_m: float | None = None) -> OccupancyGrid:
         """The known map as a planning grid: occupied *and unknown* cells inflated, plus the bounds margin.
 
-        (`llmnav.mapping.frontiers.sensed_grid`.)
+        (`llmnav.mapping.frontiers.sensed_grid`.) Inflated by the robot's radius plus `margin_m` [m]
+        (default: the configured margin).
         """
-        return sensed_grid(self.map, self.ctx.scenario.bounds, self.inflation_m)
+        margin = self.config.grid.margin_m if margin_m is None else margin_m
+        return sensed_grid(self.map, self.ctx.scenario.bounds, self.robot.spec.radius_m + margin)
 
     def frontier_goals(self, grid: OccupancyGrid, pose: Pose2D) -> np.ndarray:
         """Cells the robot may drive to in order to look past a frontier.
@@ -168,7 +178,7 @@ class _Explorer:
         """
         labels = frontier_clusters(self.map, self.config.min_cluster_cells)
         labels[self.visited] = 0
-        goals = goal_cells(labels, grid, self.inflation_m + self.config.goal_band_m) > 0
+        goals = goal_cells(labels, grid, grid.inflation_m + self.config.goal_band_m) > 0
         xs, ys = self.geometry.centres()
         near = np.hypot(xs - pose.x, ys - pose.y) < self.config.min_goal_distance_m
         return np.asarray(goals & ~near)
@@ -179,9 +189,18 @@ class _Explorer:
         self.visited |= np.hypot(xs - point[0], ys - point[1]) <= self.config.visited_radius_m
 
     def next_frontier(self) -> tuple[Point, list[Point]] | None:
-        """The nearest frontier goal by path length on the known map and the waypoints to it."""
+        """The nearest frontier goal by path length on the known map and the waypoints to it.
+
+        Planned with the configured clearance, else through narrower passages (`margins_from`).
+        """
+        for margin in margins_from(self.config.grid.margin_m):
+            choice = self._frontier_path(self.planning_grid(margin))
+            if choice is not None:
+                return choice
+        return None
+
+    def _frontier_path(self, grid: OccupancyGrid) -> tuple[Point, list[Point]] | None:
         pose = self.robot.pose()
-        grid = self.planning_grid()
         blocked = grid.blocked
         goals = self.frontier_goals(grid, pose)
         if not goals.any():
@@ -293,27 +312,22 @@ class _Explorer:
         """Final leg: A* on the true grid to the detected target's approach point, then face it."""
         ctx = self.ctx
         scenario = with_added_obstacles(ctx.scenario, ctx.options.obstacles)
-        grid = scenario_grid(scenario, self.config.grid)
-        pose = self.robot.pose()
-        path = plan_to_targets(grid, scenario, [found.target], (pose.x, pose.y), self.config.oracle)
+
+        def on_path(path: OraclePath, _attempt: int) -> None:
+            ctx.log.event(
+                "planner",
+                kind="frontier_final_leg",
+                target=found.target.object or list(found.target.point or ()),
+                found_by=found.how,
+                length_m=round(path.length_m, 3),
+                waypoints=[[round(x, 3), round(y, 3)] for x, y in path.waypoints],
+            )
+
+        self.drive.last = None
+        oracle = replace(self.config.oracle, grid=self.config.grid)  # the final leg plans on the explorer's grid rules
+        path = drive_planned(ctx, scenario, [found.target], oracle, self.drive, on_path=on_path)
         if path is None:
             return self.fail(f"target {found.target.object or found.target.point} detected but unreachable")
-        ctx.log.event(
-            "planner",
-            kind="frontier_final_leg",
-            target=found.target.object or list(found.target.point or ()),
-            found_by=found.how,
-            length_m=round(path.length_m, 3),
-            waypoints=[[round(x, 3), round(y, 3)] for x, y in path.waypoints],
-        )
-        self.drive.last = None
-        drive_waypoints(
-            ctx,
-            path.waypoints,
-            self.drive,
-            tol_m=self.config.oracle.waypoint_tol_m,
-            final_tol_m=self.config.oracle.final_tol_m,
-        )
         if self.drive.ok:
             face_point(ctx, path.target_point, self.drive)
         if not self.drive.ok:

@@ -95,6 +95,15 @@ class Action:
         sink.event("action", **self.fields())
 
 
+def _into(frame: Pose2D, seen_from: Pose2D, point: tuple[float, float]) -> tuple[float, float]:
+    """A point [m] given in `seen_from`'s robot frame, in `frame`'s robot frame."""
+    wx, wy = seen_from.point_at(math.atan2(point[1], point[0]), math.hypot(*point))
+    return (
+        round(frame.distance_to(wx, wy) * math.cos(frame.bearing_to(wx, wy)), 3),
+        round(frame.distance_to(wx, wy) * math.sin(frame.bearing_to(wx, wy)), 3),
+    )
+
+
 class TimedSink(Protocol):
     """The run log as a leg sees it: events stamped with the sim time it was last given."""
 
@@ -131,10 +140,15 @@ def drive_leg(
         result = motion.refuse_leg(x, y, verdict, step=step)
     if result.stopped_reason == "monitor":
         # The first rung of recovery, for every planner alike: back away from what stopped the robot, so
-        # the planner's next leg (around it, on a map that now holds it) starts clear of it.
+        # the planner's next leg (around it, on a map that now holds it) starts clear of it. What blocked
+        # it is then re-expressed in the robot's new frame (by odometry over the short reverse).
+        stopped_at = world.robot.odom()
         back = motion.back_off()
         result.distance_m += back.distance_m
         result.end = back.end
+        now = world.robot.odom()
+        result.veto_points = tuple(_into(now, stopped_at, p) for p in result.veto_points)
+        result.veto_hit = _into(now, stopped_at, result.veto_hit) if result.veto_hit is not None else None
     if log is not None:
         log.sim_time = world.sim_time
         shown = parameters if parameters is not None else [round(x, 3), round(y, 3)]

@@ -44,6 +44,16 @@ class GridConfig:
     margin_m: float = 0.10  # [m] clearance kept beyond the robot radius (controller slack)
 
 
+# [m] clearances a planner falls back to when none of its own fits (a doorway of the robot's width + 0.3 m
+# leaves 0.15 m a side): the leg check and the collision monitor still keep the robot off the frame.
+NARROW_MARGINS_M = (0.05, 0.02)
+
+
+def margins_from(margin_m: float) -> tuple[float, ...]:
+    """`margin_m` [m], then the narrower fallbacks below it, in the order a planner should try them."""
+    return (margin_m, *(m for m in NARROW_MARGINS_M if m < margin_m))
+
+
 @dataclass(frozen=True)
 class GridGeometry:
     """Where the cells are: origin is the south-west corner of cell (0, 0)."""

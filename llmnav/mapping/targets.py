@@ -194,15 +194,21 @@ def scenario_grid(scenario: Scenario, config: GridConfig | None = None) -> Occup
     return _grid_for(_ScenarioKey.of(scenario), config or GridConfig())
 
 
-def with_added_obstacles(scenario: Scenario, centres: Sequence[Point], size_m: float = 0.5) -> Scenario:
-    """The scenario plus the boxes `llmnav drive --obstacle` drops (size [m] as `World.add_obstacle`)."""
+def with_added_obstacles(
+    scenario: Scenario, centres: Sequence[Point], size_m: float = 0.5, *, prefix: str = "added"
+) -> Scenario:
+    """The scenario plus the boxes `llmnav drive --obstacle` drops (size [m] as `World.add_obstacle`).
+
+    `prefix` names them (`prefix:1`, ...): planners that mark what blocked them use their own.
+    """
     from llmnav.scenario import Obstacle
 
     if not centres:
         return scenario
+    first = 1 + sum(1 for o in scenario.obstacles if (o.id or "").startswith(f"{prefix}:"))
     added = [
-        Obstacle(id=f"added:{i}", center=(float(x), float(y)), size=(size_m, size_m))
-        for i, (x, y) in enumerate(centres, start=1)
+        Obstacle(id=f"{prefix}:{i}", center=(float(x), float(y)), size=(size_m, size_m))
+        for i, (x, y) in enumerate(centres, start=first)
     ]
     return scenario.model_copy(update={"obstacles": [*scenario.obstacles, *added]})
 
@@ -225,9 +231,7 @@ def _cached_length(key: _ScenarioKey, task_id: str, x: float, y: float) -> float
     return None if path is None else path.length_m
 
 
-def oracle_length(
-    scenario: Scenario, task: Task | str, start_pose_index_or_pose: int | Pose2D
-) -> float | None:
+def oracle_length(scenario: Scenario, task: Task | str, start_pose_index_or_pose: int | Pose2D) -> float | None:
     """The oracle's path length [m] (`OraclePath.length_m`), cached; None without targets or path.
 
     An int is a 1-based index into the task's start poses (as `llmnav drive --start-pose`); a Pose2D is
@@ -240,9 +244,7 @@ def oracle_length(
         poses = scenario.start_poses(task_obj)
         index = int(start_pose_index_or_pose)
         if not 1 <= index <= len(poses):
-            raise BadInputError(
-                f"start pose {index} of task {task_obj.id} does not exist (1-based, 1..{len(poses)})"
-            )
+            raise BadInputError(f"start pose {index} of task {task_obj.id} does not exist (1-based, 1..{len(poses)})")
         pose = poses[index - 1].pose()
     if not task_obj.targets:
         return None
