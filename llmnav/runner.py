@@ -176,6 +176,8 @@ def _check_obstacles(scenario: Scenario, start: Pose2D, options: DriveOptions) -
     robot = ROBOT_SPECS.get(scenario.robot)
     clearance = (robot.radius_m if robot else 0.3) + _ADDED_OBSTACLE_SIZE_M * math.sqrt(0.5)
     check_added_obstacles(scenario, (start.x, start.y), options.obstacles, clearance)
+    # Boxes that appear later only have to lie inside the world: they wait until the robot is clear.
+    check_added_obstacles(scenario, (start.x, start.y), [(x, y) for x, y, _t in options.appearing], 0.0)
 
 
 def run_episode(
@@ -238,6 +240,8 @@ def run_episode(
             world.reset(start, seed=spec.options.seed)
             for x, y in spec.options.obstacles:
                 world.add_obstacle(x, y)
+            for x, y, at_s in spec.options.appearing:
+                world.schedule_obstacle(x, y, at_s)
             # A planner that paces its own control loop is not paced again by the physics steps.
             world.realtime = spec.options.realtime and not planner.paces_itself
             config = build_config(

@@ -34,7 +34,13 @@ if TYPE_CHECKING:
 
 
 # Option keys whose flag is not the key with dashes
-_FLAGS = {"lidar_fov_deg": "--lidar-fov", "obstacles": "--obstacle", "ttl_ms": "--ttl", "ttl_auto": "--ttl"}
+_FLAGS = {
+    "lidar_fov_deg": "--lidar-fov",
+    "obstacles": "--obstacle",
+    "appearing": "--obstacle",
+    "ttl_ms": "--ttl",
+    "ttl_auto": "--ttl",
+}
 
 
 def _option_error(err: ValidationError, from_o: set[str]) -> BadInputError:
@@ -45,14 +51,21 @@ def _option_error(err: ValidationError, from_o: set[str]) -> BadInputError:
     return BadInputError(f"{flag}: {first['msg'].removeprefix('Value error, ')} (got {first.get('input')!r})")
 
 
-def _parse_obstacle(text: str) -> tuple[float, float]:
+def _parse_obstacle(text: str) -> tuple[float, ...]:
+    """`X,Y` [m], or `X,Y@T` [m, m, s]: a box that appears when the simulation clock reaches T."""
+    where, _, when = text.partition("@")
     try:
-        x, y = (float(v) for v in text.split(","))
+        x, y = (float(v) for v in where.split(","))
+        t = float(when) if when else None
     except ValueError:
-        raise BadInputError(f"--obstacle {text!r}: expected X,Y in metres, e.g. 3.5,-1") from None
-    if not (math.isfinite(x) and math.isfinite(y)):
-        raise BadInputError(f"--obstacle {text!r}: coordinates must be finite numbers")
-    return (x, y)
+        raise BadInputError(
+            f"--obstacle {text!r}: expected X,Y in metres, or X,Y@T with T in seconds, e.g. 3.5,-1@8"
+        ) from None
+    if not all(math.isfinite(v) for v in (x, y, t if t is not None else 0.0)):
+        raise BadInputError(f"--obstacle {text!r}: coordinates and time must be finite numbers")
+    if t is not None and t < 0:
+        raise BadInputError(f"--obstacle {text!r}: the time it appears must be >= 0 s")
+    return (x, y) if t is None else (x, y, t)
 
 
 def _slug(text: str, limit: int = 32) -> str:
@@ -86,9 +99,7 @@ def drive(
         typer.Option(help="Scenario name or YAML path (default: the one the task names, else factory)."),
     ] = None,
     start_pose: Annotated[int, typer.Option("--start-pose", help="Start pose K (1-based) of the task.")] = 1,
-    backend: Annotated[
-        str, typer.Option(help="Model backend spec NAME[:ARG], e.g. ollama:llama3.1.")
-    ] = "local",
+    backend: Annotated[str, typer.Option(help="Model backend spec NAME[:ARG], e.g. ollama:llama3.1.")] = "local",
     planner: Annotated[
         str, typer.Option(help="A planner registered under llmnav.planners (built in: see `llmnav planners`).")
     ] = DEFAULT_PLANNER,
@@ -118,25 +129,15 @@ def drive(
     history: Annotated[
         str | None, typer.Option(help="Previous exchanges re-sent: all | 0 | 1 | 2 [default: all].")
     ] = None,
-    self_check: Annotated[
-        bool, typer.Option("--self-check", help="Ask the model to confirm each answer.")
-    ] = False,
+    self_check: Annotated[bool, typer.Option("--self-check", help="Ask the model to confirm each answer.")] = False,
     max_iterations: Annotated[
         int | None, typer.Option("--max-iterations", help="Decision steps before failing [default: 30].")
     ] = None,
     seed: Annotated[int, typer.Option(help="Simulation and model seed.")] = 0,
-    out: Annotated[
-        str | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")
-    ] = None,
-    realtime: Annotated[
-        bool, typer.Option("--realtime", help="Pace the simulation to the wall clock.")
-    ] = False,
-    quiet: Annotated[
-        bool, typer.Option("--quiet", help="One progress line instead of the live view.")
-    ] = False,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print only one JSON summary at the end.")
-    ] = False,
+    out: Annotated[str | None, typer.Option(help="Run folder (default runs/<time>-<planner>-<task>).")] = None,
+    realtime: Annotated[bool, typer.Option("--realtime", help="Pace the simulation to the wall clock.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="One progress line instead of the live view.")] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print only one JSON summary at the end.")] = False,
     assist: Annotated[str | None, typer.Option(help="Velocity assist: none | ema | llm.")] = None,
     model_latency: Annotated[
         str | None,
@@ -144,7 +145,11 @@ def drive(
     ] = None,
     ttl: Annotated[str | None, typer.Option("--ttl", help="Suggestion TTL in ms, or auto.")] = None,
     obstacle: Annotated[
-        list[str] | None, typer.Option(help="Drop an unexpected box obstacle at X,Y metres (repeatable).")
+        list[str] | None,
+        typer.Option(
+            help="Drop an unexpected box obstacle at X,Y metres, or at X,Y@T once the clock reaches T seconds "
+            "(repeatable)."
+        ),
     ] = None,
     replay_loose: Annotated[
         bool, typer.Option("--replay-loose", help="Replay: answer in order even when prompts differ.")
@@ -178,6 +183,7 @@ def drive(
         raise BadInputError("give exactly one of --task TEXT (repeatable) or --task-id ID")
     if any(SEQUENCE_JOIN in t for t in texts):
         raise BadInputError(f"--task: a task text may not contain {SEQUENCE_JOIN!r}; repeat --task instead")
+    parsed = [_parse_obstacle(o) for o in obstacle or []]
     named = {
         "information": information,
         "menu_order": menu_order,
@@ -194,7 +200,8 @@ def drive(
         "assist": assist,
         "model_latency": model_latency,
         "ttl": ttl,
-        "obstacles": tuple(_parse_obstacle(o) for o in obstacle or []) or None,
+        "obstacles": tuple(o for o in parsed if len(o) == 2) or None,
+        "appearing": tuple(o for o in parsed if len(o) == 3) or None,
         "drop_images": drop_images or None,
     }
     from_o = parse_option_pairs(option)

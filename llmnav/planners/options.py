@@ -26,8 +26,6 @@ Information = Literal["map", "sensed", "oracle"]
 Decide = Literal["auto", "score", "generate"]
 
 
-
-
 class DriveOptions(BaseModel):
     """The options every episode has: what the runner, the observation and the guard read.
 
@@ -59,6 +57,9 @@ class DriveOptions(BaseModel):
     obstacles: tuple[tuple[float, float], ...] = Field(
         default=(), description="[m] unexpected box obstacles dropped at X,Y"
     )
+    appearing: tuple[tuple[float, float, float], ...] = Field(
+        default=(), description="[m, m, s] box obstacles dropped at X,Y when the simulation clock reaches T"
+    )
 
     # Input keys beyond the fields that a before-validator maps onto fields (e.g. `ttl=auto`).
     input_aliases: ClassVar[frozenset[str]] = frozenset()
@@ -88,7 +89,7 @@ class ChoiceOptions(DriveOptions):
 OptionsT = TypeVar("OptionsT", bound=DriveOptions)
 
 # Options every planner honours (or that describe the episode rather than the planner).
-COMMON_OPTIONS: frozenset[str] = frozenset({"planner", "seed", "realtime", "obstacles", "information"})
+COMMON_OPTIONS: frozenset[str] = frozenset({"planner", "seed", "realtime", "obstacles", "appearing", "information"})
 # The options of a model-driven planner that asks once per decision.
 MODEL_OPTIONS: frozenset[str] = frozenset({"temperature", "max_tokens", "max_corrections"})
 
@@ -128,5 +129,3 @@ def decides_by_scores(options: ChoiceOptions, backend: Backend | None) -> bool:
     if options.decide == "generate" or backend is None:
         return False
     return options.decide == "score" or backend.can_score
-
-

@@ -8,6 +8,7 @@ the same poses.
 
 from __future__ import annotations
 
+import math
 import time
 from types import TracebackType
 
@@ -95,6 +96,7 @@ class World:
             self.object_bodies[obj.id] = body
             self.labelled[body] = obj
         self._added = 0
+        self._scheduled: list[tuple[float, float, float, float]] = []  # (t [s], x [m], y [m], size [m]), by time
 
         spec = ROBOT_SPECS[scenario.robot]
         sensors = scenario.sensors
@@ -154,6 +156,8 @@ class World:
             p.stepSimulation(physicsClientId=client)
             robot._after_step()
             self.step_count += 1
+            if self._scheduled and self.sim_time >= self._scheduled[0][0]:
+                self._drop_due()
         if self.realtime:
             self._pace()
 
@@ -183,6 +187,24 @@ class World:
             id=f"added:{self._added}",
         )
         return self._add_scenery(shape, f"added:{self._added}")
+
+    def schedule_obstacle(self, x: float, y: float, at_s: float, size: float = 0.5) -> None:
+        """Drop a box like `add_obstacle` once the simulation clock reaches `at_s` [s] (mid-motion).
+
+        Like a person stepping into the way, it never lands on the robot: while its footprint would overlap
+        the robot's, it waits.
+        """
+        self._scheduled.append((at_s, x, y, size))
+        self._scheduled.sort()
+
+    def _drop_due(self) -> None:
+        pose, reach = self.robot.pose(), self.robot.spec.radius_m
+        for item in [s for s in self._scheduled if s[0] <= self.sim_time]:
+            _t, x, y, size = item
+            gap = math.hypot(max(abs(pose.x - x) - size / 2, 0.0), max(abs(pose.y - y) - size / 2, 0.0))
+            if gap > reach + 0.01:
+                self._scheduled.remove(item)
+                self.add_obstacle(x, y, size)
 
     def object_at_body(self, body_id: int) -> str | None:
         """The labelled object id of a body, if it is one."""

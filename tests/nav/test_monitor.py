@@ -191,3 +191,55 @@ def test_a_scanner_that_fails_mid_run_stops_the_run_as_an_outage() -> None:
         lidar.scan = broken  # type: ignore[method-assign]
         with pytest.raises(SensorFailure, match="low scanner"):
             view.motion.go_to(1.0, 0.0)
+
+
+# --- boxes that appear mid-motion ---------------------------------------------------------------------
+
+
+def test_a_scheduled_box_appears_on_time_mid_motion_and_never_on_the_robot() -> None:
+    sc = parse_scenario(
+        {"name": "open", "robot": "burger", "bounds": {"x": [-1, 6], "y": [-2, 2]}, "default_start": {"x": 0, "y": 0}},
+        "test",
+    )
+    with World(sc) as world:
+        log = Log()
+        view = PlannerWorld(world, log)
+        world.reset(Pose2D(0.0, 0.0, 0.0))
+        world.schedule_obstacle(2.5, 0.0, at_s=2.0, size=0.4)  # on the leg, appearing 2 s into it
+        world.schedule_obstacle(0.0, 0.0, at_s=0.5, size=0.4)  # where the robot stands then: it must wait
+        assert view.motion.check_leg(4.5, 0.0).allowed  # nothing there when the leg is checked
+        result = view.motion.go_to(4.5, 0.0)
+        assert result.stopped_reason == "monitor" and not result.collided
+        assert world.motion.collisions == 0
+        assert sum(name.startswith("added:") for name in world.body_names.values()) == 2  # both dropped by now
+        assert world.robot.pose().x < 2.3 - world.robot.spec.radius_m
+
+
+def test_the_obstacle_flag_takes_a_time_and_refuses_a_bad_one(tmp_path) -> None:  # noqa: ANN001
+    from typer.testing import CliRunner
+
+    from llmnav.cli import app
+
+    runner = CliRunner()
+    bad = runner.invoke(
+        app, ["drive", "--planner", "oracle", "--task-id", "A1", "--obstacle", "4,0@-1", "--out", str(tmp_path / "a")]
+    )
+    assert bad.exit_code == 2 and "must be >= 0 s" in bad.output
+    assert not (tmp_path / "a").exists()
+    outside = runner.invoke(
+        app,
+        [
+            "drive",
+            "--planner",
+            "oracle",
+            "--scenario",
+            "corridor_a",
+            "--task-id",
+            "A1",
+            "--obstacle",
+            "99,0@3",
+            "--out",
+            str(tmp_path / "b"),
+        ],
+    )
+    assert outside.exit_code == 2 and "outside the world" in outside.output
