@@ -82,9 +82,11 @@ ROWS: dict[str, list[str]] = {
 VERDICTS = re.compile(r"\b(FAIL|MISSES|meets|BELOW TARGET|ABOVE TARGET|OVER)\b")
 
 
-def run_bench(*args: str) -> subprocess.CompletedProcess[str]:
+def run_bench(*args: str, quick_env: bool = False) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
     env.pop("LLMNAV_BENCH_QUICK", None)
+    if quick_env:
+        env["LLMNAV_BENCH_QUICK"] = "1"
     return subprocess.run(
         [sys.executable, "-m", "bench", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900
     )
@@ -110,3 +112,29 @@ def test_unknown_name_is_one_line_and_exit_2():
     assert result.returncode == 2
     assert result.stderr.strip().startswith("unknown benchmark(s) nope")
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_quick_env_var_asks_for_quick_mode():
+    result = run_bench("guard", quick_env=True)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert re.search(rf"\s+all\s+100\s+{NUMBER}", result.stdout, re.MULTILINE), result.stdout
+    assert NOT_MEASURED in result.stdout
+
+
+def test_a_failing_module_is_reported_and_the_others_still_run(monkeypatch, capsys):
+    monkeypatch.syspath_prepend(str(ROOT))
+    import bench.decision
+    import bench.guard
+    from bench.__main__ import main
+
+    def broken(quick: bool = False) -> None:
+        raise AttributeError("an API the benchmark uses is gone")
+
+    ran: list[bool] = []
+    monkeypatch.setattr(bench.guard, "main", broken)
+    monkeypatch.setattr(bench.decision, "main", lambda quick=False: ran.append(quick))
+    assert main(["--quick", "guard", "decision"]) == 1
+    assert ran == [True]
+    err = capsys.readouterr().err
+    assert "AttributeError: an API the benchmark uses is gone" in err
+    assert "benchmarks that failed: guard" in err
