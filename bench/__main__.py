@@ -25,7 +25,7 @@ MODULES = [
     "information",
     "rl",
 ]
-# The 200-episode sweep (~5-15 min) runs in full only when named: `python -m bench protocol`.
+# The 200-episode sweep (several minutes) runs in full only when named: `python -m bench protocol`.
 NAMED_ONLY = ["protocol"]
 USAGE = "usage: python -m bench [--quick] [NAME ...]   (names: " + ", ".join(MODULES + NAMED_ONLY) + ")"
 
