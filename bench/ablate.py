@@ -12,6 +12,7 @@
 The machine is shared: every table carries the load average, and the sim-bound one the cores that as
 many busy processes got just before each sweep (two workers cannot beat the cores they are left).
 BENCH_ABLATE_REPEATS (default 1) takes medians over several sweeps; BENCH_ABLATE_MODEL=0 skips part 2.
+Quick mode: 2 episodes of at most 2 decisions (1 with the model) in each sweep; no target is judged.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bench import NOT_MEASURED, judged, quick_from_env
 from llmnav.ablate import grid_from_mapping, plan, run
 from llmnav.ablate import layout as layouts
 
@@ -50,6 +52,16 @@ MODEL_GRID: dict[str, Any] = {
     "backend": ["local"],
     "options": {"max_iterations": 6},
 }
+# Quick mode: two short episodes a sweep, the same factors otherwise.
+QUICK_SIM_GRID: dict[str, Any] = {
+    **SIM_GRID,
+    "tasks": ["T1", "T2"],
+    "poses": [1],
+    "lidar_sectors": [3],
+    "options": {**SIM_GRID["options"], "max_iterations": 2},
+}
+QUICK_MODEL_GRID: dict[str, Any] = {**MODEL_GRID, "tasks": ["T1"], "options": {"max_iterations": 1}}
+QUICK_SPIN_S = 0.2  # [s] of busy loop that measures the free cores (2 s in full)
 # Fields of a run log that measure time, not behaviour (and the prompt cache's state, which depends on
 # what the same process answered before).
 _TIMING = frozenset(
@@ -117,8 +129,9 @@ def _behaviour(run_dir: Path) -> list[Any]:
     return [strip(json.loads(line)) for line in (run_dir / "run.jsonl").read_text().splitlines()]
 
 
-def sim_bound(repeats: int) -> None:
+def sim_bound(repeats: int, quick: bool = False) -> None:
     """Print the sim-bound table: episodes/min at 1 and 2 workers and their ratio."""
+    grid, spin_s = (QUICK_SIM_GRID, QUICK_SPIN_S) if quick else (SIM_GRID, 2.0)
     walls: dict[int, list[float]] = {1: [], 2: []}
     cpus: dict[int, list[float]] = {1: [], 2: []}
     cores: dict[int, list[float]] = {1: [], 2: []}
@@ -126,10 +139,10 @@ def sim_bound(repeats: int) -> None:
     size = successes = 0
     for _ in range(repeats):
         for workers in (1, 2):
-            cores[workers].append(cores_available(workers))
+            cores[workers].append(cores_available(workers, spin_s))
             loads.append(os.getloadavg()[0])
             with tempfile.TemporaryDirectory() as tmp:
-                wall, cpu, size, successes = _sweep(SIM_GRID, Path(tmp) / "ab", workers)
+                wall, cpu, size, successes = _sweep(grid, Path(tmp) / "ab", workers)
             walls[workers].append(wall)
             cpus[workers].append(cpu)
     loads.append(os.getloadavg()[0])
@@ -139,7 +152,7 @@ def sim_bound(repeats: int) -> None:
     print(f"\nbench.ablate — sim-bound: {size} factory episodes (stepwise, LiDAR + 640×480 camera, policy:first)")
     print(
         f"(median of {repeats} sweep(s) each; {successes}/{size} succeeded; load avg {min(loads):.1f}–{max(loads):.1f};"
-        f" CPU pressure {cpu_pressure()} of the last 10 s)"
+        f" CPU pressure {cpu_pressure()} of the last 10 s)" + (f"; {NOT_MEASURED}" if quick else "")
     )
     header = f"{'workers':>8} {'wall (s)':>9} {'episodes/min':>13} {'CPU/episode (s)':>16}"
     print(f"{header} {'cores used':>11} {'cores free':>11}")
@@ -150,7 +163,7 @@ def sim_bound(repeats: int) -> None:
             f"{workers:>8} {wall:>9.1f} {size / wall * 60:>13.1f} {cpu:>16.2f} {cpu * size / wall:>11.2f} {free:>11.2f}"
         )
     print("(cores used: CPU time / wall time; cores free: CPU that as many busy-looping processes got just before)")
-    verdict = "ok" if speedup >= TARGET_SPEEDUP else "BELOW TARGET"
+    verdict = judged("ok" if speedup >= TARGET_SPEEDUP else "BELOW TARGET", quick)
     print(f"speed-up 2 vs 1 workers: {speedup:.2f}× (target ≥ {TARGET_SPEEDUP}×) {verdict}")
     # Two workers cannot beat the cores the machine leaves them; this is the share of that bound reached.
     cpu_ratio = statistics.median(cpus[2]) / statistics.median(cpus[1])
@@ -161,15 +174,17 @@ def sim_bound(repeats: int) -> None:
     projected = parallel / size * PROTOCOL_EPISODES
     projected_idle = statistics.median(cpus[2]) / size * PROTOCOL_EPISODES / 2
     for label, value in (("measured", projected), ("CPU-bound, 2 idle cores", projected_idle)):
-        verdict = "ok" if value <= TARGET_PROTOCOL_S else "ABOVE TARGET"
+        verdict = judged("ok" if value <= TARGET_PROTOCOL_S else "ABOVE TARGET", quick)
         print(
             f"projected {PROTOCOL_EPISODES}-episode protocol, 2 workers, {label}: {value / 60:.1f} min "
             f"(target ≤ {TARGET_PROTOCOL_S / 60:.0f} min) {verdict}"
         )
 
 
-def model_bound(repeats: int) -> None:
+def model_bound(repeats: int, quick: bool = False) -> None:
     """Print the model-bound table: a model copy per worker against one shared server, 2 workers."""
+    grid = QUICK_MODEL_GRID if quick else MODEL_GRID
+    cap = grid["options"]["max_iterations"]
     rates: dict[str, list[float]] = {"per-worker": [], "shared": []}
     loads: list[float] = []
     same = compared = 0
@@ -178,15 +193,18 @@ def model_bound(repeats: int) -> None:
         with tempfile.TemporaryDirectory() as tmp:
             for layout in rates:
                 loads.append(os.getloadavg()[0])
-                wall, _, size, _ = _sweep(MODEL_GRID, Path(tmp) / layout, 2, layout)
+                wall, _, size, _ = _sweep(grid, Path(tmp) / layout, 2, layout)
                 rates[layout].append(size / wall * 60)
             loads.append(os.getloadavg()[0])
             for folder in sorted(p for p in (Path(tmp) / "shared").iterdir() if p.is_dir()):
                 compared += 1
                 same += _behaviour(folder) == _behaviour(Path(tmp) / "per-worker" / folder.name)
     per_worker, shared = statistics.median(rates["per-worker"]), statistics.median(rates["shared"])
-    print(f"\nbench.ablate — model-bound: {size} factory episodes (hybrid, embedded model, ≤ 6 decisions), 2 workers")
-    print(f"(median of {repeats} sweep(s) each; load avg {min(loads):.1f}–{max(loads):.1f})")
+    print(
+        f"\nbench.ablate — model-bound: {size} factory episodes (hybrid, embedded model, ≤ {cap} decisions), 2 workers"
+    )
+    mode = f"; {NOT_MEASURED}" if quick else ""
+    print(f"(median of {repeats} sweep(s) each; load avg {min(loads):.1f}–{max(loads):.1f}{mode})")
     print(f"{'layout':>12} {'episodes/min':>13}")
     print(f"{'per-worker':>12} {per_worker:>13.2f}   (a copy of the model in each worker)")
     print(f"{'shared':>12} {shared:>13.2f}   (one server, a slot per worker, on 127.0.0.1)")
@@ -195,13 +213,13 @@ def model_bound(repeats: int) -> None:
     print(f"`ablate --model-layout auto` takes: {layouts.faster()} (recorded episodes/min: {recorded})")
 
 
-def main() -> None:
-    """Print both tables."""
-    repeats = int(os.environ.get("BENCH_ABLATE_REPEATS", "1"))
-    sim_bound(repeats)
+def main(quick: bool = False) -> None:
+    """Print both tables (quick: one sweep of 2 short episodes each, not a measurement)."""
+    repeats = 1 if quick else int(os.environ.get("BENCH_ABLATE_REPEATS", "1"))
+    sim_bound(repeats, quick)
     if os.environ.get("BENCH_ABLATE_MODEL", "1") != "0":
-        model_bound(repeats)
+        model_bound(repeats, quick)
 
 
 if __name__ == "__main__":
-    main()
+    main(quick=quick_from_env())

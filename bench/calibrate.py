@@ -7,7 +7,8 @@ the stop event and the trajectory efficiency eta as mean ± SD (n), the publishe
 ours/published, and Welch's t against the published summary (N = 60). Episodes that do not reach the stop
 sign have no e_pos; they are counted and reported.
 
-Set BENCH_CALIBRATE_SEEDS (default 30) and BENCH_CALIBRATE_WORKERS (default 2, processes).
+Set BENCH_CALIBRATE_SEEDS (default 30) and BENCH_CALIBRATE_WORKERS (default 2, processes). Quick mode
+runs seed 0 only and judges nothing.
 """
 
 from __future__ import annotations
@@ -20,12 +21,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bench import NOT_MEASURED, quick_from_env
 from llmnav.planners.base import drive_options
 from llmnav.runner import EpisodeSpec, run_episode
 from llmnav.stats import mean_sd, welch_summary
 
 SCENARIO, TASK, START_POSE = "maze_arena", "M1", 1
 PUBLISHED_N = 60  # runs per condition in the FSM source
+QUICK_SEEDS = 1  # an FSM episode to the stop sign costs ~8 s of CPU
 
 
 @dataclass(frozen=True)
@@ -76,8 +79,8 @@ def run(seeds: int, workers: int) -> dict[str, list[tuple[str, int, str, float |
     return {assist: [r for r in results if r[0] == assist] for assist in PUBLISHED}
 
 
-def report(results: dict[str, list[Any]]) -> list[str]:
-    """The table and the verdict lines (also returned, for tests and logs)."""
+def report(results: dict[str, list[Any]], quick: bool = False) -> list[str]:
+    """The table and the verdict lines (also returned, for tests and logs); quick: the table only."""
     lines = [
         f"{'condition':<11} {'e_pos [m] ours':<24} {'published':<16} {'ratio':>6} {'Welch t':>8}   "
         f"{'eta ours':<24} {'published':>9} {'ratio':>6}"
@@ -122,12 +125,12 @@ def report(results: dict[str, list[Any]]) -> list[str]:
     verdicts.append(
         f"EMA ablation: e_pos changes by {change:+.3f} m (published {published_change:+.3f} m): {direction}"
     )
-    return lines + verdicts
+    return lines + ([NOT_MEASURED] if quick else verdicts)
 
 
-def main() -> None:
-    """Run both conditions and print the calibration table."""
-    seeds = int(os.environ.get("BENCH_CALIBRATE_SEEDS", "30"))
+def main(quick: bool = False) -> None:
+    """Run both conditions and print the calibration table (quick: 1 seed, no verdicts)."""
+    seeds = QUICK_SEEDS if quick else int(os.environ.get("BENCH_CALIBRATE_SEEDS", "30"))
     workers = max(1, int(os.environ.get("BENCH_CALIBRATE_WORKERS", "2")))
     load = os.getloadavg()[0]
     started = time.perf_counter()
@@ -137,9 +140,9 @@ def main() -> None:
         f"[bench.calibrate] {SCENARIO} {TASK} start pose {START_POSE}, seeds 0..{seeds - 1}, {workers} worker(s), "
         f"{elapsed:.0f} s, load {load:.2f}"
     )
-    for line in report(results):
+    for line in report(results, quick):
         print("  " + line)
 
 
 if __name__ == "__main__":
-    main()
+    main(quick=quick_from_env())

@@ -3,6 +3,7 @@ guarded motion layer adds to a 50 Hz velocity tick (kinematic box + time to coll
 
 Targets: median parse ≤ 1 ms per answer, veto check far below a LiDAR scan (≈ 1.5 ms, docs/sources.md, M),
 the layer's cost per velocity tick ≤ 1 ms (a 20 ms slot also holds the detector and the physics).
+Quick mode: 100 answers, 200 veto checks and 50 ticks; no target is judged.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from bench import judged, quick_from_env
 from llmnav.guard.parse import parse_answer
 from llmnav.guard.schemas import ActionBounds, StepAction
 from llmnav.guard.veto import check_motion
@@ -25,6 +27,9 @@ PARSE_TARGET_MS = 1.0
 VETO_TARGET_MS = 1.5  # one LiDAR scan's cost: the veto should be small next to it
 TICK_TARGET_MS = 1.0  # [ms] the motion layer's share of a 20 ms velocity tick
 TICKS = 500
+ANSWERS = 1000
+VETO_CHECKS = 2000
+QUICK_SHARE = 10  # quick mode runs a tenth of the answers, veto checks and ticks
 
 
 class _Sink:
@@ -34,7 +39,7 @@ class _Sink:
         pass
 
 
-def _tick_overhead_ms() -> tuple[float, float]:
+def _tick_overhead_ms(ticks: int = TICKS) -> tuple[float, float]:
     """Mean wall time [ms] of a raw and of a guarded velocity tick, driving toward a wall 2 m away.
 
     The mean, not the median: the layer's scan every 0.1 s (one tick in five) is the cost that matters.
@@ -59,7 +64,7 @@ def _tick_overhead_ms() -> tuple[float, float]:
         timings: dict[str, list[float]] = {"raw": [], "guarded": []}
         for name, tick in (("raw", world.motion.velocity_tick), ("guarded", view.motion.velocity_tick)):
             world.reset(Pose2D(0.8, 0.0, 0.0))
-            for _ in range(TICKS):
+            for _ in range(ticks):
                 start = time.perf_counter()
                 tick(0.06, 0.1, 0.02)
                 timings[name].append(time.perf_counter() - start)
@@ -102,10 +107,12 @@ def _median_ms(samples: list[float]) -> float:
     return statistics.median(samples) * 1000.0
 
 
-def main() -> None:
-    """Print the guard table."""
+def main(quick: bool = False) -> None:
+    """Print the guard table (quick: a tenth of the samples, not a measurement)."""
+    share = QUICK_SHARE if quick else 1
+    answers, checks, ticks = ANSWERS // share, VETO_CHECKS // share, TICKS // share
     rng = random.Random(0)
-    kinds = rng.choices(list(MAKERS), weights=WEIGHTS, k=1000)
+    kinds = rng.choices(list(MAKERS), weights=WEIGHTS, k=answers)
     texts = [(kind, MAKERS[kind](_answer(rng), rng)) for kind in kinds]
     bounds = ActionBounds()
     for _, text in texts[:50]:  # warm-up (imports, pydantic caches)
@@ -125,13 +132,14 @@ def main() -> None:
     ranges = np.where(np.cos(angles) > 0.1, 2.0 / np.maximum(np.cos(angles), 1e-9), np.inf)
     scan = Scan(angles, ranges)
     veto_times: list[float] = []
-    for i in range(2000):
+    for i in range(checks):
         distance = (0.5, 2.5, -1.0)[i % 3]
         start = time.perf_counter()
         check_motion(distance, scan, robot_width_m=0.72)
         veto_times.append(time.perf_counter() - start)
 
-    print("guard: parse_answer over 1000 mixed answers (StepAction + ActionBounds)")
+    mode = ", quick: not a measurement" if quick else ""
+    print(f"guard: parse_answer over {answers} mixed answers (StepAction + ActionBounds){mode}")
     print(f"  {'kind':<24}{'n':>5}{'median ms':>11}{'max ms':>9}  outcome")
     for kind in MAKERS:
         samples = per_kind.get(kind, [])
@@ -146,18 +154,18 @@ def main() -> None:
     worst = max(everything) * 1000.0
     print(f"  {'all':<24}{len(everything):>5}{overall:>11.3f}{worst:>9.2f}  p95 {p95:.3f} ms")
     ratio = overall / PARSE_TARGET_MS
-    print(f"  median parse {overall:.3f} ms vs target {PARSE_TARGET_MS} ms (ratio {ratio:.2f})")
+    print(f"  median parse {overall:.3f} ms vs target {PARSE_TARGET_MS} ms ({judged(f'ratio {ratio:.2f}', quick)})")
     print(
         f"  veto check (360 rays) median {veto:.3f} ms vs target {VETO_TARGET_MS} ms "
-        f"(ratio {veto / VETO_TARGET_MS:.2f})"
+        f"({judged(f'ratio {veto / VETO_TARGET_MS:.2f}', quick)})"
     )
-    raw, guarded = _tick_overhead_ms()
+    raw, guarded = _tick_overhead_ms(ticks)
     extra = guarded - raw
     print(
-        f"  velocity tick over {TICKS} ticks: raw {raw:.3f} ms, guarded {guarded:.3f} ms mean; the layer adds "
-        f"{extra:.3f} ms vs target {TICK_TARGET_MS} ms (ratio {extra / TICK_TARGET_MS:.2f})"
+        f"  velocity tick over {ticks} ticks: raw {raw:.3f} ms, guarded {guarded:.3f} ms mean; the layer adds "
+        f"{extra:.3f} ms vs target {TICK_TARGET_MS} ms ({judged(f'ratio {extra / TICK_TARGET_MS:.2f}', quick)})"
     )
 
 
 if __name__ == "__main__":
-    main()
+    main(quick=quick_from_env())

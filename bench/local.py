@@ -11,11 +11,13 @@ decisions and of a drive's default cap, at the pool layout `llmnav.backends.loca
 
 `BENCH_POOL=1` also measures episodes/min of an ablation pool, 1 worker x N threads against N workers
 x 1 thread (the measurement behind `pool_layout`). Numbers depend on the machine's load: the load
-average is printed with them, and medians are used throughout.
+average is printed with them, and medians are used throughout. Quick mode: one episode a planner of 2
+decisions (the FSM 250 ticks); no target is judged.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import statistics
 import sys
@@ -24,6 +26,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench import NOT_MEASURED, quick_from_env
 from llmnav.planners.base import DriveOptions, drive_options
 
 PROTOCOL_EPISODES = 200  # factory protocol: 10 tasks x 5 start poses x 4 trials
@@ -35,6 +38,19 @@ CASES: list[tuple[str, str, str, DriveOptions, int]] = [
     ("hybrid (generate)", "factory", "T1", drive_options(planner="hybrid", decide="generate", max_iterations=8), 2),
     ("fsm + llm", "maze_arena", "M1", drive_options(planner="fsm", assist="llm", max_ticks=3000), 1),
 ]
+# Quick mode: one episode of each, cut to a few decisions (ticks for the FSM).
+QUICK_CAPS = {"max_iterations": 2}  # [decisions]: a cold one and a warm one
+QUICK_FSM_TICKS = 250  # [ticks] at 50 Hz: a few suggestions
+
+
+def quick_cases() -> list[tuple[str, str, str, DriveOptions, int]]:
+    """`CASES` with one short episode each."""
+    cut: list[tuple[str, str, str, DriveOptions, int]] = []
+    for label, scenario, task, options, _ in CASES:
+        caps = {"max_ticks": QUICK_FSM_TICKS} if options.planner == "fsm" else QUICK_CAPS
+        cut.append((label, scenario, task, options.model_copy(update=caps), 1))
+    return cut
+
 
 # Targets of the fast-decision work (the issue this benchmark answers).
 TARGET_HYBRID_WARM_S = 0.8  # [s] a warm hybrid decision (p50)
@@ -73,14 +89,14 @@ def _percentile(values: list[float], q: float) -> float:
 
 
 def run_case(scenario: str, task: str, options: DriveOptions, episodes: int, root: Path) -> Calls:
-    """Run `episodes` episodes of one planner with the local backend and collect its calls."""
+    """Run `episodes` episodes of one planner with the local backend into the new folder `root`; its calls."""
     from llmnav.runlog import read_run
     from llmnav.runner import EpisodeSpec, run_episode
 
     calls = Calls()
     first = True
     for index in range(episodes):
-        out = root / f"{options.planner}-{options.decide}-{index}"
+        out = root / f"episode-{index}"
         spec = EpisodeSpec(
             scenario=scenario, task_id=task, start_pose=1 + index, options=options, backend="local", out_dir=out
         )
@@ -144,26 +160,29 @@ def measure_pool(root: Path, episodes: int = 4) -> dict[str, float]:
     return rates
 
 
-def _row(name: str, value: str, target: str, ok: bool | None) -> str:
-    verdict = "" if ok is None else ("meets" if ok else "MISSES")
+def _row(name: str, value: str, target: str, ok: bool | None, quick: bool = False) -> str:
+    verdict = "" if ok is None else NOT_MEASURED if quick else ("meets" if ok else "MISSES")
     return f"  {name:<44} {value:>14}   {target:<12} {verdict}"
 
 
-def main() -> None:
-    """Run the planners with the local model and print the table."""
+def main(quick: bool = False) -> None:  # noqa: C901 - one table, row by row
+    """Run the planners with the local model and print the table (quick: short episodes, not a measurement)."""
     from llmnav.backends.local import model_threads, pool_layout
 
+    row = functools.partial(_row, quick=quick)
     load_before = os.getloadavg()[0]
     results: dict[str, Calls] = {}
+    cases = quick_cases() if quick else CASES
     with tempfile.TemporaryDirectory(prefix="llmnav-bench-local-") as tmp:
-        for label, scenario, task, options, episodes in CASES:
-            results[label] = run_case(scenario, task, options, episodes, Path(tmp))
+        for n, (label, scenario, task, options, episodes) in enumerate(cases):
+            results[label] = run_case(scenario, task, options, episodes, Path(tmp) / f"case-{n}")
         pool = measure_pool(Path(tmp)) if os.environ.get("BENCH_POOL") == "1" else None
     load_after = os.getloadavg()[0]
     threads = model_threads(beside_simulation=False)
     print(
         f"[bench.local] SmolLM2-135M in process, sim-time mode, {threads} model thread(s); "
         f"load avg {load_before:.1f} -> {load_after:.1f} on {os.cpu_count()} cores"
+        + (f"; {NOT_MEASURED}" if quick else "")
     )
     for label, calls in results.items():
         if not calls.cold_s:
@@ -179,35 +198,33 @@ def main() -> None:
         if label == "hybrid (score)":
             p50, p95 = statistics.median(calls.step_s), _percentile(calls.step_s, 0.95)
             first_s = statistics.median(calls.first_step_s)
-            print(_row("first decision [s] (intent, first names)", f"{first_s:.2f}", "", None))
+            print(row("first decision [s] (intent, first names)", f"{first_s:.2f}", "", None))
             ok = p50 <= TARGET_HYBRID_WARM_S
-            print(_row("warm decision p50 [s]", f"{p50:.2f}", f"<= {TARGET_HYBRID_WARM_S}", ok))
-            print(_row("warm decision p95 [s]", f"{p95:.2f}", f"<= {TARGET_SCORED_P95_S}", p95 <= TARGET_SCORED_P95_S))
-            print(_row("scoring cost per option, median [ms]", f"{statistics.median(calls.option_ms):.0f}", "", None))
+            print(row("warm decision p50 [s]", f"{p50:.2f}", f"<= {TARGET_HYBRID_WARM_S}", ok))
+            print(row("warm decision p95 [s]", f"{p95:.2f}", f"<= {TARGET_SCORED_P95_S}", p95 <= TARGET_SCORED_P95_S))
+            print(row("scoring cost per option, median [ms]", f"{statistics.median(calls.option_ms):.0f}", "", None))
             print(f"    ({len(calls.step_s)} warm decisions; a name is scored once per episode, so most cost 0)")
             continue
         target_new = TARGET_NEW_TOKENS[label]
-        print(_row("new prompt tokens after the first, median", f"{new_median:.0f}", f"<= {target_new}",
+        print(row("new prompt tokens after the first, median", f"{new_median:.0f}", f"<= {target_new}",
                    new_median <= target_new if calls.new else None))  # fmt: skip
-        print(_row("  max", f"{max(calls.new) if calls.new else float('nan'):.0f}", "", None))
-        print(_row("cold decision [s] (first call)", f"{statistics.median(calls.cold_s):.2f}", "", None))
+        print(row("  max", f"{max(calls.new) if calls.new else float('nan'):.0f}", "", None))
+        print(row("cold decision [s] (first call)", f"{statistics.median(calls.cold_s):.2f}", "", None))
         p50, p95 = statistics.median(warm), _percentile(warm, 0.95)
         if label == "hybrid (generate)":
-            print(
-                _row("warm decision p50 [s]", f"{p50:.2f}", f"<= {TARGET_HYBRID_WARM_S}", p50 <= TARGET_HYBRID_WARM_S)
-            )
+            print(row("warm decision p50 [s]", f"{p50:.2f}", f"<= {TARGET_HYBRID_WARM_S}", p50 <= TARGET_HYBRID_WARM_S))
         else:
-            print(_row("warm decision p50 [s]", f"{p50:.3f}", "", None))
+            print(row("warm decision p50 [s]", f"{p50:.3f}", "", None))
         if label == "fsm + llm":
             ok = p95 * 1000 <= TARGET_FSM_P95_MS
-            print(_row("suggestion latency p95 [ms]", f"{p95 * 1000:.0f}", f"<= {TARGET_FSM_P95_MS:.0f}", ok))
+            print(row("suggestion latency p95 [ms]", f"{p95 * 1000:.0f}", f"<= {TARGET_FSM_P95_MS:.0f}", ok))
             if calls.suggestions:
                 r_acc = calls.accepted / calls.suggestions
-                print(_row("acceptance r_acc", f"{r_acc:.3f}", f">= {TARGET_FSM_R_ACC}", r_acc >= TARGET_FSM_R_ACC))
+                print(row("acceptance r_acc", f"{r_acc:.3f}", f">= {TARGET_FSM_R_ACC}", r_acc >= TARGET_FSM_R_ACC))
                 others = ", ".join(f"{k} {v}" for k, v in calls.rejected.items() if v) or "none"
                 print(f"    ({calls.accepted} of {calls.suggestions} accepted; rejected: {others})")
         else:
-            print(_row("warm decision p95 [s]", f"{p95:.2f}", "", None))
+            print(row("warm decision p95 [s]", f"{p95:.2f}", "", None))
     hybrid = results["hybrid (score)"]  # the default decision mode with the local model
     workers, per_worker = pool_layout()
     episode_s = statistics.median(hybrid.episode_s)
@@ -225,7 +242,7 @@ def main() -> None:
     for decisions in (cap, DEFAULT_DECISIONS):
         protocol_min = PROTOCOL_EPISODES * decisions * decision_s / 60.0 / speedup
         print(
-            _row(
+            row(
                 f"200 factory episodes of {decisions} decisions [min]",
                 f"{protocol_min:.0f}",
                 f"<= {TARGET_PROTOCOL_MIN:.0f}",
@@ -242,4 +259,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(quick=quick_from_env())

@@ -4,6 +4,8 @@ Then the profile of a drive without a model (issue 25): simulation and planning 
 planner that needs no model (policy backends or none), process start to the first model request, the
 trajectory plot, the CLI's import time, and the episodes per minute of a simulation-bound sweep with 1
 and 2 workers. Each row names its target; the load average is printed with the table (2 shared cores).
+Quick mode (`main(quick=True)`): the same rows from one or two runs each, shorter episodes and a 2-episode
+sweep; no target is judged.
 """
 
 from __future__ import annotations
@@ -20,12 +22,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from bench import judged, quick_from_env
 from llmnav.errors import ScenarioError
 from llmnav.geometry import Pose2D
 from llmnav.scenario import CameraConfig, Scenario, load_scenario, parse_scenario
 from llmnav.sim.world import World
 
 REPEATS = 7
+QUICK_REPEATS = 2
 
 
 def _scenario() -> Scenario:
@@ -70,21 +74,25 @@ def _verdict(value_ms: float, target_ms: float) -> str:
     return "ok" if value_ms <= target_ms else "FAIL"
 
 
-def _target(wall_ms: float, target_ms: float) -> str:
+def _target(wall_ms: float, target_ms: float, quick: bool) -> str:
     """Target column: ratio of wall and CPU medians to the target (<= 1 meets it) and pass/fail of each.
 
     Wall time is what a user waits; on a machine shared with other busy processes it stretches by the
     load, so the CPU verdict says whether the code itself meets the target on a free core.
     """
     cpu_ms = _cpu[0]
-    return (
-        f"target <= {target_ms:g} ms: wall {wall_ms / target_ms:.2f}x {_verdict(wall_ms, target_ms)}, "
+    verdicts = (
+        f"wall {wall_ms / target_ms:.2f}x {_verdict(wall_ms, target_ms)}, "
         f"cpu {cpu_ms / target_ms:.2f}x {_verdict(cpu_ms, target_ms)}"
     )
+    return f"target <= {target_ms:g} ms: {judged(verdicts, quick)}"
 
 
-def main() -> None:
-    """Print the table."""
+def main(quick: bool = False) -> None:
+    """Print the table (quick: one or two runs of each row, not a measurement)."""
+    repeats = QUICK_REPEATS if quick else REPEATS
+    few = 3 if quick else 20  # LiDAR scans, velocity ticks (x 2.5) per run
+    idle_s = 1.0 if quick else 100.0  # [s] of idle simulation before the late physics step
     scenario = _scenario()
     t0 = time.perf_counter()
     world = World(scenario, camera=CameraConfig(width=640, height=480))
@@ -92,32 +100,33 @@ def main() -> None:
     start = scenario.default_start.pose()
     world.reset(start)
     load = os.getloadavg()[0]
-    print(f"[bench.sim] scenario {scenario.name} ({scenario.robot}), medians of {REPEATS} runs, load {load:.1f}")
+    mode = ", quick: not a measurement" if quick else ""
+    print(f"[bench.sim] scenario {scenario.name} ({scenario.robot}), medians of {repeats} runs, load {load:.1f}{mode}")
     print(f"  {'':<42} {'wall':>9} {'cpu':>9}")
     _row("connect + world + robot", build_ms, "ms", "(measured ~35 ms, one sample)", cpu=False)
 
-    step_idle = _median_ms(lambda: world.step(240), per=240)
+    step_idle = _median_ms(lambda: world.step(240), repeats, per=240)
     _row("physics step, idle robot", step_idle, "ms", "(measured 0.07-0.17 ms)")
     world.robot.set_velocity(0.0, world.robot.spec.max_angular)
-    step_moving = _median_ms(lambda: world.step(240), per=240)
+    step_moving = _median_ms(lambda: world.step(240), repeats, per=240)
     world.robot.halt()
     _row("physics step, turning robot", step_moving, "ms", "(measured 0.07-0.17 ms)")
     world.reset(start)
-    world.step(24000)  # 100 s idle: contacts must not pile up and slow the steps
-    step_late = _median_ms(lambda: world.step(240), per=240)
+    world.step(round(240 * idle_s))  # idle at 240 Hz: contacts must not pile up and slow the steps
+    step_late = _median_ms(lambda: world.step(240), repeats, per=240)
     _row(
-        "physics step after 100 s idle",
+        f"physics step after {idle_s:g} s idle",
         step_late,
         "ms",
         f"(ratio to fresh {step_late / step_idle:.2f}, want ~1)",
     )
 
-    lidar_ms = _median_ms(lambda: [world.lidar.scan() for _ in range(20)], per=20)
+    lidar_ms = _median_ms(lambda: [world.lidar.scan() for _ in range(few)], repeats, per=few)
     _row(
         f"LiDAR scan ({world.lidar.config.rays} rays)",
         lidar_ms,
         "ms",
-        _target(lidar_ms, 3.0),
+        _target(lidar_ms, 3.0, quick),
     )
 
     # The camera renders again only when the view changed: turn the robot by one physics step before
@@ -131,11 +140,12 @@ def main() -> None:
 
         return run
 
-    cam_big = _median_ms(turned(lambda: world.camera.capture().jpeg_b64(80)), repeats=5)
+    frames = 1 if quick else 5
+    cam_big = _median_ms(turned(lambda: world.camera.capture().jpeg_b64(80)), repeats=frames)
     _row("camera 640x480 + JPEG/base64", cam_big, "ms", "(measured ~100 ms)")
-    cam_small = _median_ms(turned(lambda: world.camera.capture(width=320, height=240).jpeg_b64(80)), repeats=5)
+    cam_small = _median_ms(turned(lambda: world.camera.capture(width=320, height=240).jpeg_b64(80)), repeats=frames)
     _row("camera 320x240 + JPEG/base64", cam_small, "ms", "(measured ~25 ms)")
-    detect_ms = _median_ms(turned(world.detector.detect), repeats=5)
+    detect_ms = _median_ms(turned(world.detector.detect), repeats=frames)
     _row("detector (own 160x120 segmentation frame)", detect_ms, "ms", "")
     world.robot.halt()
 
@@ -153,25 +163,26 @@ def main() -> None:
             world.camera.capture().jpeg_b64(80)
         sim_times.append(world.sim_time - t_sim)
 
-    step_ms = _median_ms(lambda: decision(False))
+    step_ms = _median_ms(lambda: decision(False), repeats)
     rtf = statistics.median(sim_times) / (step_ms / 1000.0)
-    _row("decision step: 1 m move + LiDAR", step_ms, "ms", _target(step_ms, 60.0))
+    _row("decision step: 1 m move + LiDAR", step_ms, "ms", _target(step_ms, 60.0, quick))
     _row("  real-time factor (wall)", rtf, "x", "(measured ~55x)")
     sim_times.clear()
-    step_cam_ms = _median_ms(lambda: decision(True))
+    step_cam_ms = _median_ms(lambda: decision(True), repeats)
     rtf_cam = statistics.median(sim_times) / (step_cam_ms / 1000.0)
-    _row("decision step + 640x480 camera", step_cam_ms, "ms", _target(step_cam_ms, 150.0))
+    _row("decision step + 640x480 camera", step_cam_ms, "ms", _target(step_cam_ms, 150.0, quick))
     _row("  real-time factor (wall)", rtf_cam, "x", "(measured ~20x)")
 
     world.reset(start)
-    turn_ms = _median_ms(lambda: world.motion.rotate(math.pi / 2))
+    turn_ms = _median_ms(lambda: world.motion.rotate(math.pi / 2), repeats)
     _row("90 deg turn", turn_ms, "ms", "")
     world.reset(Pose2D(start.x, start.y, start.yaw))
-    ticks_ms = _median_ms(lambda: [world.motion.velocity_tick(0.0, 0.3) for _ in range(50)], per=50)
+    ticks = round(2.5 * few)
+    ticks_ms = _median_ms(lambda: [world.motion.velocity_tick(0.0, 0.3) for _ in range(ticks)], repeats, per=ticks)
     _row("velocity_tick (20 ms sim)", ticks_ms, "ms", f"(real-time factor {20.0 / ticks_ms:.0f}x)")
     world.close()
-    decisions()
-    process_start()
+    decisions(quick)
+    process_start(quick)
 
 
 # Episodes without a model: (label, EpisodeSpec fields, what one "decision" is, target [ms] per decision).
@@ -232,9 +243,13 @@ EPISODES: tuple[tuple[str, dict[str, Any], str, float], ...] = (
     ),
 )
 EPISODE_REPEATS = 3
+# Quick mode: one cold episode each, cut short (a few decisions, legs or ticks).
+QUICK_CAPS: dict[str, Any] = {"max_iterations": 2}
+QUICK_FSM_TICKS = 200  # [ticks] at 50 Hz
 TARGET_FIRST_REQUEST_MS = 600.0
 TARGET_SPEEDUP = 1.8
 SWEEP = ["--scenario", "factory", "--planner", "oracle", "--tasks", "all", "--poses", "1,2"]
+QUICK_SWEEP = ["--scenario", "factory", "--planner", "oracle", "--tasks", "T1,T2", "--poses", "1"]
 CLI = [sys.executable, "-c", "from llmnav.cli import main; main()"]
 
 
@@ -254,26 +269,32 @@ def _episode_costs(fields: dict[str, Any], out: Path) -> tuple[float, float, int
     return float(summary["wall_time_s"]), time.process_time() - cpu0, int(summary["iterations"])
 
 
-def decisions() -> None:
-    """Simulation and planning per decision of each planner without a model (warm: one run first)."""
-    print(
-        f"\n[bench.sim] simulation + planning per decision, no model, median of {EPISODE_REPEATS} warm episodes, "
-        f"load {os.getloadavg()[0]:.1f}"
-    )
+def decisions(quick: bool = False) -> None:
+    """Simulation and planning per decision of each planner without a model (warm: one run first).
+
+    Quick: one cold episode of each, cut to `QUICK_CAPS` (the FSM to `QUICK_FSM_TICKS`).
+    """
+    repeats = 1 if quick else EPISODE_REPEATS
+    what = "1 cold, short episode (quick: not a measurement)" if quick else f"median of {repeats} warm episodes"
+    print(f"\n[bench.sim] simulation + planning per decision, no model, {what}, load {os.getloadavg()[0]:.1f}")
     print(f"  {'':<42} {'wall':>9} {'cpu':>9}")
     with tempfile.TemporaryDirectory() as tmp:
         for n, (label, fields, unit, target_ms) in enumerate(EPISODES):
             per = 50 if unit == "50 ticks" else 1
-            _episode_costs(fields, Path(tmp) / f"{n}-warm")
+            if quick:
+                caps = {"max_ticks": QUICK_FSM_TICKS} if fields["options"]["planner"] == "fsm" else QUICK_CAPS
+                fields = {**fields, "options": {**fields["options"], **caps}}
+            else:
+                _episode_costs(fields, Path(tmp) / f"{n}-warm")
             walls, cpus = [], []
             count = 1
-            for k in range(EPISODE_REPEATS):
+            for k in range(repeats):
                 wall, cpu, count = _episode_costs(fields, Path(tmp) / f"{n}-{k}")
                 walls.append(wall * 1000.0 * per / max(count, 1))
                 cpus.append(cpu * 1000.0 * per / max(count, 1))
             _cpu[:] = [statistics.median(cpus)]
             wall_ms = statistics.median(walls)
-            _row(label, wall_ms, "ms", f"per {unit} ({count}) " + _target(wall_ms, target_ms))
+            _row(label, wall_ms, "ms", f"per {unit} ({count}) " + _target(wall_ms, target_ms, quick))
 
 
 def _wall_ms(command: list[str], repeats: int = 5) -> tuple[float, float]:
@@ -336,11 +357,11 @@ print(json.dumps({"first": (t2 - t1) * 1e3, "again": (t3 - t2) * 1e3}))
 """
 
 
-def _sweep_s(workers: int, out: Path) -> tuple[float, int]:
+def _sweep_s(workers: int, out: Path, sweep: list[str]) -> tuple[float, int]:
     """Wall time [s] and episodes of one `llmnav ablate` sweep (oracle planner: simulation and planning only)."""
     t0 = time.perf_counter()
     subprocess.run(
-        [*CLI, "ablate", *SWEEP, "--workers", str(workers), "--out", str(out)],
+        [*CLI, "ablate", *sweep, "--workers", str(workers), "--out", str(out)],
         check=True,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -350,35 +371,45 @@ def _sweep_s(workers: int, out: Path) -> tuple[float, int]:
     return wall, int(manifest["done"])
 
 
-def process_start() -> None:
-    """Whole-process costs of the CLI: import, start to first request, plot, sweep throughput."""
-    print(f"\n[bench.sim] whole processes (medians of 5 unless said), load {os.getloadavg()[0]:.1f}")
+def process_start(quick: bool = False) -> None:
+    """Whole-process costs of the CLI: import, start to first request, plot, sweep throughput.
+
+    Quick: one process of each, a 2-decision drive and a 2-episode sweep.
+    """
+    repeats = 1 if quick else 5
+    what = "one of each, quick: not a measurement" if quick else "medians of 5 unless said"
+    print(f"\n[bench.sim] whole processes ({what}), load {os.getloadavg()[0]:.1f}")
     print(f"  {'':<42} {'wall':>9} {'cpu':>9}")
-    help_wall, help_cpu = _wall_ms([*CLI, "--help"])
+    help_wall, help_cpu = _wall_ms([*CLI, "--help"], repeats)
     _cpu[:] = [help_cpu]
     _row("llmnav --help (imports + typer)", help_wall, "ms", "(lower is better)")
-    import_wall, import_cpu = _wall_ms([sys.executable, "-c", "import llmnav.commands.drive"])
+    import_wall, import_cpu = _wall_ms([sys.executable, "-c", "import llmnav.commands.drive"], repeats)
     _cpu[:] = [import_cpu]
     _row("import llmnav.commands.drive", import_wall, "ms", "(lower is better)")
     with tempfile.TemporaryDirectory() as tmp:
-        firsts = [_first_request_ms(Path(tmp) / f"first-{k}") for k in range(5)]
+        firsts = [_first_request_ms(Path(tmp) / f"first-{k}") for k in range(repeats)]
         first_ms = statistics.median(firsts)
-        verdict = _verdict(first_ms, TARGET_FIRST_REQUEST_MS)
+        verdict = f"wall {first_ms / TARGET_FIRST_REQUEST_MS:.2f}x {_verdict(first_ms, TARGET_FIRST_REQUEST_MS)}"
         _row(
             "process start -> first model request",
             first_ms,
             "ms",
-            f"target <= {TARGET_FIRST_REQUEST_MS:g} ms (policy:first, no model load): "
-            f"wall {first_ms / TARGET_FIRST_REQUEST_MS:.2f}x {verdict}",
+            f"target <= {TARGET_FIRST_REQUEST_MS:g} ms (policy:first, no model load): {judged(verdict, quick)}",
             cpu=False,
         )
+        drive_decisions = 2 if quick else 10
         drive_wall, drive_cpu = _wall_ms(
             [*CLI, "drive", "--scenario", "factory", "--task-id", "T1", "--backend", "policy:first"]
-            + ["--max-iterations", "10", "--quiet", "--out", str(Path(tmp) / "drive")],
+            + ["--max-iterations", str(drive_decisions), "--quiet", "--out", str(Path(tmp) / "drive")],
             repeats=1,
         )
         _cpu[:] = [drive_cpu]
-        _row("drive hybrid factory T1, 10 decisions", drive_wall, "ms", "(one run; issue 25 measured 3.0 s)")
+        _row(
+            f"drive hybrid factory T1, {drive_decisions} decisions",
+            drive_wall,
+            "ms",
+            "(one run; issue 25 measured 3.0 s for 10)",
+        )
         plots = subprocess.run(
             [sys.executable, "-c", _PLOT_SCRIPT, str(Path(tmp) / "drive")], check=True, capture_output=True, text=True
         )
@@ -387,14 +418,14 @@ def process_start() -> None:
         _row("trajectory.png, again", plot["again"], "ms", "(issue 25 measured ~0.9 s incl. warm-up)", cpu=False)
         rates = {}
         for workers in (1, 2):
-            wall, episodes = _sweep_s(workers, Path(tmp) / f"sweep-{workers}")
+            wall, episodes = _sweep_s(workers, Path(tmp) / f"sweep-{workers}", QUICK_SWEEP if quick else SWEEP)
             rates[workers] = episodes / wall * 60.0
             _row(f"ablate oracle, {episodes} episodes, {workers} worker(s)", rates[workers], "/min", "", cpu=False)
         ratio = rates[2] / rates[1]
-        verdict = "ok" if ratio >= TARGET_SPEEDUP else "below"
+        verdict = judged("ok" if ratio >= TARGET_SPEEDUP else "below", quick)
         note = "whole CLI runs, their start and tables included; the pool alone: python -m bench ablate"
         _row("  episodes/min 2 vs 1 workers", ratio, "x", f"target >= {TARGET_SPEEDUP}x: {verdict} ({note})", cpu=False)
 
 
 if __name__ == "__main__":
-    main()
+    main(quick=quick_from_env())
