@@ -1,8 +1,10 @@
 """Guard overhead: parse_answer per answer over a realistic mix, the safety veto per check, and what the
-guarded motion layer adds to a 50 Hz velocity tick (kinematic box + time to collision, a scan every 0.1 s).
+guarded motion layer adds to a 50 Hz velocity tick (kinematic box + time to collision, a scan every 0.1 s)
+and the collision monitor to every control step (a physics step of a discrete motion).
 
 Targets: median parse ≤ 1 ms per answer, veto check far below a LiDAR scan (≈ 1.5 ms, docs/sources.md, M),
-the layer's cost per velocity tick ≤ 1 ms (a 20 ms slot also holds the detector and the physics).
+the layer's cost per velocity tick ≤ 1 ms (a 20 ms slot also holds the detector and the physics), the
+monitor's cost per control step ≤ 0.2 ms.
 Quick mode: 100 answers, 200 veto checks and 50 ticks; no target is judged.
 """
 
@@ -26,6 +28,8 @@ from llmnav.sim.sensors import LidarScan as Scan
 PARSE_TARGET_MS = 1.0
 VETO_TARGET_MS = 1.5  # one LiDAR scan's cost: the veto should be small next to it
 TICK_TARGET_MS = 1.0  # [ms] the motion layer's share of a 20 ms velocity tick
+MONITOR_TARGET_MS = 0.2  # [ms] the collision monitor's share of one control step (issue target)
+MONITOR_LEGS = 12
 TICKS = 500
 ANSWERS = 1000
 VETO_CHECKS = 2000
@@ -61,14 +65,45 @@ def _tick_overhead_ms(ticks: int = TICKS) -> tuple[float, float]:
     )
     with World(scenario) as world:
         view = PlannerWorld(world, _Sink())
+        monitor = world.motion.monitor  # the layer installs the collision monitor; "raw" runs without it
         timings: dict[str, list[float]] = {"raw": [], "guarded": []}
         for name, tick in (("raw", world.motion.velocity_tick), ("guarded", view.motion.velocity_tick)):
+            world.motion.monitor = None if name == "raw" else monitor
             world.reset(Pose2D(0.8, 0.0, 0.0))
             for _ in range(ticks):
                 start = time.perf_counter()
                 tick(0.06, 0.1, 0.02)
                 timings[name].append(time.perf_counter() - start)
     return statistics.fmean(timings["raw"]) * 1000.0, statistics.fmean(timings["guarded"]) * 1000.0
+
+
+def _monitor_per_step_ms(legs: int = MONITOR_LEGS) -> tuple[float, float, int]:
+    """Mean wall time [ms] of a control step (one physics step) without and with the collision monitor.
+
+    The PR2 in the factory drives legs past shelves, the stairs and into the pallet's aisle (the monitor
+    slows it near them and stops it at the pallet), each leg once without the monitor and once with it.
+    """
+    from llmnav.geometry import Pose2D
+    from llmnav.guard.view import PlannerWorld
+    from llmnav.scenario import load_scenario
+    from llmnav.sim.world import World
+
+    starts = [Pose2D(-3.05, -9.4, -math.pi / 2), Pose2D(-8.0, -2.0, 0.0), Pose2D(2.0, 1.5, -math.pi / 2)]
+    with World(load_scenario("factory")) as world:
+        PlannerWorld(world, _Sink())
+        monitor = world.motion.monitor
+        totals = {"raw": [0.0, 0], "monitored": [0.0, 0]}  # [s, physics steps]
+        for i in range(legs):
+            for name in ("raw", "monitored"):
+                world.motion.monitor = None if name == "raw" else monitor
+                world.reset(starts[i % len(starts)])
+                begin, steps = time.perf_counter(), world.step_count
+                world.motion.drive(1.8)
+                totals[name][0] += time.perf_counter() - begin
+                totals[name][1] += world.step_count - steps
+    raw = totals["raw"][0] / max(1, int(totals["raw"][1])) * 1000.0
+    monitored = totals["monitored"][0] / max(1, int(totals["monitored"][1])) * 1000.0
+    return raw, monitored, int(totals["monitored"][1])
 
 
 def _answer(rng: random.Random) -> dict[str, object]:
@@ -158,6 +193,13 @@ def main(quick: bool = False) -> None:
     print(
         f"  veto check (360 rays) median {veto:.3f} ms vs target {VETO_TARGET_MS} ms "
         f"({judged(f'ratio {veto / VETO_TARGET_MS:.2f}', quick)})"
+    )
+    plain, watched, steps = _monitor_per_step_ms(max(3, MONITOR_LEGS // share))
+    cost = watched - plain
+    print(
+        f"  collision monitor over {steps} control steps (PR2, factory legs): {plain:.4f} ms a step without, "
+        f"{watched:.4f} ms with; it adds {cost:.4f} ms vs target {MONITOR_TARGET_MS} ms "
+        f"({judged(f'ratio {cost / MONITOR_TARGET_MS:.2f}', quick)})"
     )
     raw, guarded = _tick_overhead_ms(ticks)
     extra = guarded - raw

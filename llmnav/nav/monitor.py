@@ -124,6 +124,7 @@ class CollisionMonitor:
         self._alpha = self.config.brake_fraction * max_angular_acc  # [rad/s^2]
         self._caches = [_Cache() for _ in self._sources]
         self._all: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # every cache's returns, joined
+        self._nearest = (0.0, 0.0, 0.0)  # (x [m], y [m]) of the robot at the latest refresh, nearest return [m]
         self.interventions = 0  # control steps on which the command was scaled down or stopped
         self.last_stop: MonitorStop | None = None
 
@@ -235,6 +236,13 @@ class CollisionMonitor:
                 np.concatenate([c.y for c in self._caches]),
                 np.concatenate([np.full(c.x.size, i) for i, c in enumerate(self._caches)]),
             )
+            x, y = self._all[0] - here.x, self._all[1] - here.y
+            self._nearest = (here.x, here.y, float(np.sqrt((x * x + y * y).min())) if x.size else math.inf)
+        # Nothing can have come within reach since the nearest return was measured (the robot has moved
+        # less than the gap): no per-return arithmetic on this step.
+        ox, oy, nearest = self._nearest
+        if nearest - math.hypot(here.x - ox, here.y - oy) > reach_m:
+            return _EMPTY, _EMPTY, _EMPTY
         x, y, tags = self._all
         wx, wy = x - here.x, y - here.y
         near = wx * wx + wy * wy <= reach_m * reach_m
