@@ -44,7 +44,9 @@ def check_planner(
     with tempfile.TemporaryDirectory(prefix="llmnav-check-") as folder:
         run_dir = Path(folder) / "run"
         summary, seen = _run_probe(cls, scenario, task_id, backend, options or {}, run_dir)
-        assert summary.get("outcome") in ("completed", "failed", "aborted"), f"outcome {summary.get('outcome')!r}"
+        assert summary.get("outcome") in ("completed", "failed", "not_found", "aborted"), (
+        f"outcome {summary.get('outcome')!r}"
+    )
         raw = [path for path, kind in seen]
         assert not raw, f"{cls.name}: its context reaches the raw simulator: {', '.join(raw[:3])}"
         _check_log(cls, run_dir)

@@ -21,7 +21,7 @@ Status = Literal["pending", "done", "error"]
 # navigation: it is an error, and the next resume runs it again. Aborted by the model's own answers (no
 # valid action after the corrections, every motion vetoed) is a result: rerunning it until it passes
 # would bias the tables.
-DONE_OUTCOMES = ("completed", "failed")
+DONE_OUTCOMES = ("completed", "failed", "not_found")
 
 
 def is_result(summary: dict[str, Any]) -> bool:

@@ -89,7 +89,8 @@ if TYPE_CHECKING:
     from llmnav.runlog import RunLog, RunRecord
     from llmnav.scenario import Scenario, Task
 
-Outcome = Literal["completed", "failed", "aborted"]
+# "not_found": the planner looked everywhere it could and says so, rather than finishing somewhere wrong
+Outcome = Literal["completed", "failed", "not_found", "aborted"]
 
 
 def drive_options(planner: str = DEFAULT_PLANNER, **fields: Any) -> DriveOptions:

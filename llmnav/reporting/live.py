@@ -118,7 +118,7 @@ class ProgressView:
 def print_result(console: Console, summary: dict[str, Any]) -> None:
     """The end of a drive: outcome and reason, score, path length, run folder, plot."""
     outcome = str(summary.get("outcome"))
-    colour = {"completed": "green", "failed": "yellow"}.get(outcome, "red")
+    colour = {"completed": "green", "failed": "yellow", "not_found": "yellow"}.get(outcome, "red")
     reason = summary.get("reason") or ""
     console.print(f"[bold {colour}]{esc(outcome)}[/]" + (f" — {esc(reason)}" if reason else ""), highlight=False)
     score = summary.get("score")

@@ -63,7 +63,7 @@ from llmnav.planners.base import (
     decides_by_scores,
 )
 from llmnav.planners.hybrid.execute import Executor, with_seen_obstacles
-from llmnav.planners.hybrid.memory import look, remember, start_memory
+from llmnav.planners.hybrid.memory import Memory, believed_pose, look, remember, start_memory
 from llmnav.planners.hybrid.menu import MenuInputs, build_menu
 from llmnav.planners.hybrid.options import HybridOptions
 from llmnav.planners.hybrid.prompt import ask_choice, scored_choice, sends_image
@@ -71,8 +71,10 @@ from llmnav.planners.hybrid.prompt import ask_choice, scored_choice, sends_image
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
     from llmnav.chat import AnswerKey
+    from llmnav.geometry import Pose2D
     from llmnav.mapping.grid import OccupancyGrid
     from llmnav.planners.base import GroundTruth
+    from llmnav.planners.hybrid.menu import Option
 
 
 @dataclass(frozen=True)
@@ -201,6 +203,10 @@ class HybridPlanner(Planner):
                     step,
                     dict(done),
                 )
+            if chooser is not None and decision.not_found:
+                known = 1.0 - float(maps.lidar_map.unknown.mean())
+                reason = f"not found: {decision.rule.removeprefix('not found: ')} (map {known:.0%} known)"
+                return EpisodeOutcome("not_found", reason, step, dict(done))
             option = options[choice - 1]
             ctx.view.on_step(
                 StepInfo(step, option.text, reasoning, front_m=obs.front_m, json_retries=errors, vetoes=vetoes)
@@ -208,7 +214,10 @@ class HybridPlanner(Planner):
             if option.kind == "complete":
                 Action(step, "COMPLETE", 0, pose, pose, option=option.text).log(ctx.log)
                 return EpisodeOutcome("completed", "the model chose to finish", step, dict(done))
+            before = believed_pose(ctx)
             executed = executor.run(grids, option, step)
+            if not executed.vetoes:  # a refused leg put what blocked it on the map: the same choice detours
+                _drop_if_stuck(ctx, memory, option, before, executed.result, step)
             vetoes += executed.vetoes
             done.update(vetoes=vetoes)
             memory.last_result = executed.result
@@ -220,6 +229,27 @@ class HybridPlanner(Planner):
             ctx.options.max_iterations,
             dict(done),
         )
+
+
+def _drop_if_stuck(ctx: EpisodeContext, memory: Memory, option: Option, before: Pose2D, result: str, step: int) -> None:
+    """An option that moved the robot nowhere leaves the menu, so the same choice never repeats without motion.
+
+    (No path on the map, a leg refused at once.) A landmark becomes unreachable; a frontier counts as explored.
+    """
+    if option.kind not in ("landmark", "frontier") or option.goal is None:
+        return
+    after = believed_pose(ctx)
+    if after.distance_to(before.x, before.y) >= STUCK_M:
+        return
+    if option.landmark_id is not None:
+        memory.unreachable.add(option.landmark_id)
+    else:
+        memory.explored.append(option.goal)
+    ctx.log.sim_time = ctx.world.sim_time
+    ctx.log.event("planner", kind="option_dropped", step=step, option=option.text, reason=result)
+
+
+STUCK_M = 0.05  # [m] an option that moved the robot less than this made no progress
 
 
 class _Maps:

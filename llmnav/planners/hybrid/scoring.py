@@ -23,7 +23,9 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
    see: explore the nearest frontier first (at most `explore_budget` times in an episode). Exploring
    ends early when something new comes into view, and the decision is made again.
 5. With nothing left to explore, a target whose PMI reaches `min_pmi` (the task makes it e times
-   likelier) is taken; below that, look around where the robot has not yet, else take it anyway.
+   likelier) is taken; below that, look around where the robot has not yet, else the episode ends
+   `not_found`: a place the scores reject is never driven to or finished at, and neither is anything
+   when nothing was seen at all.
 6. At the target: an unsure one gets one more look around from there (a better match may come into
    view), then Finish. Otherwise go to the target.
 
@@ -80,15 +82,17 @@ class Decision:
     rule: str  # which step of the rule decided, in a few words
     intent: Intent
     scores: dict[str, float] = field(default_factory=dict)  # landmark name -> PMI [nats]
+    not_found: bool = False  # nothing fits the task and nothing is left to look at: the episode ends so
 
     def to_log(self) -> dict[str, Any]:
         """Event fields."""
-        return {
+        out: dict[str, Any] = {
             "option": self.number,
             "rule": self.rule,
             "intent": self.intent,
             "pmi": {name: round(value, 3) for name, value in self.scores.items()},
         }
+        return out | ({"not_found": True} if self.not_found else {})
 
 
 class ScoredChooser:
@@ -142,15 +146,20 @@ class ScoredChooser:
                 return self._frontier(by_kind, intent, scores, "nothing known yet")
             if scan is not None:
                 return Decision(scan.number, "nothing known yet: look around", intent, scores)
-            return Decision(finish.number, "nothing known and nothing left to explore", intent, scores)
+            why = "not found: no reachable place is known and nothing is left to explore"
+            return Decision(finish.number, why, intent, scores, True)
         value, name, best = max(options, key=lambda item: item[0])
         sure = scores[name] >= self.cfg.sure_pmi
         if not sure and self.explored < self.cfg.explore_budget and by_kind.get("frontier"):
             self.explored += 1
             return self._frontier(by_kind, intent, scores, f"{name} {scores[name]:+.1f} is unsure")
-        if scores[name] < self.cfg.min_pmi and scan is not None:
-            why = f"no known place fits ({name} {scores[name]:+.1f}): look around"
-            return Decision(scan.number, why, intent, scores)
+        if scores[name] < self.cfg.min_pmi:
+            if scan is not None:
+                why = f"no known place fits ({name} {scores[name]:+.1f}): look around"
+                return Decision(scan.number, why, intent, scores)
+            # Never Finish at, or drive to, a place the scores reject: say so instead.
+            why = f"not found: no known place fits ({name} {scores[name]:+.1f}) and nothing is left to explore"
+            return Decision(finish.number, why, intent, scores, True)
         if best is None:
             if not sure and scan is not None and not self.mapped:
                 return Decision(scan.number, f"at {name}: look around once more", intent, scores)

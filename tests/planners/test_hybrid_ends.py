@@ -1,0 +1,34 @@
+"""Honest ends of the hybrid planner: an option that moves the robot nowhere leaves the menu, and a task
+nothing reachable fits ends `not_found` instead of a Finish somewhere wrong."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from llmnav.planners.base import drive_options
+from llmnav.runlog import read_run
+from llmnav.runner import EpisodeSpec, run_episode
+
+PEN = Path(__file__).parent / "data" / "pen.yaml"
+
+
+def test_a_target_seen_but_walled_in_leaves_the_menu_and_the_episode_ends_not_found(tmp_path: Path) -> None:
+    spec = EpisodeSpec(
+        scenario=str(PEN),
+        task_id="P1",
+        options=drive_options(planner="hybrid", max_iterations=30),
+        backend="policy:oracle",  # every answer right: the crate is the target, and it cannot be reached
+        out_dir=tmp_path / "pen",
+    )
+    summary = run_episode(spec)
+    record = read_run(tmp_path / "pen")
+    assert summary["outcome"] == "not_found", summary.get("reason")
+    assert not summary["success"] and summary["iterations"] < 30
+    dropped = [e for e in record.of_type("planner") if e.get("kind") == "option_dropped"]
+    assert dropped and "crate" in dropped[0]["option"] and "no collision-free path" in dropped[0]["reason"]
+    # The robot tried the crate from all sides (each leg refused by the low pen wall, mapped, detoured),
+    # then the trip left the menu: nothing after it goes for the crate again.
+    later = [a.get("option") or "" for a in record.of_type("action") if a["step"] > dropped[0]["step"]]
+    assert later and not any("crate" in text for text in later)
+    assert summary.get("collisions", 0) == 0
+    assert not any(a.get("command") == "COMPLETE" for a in record.of_type("action"))
