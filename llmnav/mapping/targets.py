@@ -110,6 +110,44 @@ def _approach_goal(
     return _Goal(target, point, mask, high)
 
 
+@dataclass(frozen=True)
+class _Region:
+    """Cells to reach around a point, and the radius the heuristic needs."""
+
+    point: Point
+    mask: np.ndarray
+    reach_m: float  # [m] every cell centre of `mask` lies within this of `point`
+
+
+def _search(
+    grid: OccupancyGrid, goals: Sequence[_Goal | _Region], start: Point, snap_m: float
+) -> tuple[GridPath, int] | None:
+    """A* from `start` (snapped up to `snap_m` [m] to a free cell) to the union of the goals' cells.
+
+    Returns the grid path and the index of the goal it reached.
+    """
+    geometry = grid.geometry
+    union = np.zeros(geometry.shape, dtype=bool)
+    for goal in goals:
+        union |= goal.mask
+    start_cell = nearest_free_cell(grid.blocked, geometry, start[0], start[1], snap_m)
+    if start_cell is None or not union.any():
+        return None
+    # Octile distance is a norm at most OCTILE_STRETCH times the Euclidean one, so octile(cell, point) minus
+    # OCTILE_STRETCH x reach never overestimates the cost to any goal cell within `reach` of the point.
+    xs, ys = geometry.centres()
+    heuristic = np.full(geometry.shape, np.inf)
+    for goal in goals:
+        dx, dy = np.abs(xs - goal.point[0]), np.abs(ys - goal.point[1])
+        octile = np.maximum(dx, dy) + (SQRT2 - 1.0) * np.minimum(dx, dy)
+        heuristic = np.minimum(heuristic, octile - OCTILE_STRETCH * goal.reach_m)
+    heuristic = np.maximum(heuristic, 0.0)
+    path = astar(grid.blocked, start_cell, union, resolution_m=geometry.resolution, heuristic=heuristic)
+    if path is None:
+        return None
+    return path, next(i for i, g in enumerate(goals) if g.mask[path.goal])
+
+
 def plan_to_targets(
     grid: OccupancyGrid,
     scenario: Scenario,
@@ -131,28 +169,11 @@ def plan_to_targets(
         if exact:  # standing on the stand point, face the object (a plate on the wall), not the point
             goal = replace(goal, face=scenario.object(target.object or "").center)
         goals.append(goal)
-    union = np.zeros(geometry.shape, dtype=bool)
-    for goal in goals:
-        union |= goal.mask
-    start_cell = nearest_free_cell(grid.blocked, geometry, start[0], start[1], config.start_snap_m)
-    if start_cell is None or not union.any():
+    found = _search(grid, goals, start, config.start_snap_m)
+    if found is None:
         return None
-
-    # Octile distance is a norm at most OCTILE_STRETCH times the Euclidean one, so octile(cell, point) minus
-    # OCTILE_STRETCH x reach never overestimates the cost to any goal cell within `reach` of the point.
-    xs, ys = geometry.centres()
-    heuristic = np.full(geometry.shape, np.inf)
-    for goal in goals:
-        dx, dy = np.abs(xs - goal.point[0]), np.abs(ys - goal.point[1])
-        octile = np.maximum(dx, dy) + (SQRT2 - 1.0) * np.minimum(dx, dy)
-        heuristic = np.minimum(heuristic, octile - OCTILE_STRETCH * goal.reach_m)
-    heuristic = np.maximum(heuristic, 0.0)
-    path: GridPath | None = astar(
-        grid.blocked, start_cell, union, resolution_m=geometry.resolution, heuristic=heuristic
-    )
-    if path is None:
-        return None
-    goal = next(g for g in goals if g.mask[path.goal])
+    path, index = found
+    goal = goals[index]
     centres = [geometry.cell_to_world(*cell) for cell in path.cells]
     # The exact start pose replaces its cell's centre; a path of one cell still steps to that centre.
     grid_points = [(start[0], start[1]), *(centres[1:] if len(centres) > 1 else centres)]
@@ -247,3 +268,55 @@ def oracle_length(
     if not task_obj.targets:
         return None
     return _cached_length(_ScenarioKey.of(scenario), task_obj.id, round(pose.x, 6), round(pose.y, 6))
+
+
+# For scoring: the robot's own footprint and nothing more, so no driven path can be shorter than this one.
+SCORING_GRID = GridConfig(margin_m=0.0)
+
+
+def goal_distance(
+    scenario: Scenario,
+    points: Sequence[Point],
+    start: Point,
+    radius_m: float,
+    *,
+    config: GridConfig = SCORING_GRID,
+    snap_m: float = 0.5,
+) -> float | None:
+    """Shortest collision-free path length [m] from `start` to within `radius_m` of any of `points`.
+
+    The oracle's geometry: A* on the scenario's true grid inflated by the robot radius (`config`: no extra
+    margin by default), to every free cell whose centre lies within `radius_m` of a point, then the
+    line-of-sight shortcut of that path. 0 when `start` is already within the radius of a point; None when
+    no point is given, `start` lies off the grid or deeper than `snap_m` [m] inside an obstacle's inflation,
+    or no path exists. Cached per scenario content, points, start and radius.
+    """
+    if not points:
+        return None
+    if any(math.hypot(start[0] - x, start[1] - y) <= radius_m for x, y in points):
+        return 0.0
+    key = (round(start[0], 6), round(start[1], 6))
+    rounded = tuple((round(x, 6), round(y, 6)) for x, y in points)
+    return _cached_goal_distance(_ScenarioKey.of(scenario), rounded, key, float(radius_m), config, float(snap_m))
+
+
+@lru_cache(maxsize=4096)
+def _cached_goal_distance(
+    key: _ScenarioKey,
+    points: tuple[Point, ...],
+    start: Point,
+    radius_m: float,
+    config: GridConfig,
+    snap_m: float,
+) -> float | None:
+    grid = _grid_for(key, config)
+    xs, ys = grid.geometry.centres()
+    regions = [
+        _Region(point, (np.hypot(xs - point[0], ys - point[1]) <= radius_m) & ~grid.blocked, radius_m)
+        for point in points
+    ]
+    found = _search(grid, regions, start, snap_m)
+    if found is None:
+        return None
+    corners = [grid.geometry.cell_to_world(*cell) for cell in shortcut(found[0].cells, grid.blocked)]
+    return path_length([start, *(corners[1:] if len(corners) > 1 else corners)])

@@ -155,7 +155,7 @@ def test_the_oracle_runs_are_labelled_in_the_episode_table(runs: Path) -> None:
 
 def test_json_and_csv_hold_the_new_fields(runs: Path) -> None:
     data = json.loads(_invoke(str(runs), "--format", "json").stdout)
-    assert [t["name"] for t in data] == ["episodes", "path", "null_policies", "ceiling"]
+    assert [t["name"] for t in data] == ["episodes", "path", "null_policies", "ceiling", "failures"]
     rows = list(csv.DictReader(io.StringIO(_invoke(str(runs), "--format", "csv", "--table", "ceiling").stdout)))
     assert [r["task"] for r in rows] == ["T1", "T2", "All tasks"]
     t1, t2, _ = rows
