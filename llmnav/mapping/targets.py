@@ -36,7 +36,7 @@ import numpy as np
 
 from llmnav.errors import BadInputError
 from llmnav.geometry import Point, Pose2D, path_length
-from llmnav.mapping.astar import GridPath, astar, densify, shortcut
+from llmnav.mapping.astar import GridPath, astar, densify, line_of_sight, shortcut
 from llmnav.mapping.grid import Cell, GridConfig, OccupancyGrid, build_grid, nearest_free_cell
 
 if TYPE_CHECKING:
@@ -318,5 +318,51 @@ def _cached_goal_distance(
     found = _search(grid, regions, start, snap_m)
     if found is None:
         return None
-    corners = [grid.geometry.cell_to_world(*cell) for cell in shortcut(found[0].cells, grid.blocked)]
-    return path_length([start, *(corners[1:] if len(corners) > 1 else corners)])
+    return _taut_length(grid, found[0].cells, start, points, radius_m)
+
+
+def _taut_length(
+    grid: OccupancyGrid, cells: Sequence[Cell], start: Point, points: Sequence[Point], radius_m: float
+) -> float:
+    """The length [m] of an A* path pulled taut, ending where it first may: within `radius_m` of a point.
+
+    The greedy shortcut keeps grid corners where the taut string would bend a little earlier, and the
+    8-connected search picks its end cell by grid cost (a diagonal approach to the circle), both a few
+    percent long. So: (1) each kept corner moves to the path cell between its neighbours that makes the
+    two legs shortest with line of sight (a few passes), and (2) the path may leave at any kept point
+    straight toward a point until the radius, when that leg is clear.
+    """
+    blocked, geometry = grid.blocked, grid.geometry
+    where = [start, *(geometry.cell_to_world(*cell) for cell in cells[1:])]
+    index = {cell: i for i, cell in enumerate(cells)}
+    keep = [index[cell] for cell in shortcut(list(cells), blocked)]
+
+    def leg(i: int, j: int) -> float:
+        return math.dist(where[i], where[j])
+
+    for _ in range(4):  # corner refinement; each pass only shortens, so it settles
+        moved = False
+        for k in range(1, len(keep) - 1):
+            a, b = keep[k - 1], keep[k + 1]
+            for m in sorted(range(a + 1, b), key=lambda m: leg(a, m) + leg(m, b)):
+                if leg(a, m) + leg(m, b) >= leg(a, keep[k]) + leg(keep[k], b) - 1e-9:
+                    break
+                if line_of_sight(blocked, cells[a], cells[m]) and line_of_sight(blocked, cells[m], cells[b]):
+                    keep[k], moved = m, True
+                    break
+        if not moved:
+            break
+    travelled = 0.0
+    best = path_length([where[i] for i in keep])
+    for k, i in enumerate(keep):
+        travelled += leg(keep[k - 1], i) if k else 0.0
+        for x, y in points:  # leave here straight toward (x, y), stop at the radius
+            gap = math.dist(where[i], (x, y)) - radius_m
+            if gap <= 0 or travelled + gap >= best:
+                continue
+            t = gap / (gap + radius_m)
+            entry = (where[i][0] + (x - where[i][0]) * t, where[i][1] + (y - where[i][1]) * t)
+            entry_cell = geometry.world_to_cell(*entry)
+            if geometry.contains(entry_cell) and line_of_sight(blocked, cells[i], entry_cell):
+                best = travelled + gap
+    return best
