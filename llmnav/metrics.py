@@ -255,7 +255,8 @@ def aborted_by_infrastructure(summary: dict[str, Any]) -> bool:
     return summary.get("outcome") == "aborted" and isinstance(metrics, dict) and metrics.get("failure") == "backend"
 
 
-_COLLISION_REASON = re.compile(r"\bcolli(?:ded|sion)\b(?: with (?P<what>.+))?", re.I)
+# "collided with X", "collision with X"; not "no collision-free path"
+_COLLISION_REASON = re.compile(r"\bcolli(?:ded|sion)\b(?!-free)(?: with (?P<what>.+))?", re.I)
 
 
 def count_collisions(
