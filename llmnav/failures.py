@@ -10,13 +10,14 @@ that holds is the cause):
 - `not_found`: the planner ended without a target it could reach: the outcome `not_found` ("explored the
   reachable floor; no landmark fits"), exploration with no frontier left, a target no collision-free path
   reaches, no sign found while searching.
+- `wrong_place`: the run completed (the model or planner said it was done) away from its target or short
+  of its task.
 - `cap`: a budget ran out: iterations, decisions, control ticks, the exploration budget.
 - `veto`: the guarded motion layer refused or stopped the motion the episode ended on (a vetoed leg, a
   path still blocked after its replans, a safety stop), or the last motion was vetoed.
 - `model_failure`: the model gave no usable answer (no valid action, choice or waypoints after the
   corrections) or another model error ended the run (outcome `aborted`).
-- `wrong_place`: the run completed (the model or planner said it was done) away from its target or short
-  of its task; also a failed run whose reason names none of the above: it ended where no target is.
+- otherwise `wrong_place`: a failed run whose reason names none of the above ended where no target is.
 
 The reasons are the planners' own one-line `end` reasons; the patterns below are the words they use.
 """
