@@ -491,6 +491,7 @@ def path_table(
     columns = ["Task", "Condition", "N ok", "Path (m)", "Oracle (m)", "Ratio"]
     for ref in references.values():
         columns += [f"{ref.label} (m)", "Ratio"]
+    columns += COMMON_COLUMNS
     rows, records = [], []
     for task, cond, group in group_runs(successful, keys):
         paths = _values(group, lambda r: r.summary.get("path_length_m"))
@@ -524,8 +525,9 @@ def path_table(
             row += [_mean_sd(ref_m[name], 2), _mean_sd(ref_ratio[name], 2)]
             record[f"{ref.key}_length_m"] = _stats_record(ref_m[name])
             record[f"{ref.key}_ratio"] = _stats_record(ref_ratio[name])
-        rows.append(row)
-        records.append(record)
+        common_cells, common_fields = common_columns(group)
+        rows.append(row + common_cells)
+        records.append(record | common_fields)
     title = "Path length (stepwise source, Table 2 style; successful runs)"
     return Table(title, columns, rows, records, name="path")
 

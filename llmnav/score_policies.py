@@ -23,12 +23,14 @@ from typing import Any, TypeVar
 
 from llmnav.metrics import CONDITION_KEYS
 from llmnav.score import (
+    COMMON_COLUMNS,
     MISSING,
     Run,
     Table,
     _hashable,
     _num,
     _task_sort_key,
+    common_columns,
     condition_fields,
     condition_label,
     is_oracle,
@@ -421,20 +423,22 @@ def wording_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     groups = _by_wording(runs, keys)
     if not groups:
         return None
-    columns = ["Task", "Condition", "Wording", "Success", "Success rate", "Score"]
+    columns = ["Task", "Condition", "Wording", "Success", "Success rate", "Score", *COMMON_COLUMNS]
     rows, records = [], []
     for task, label in _ordered(groups):
         for wording in sorted(groups[(task, label)], key=_wording_order):
-            tally = Outcomes.of(groups[(task, label)][wording])
+            group = groups[(task, label)][wording]
+            tally = Outcomes.of(group)
             rate = tally.success_rate
+            common_cells, common_fields = common_columns(group)
             rows.append(
                 [task, label, wording, tally.success_cell(), MISSING if rate is None else f"{rate:.2f}",
-                 tally.score_cell()]
+                 tally.score_cell(), *common_cells]
             )  # fmt: skip
-            first = groups[(task, label)][wording][0]
             records.append(
-                {"task": task, "condition": label, **condition_fields(first, keys), "wording": wording}
+                {"task": task, "condition": label, **condition_fields(group[0], keys), "wording": wording}
                 | tally.record()
+                | common_fields
             )
     return Table("Success and score per task wording", columns, rows, records, name="wording")
 

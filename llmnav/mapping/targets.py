@@ -310,6 +310,15 @@ def _cached_goal_distance(
     snap_m: float,
 ) -> float | None:
     grid = _grid_for(key, config)
+    straight = [math.dist(start, point) - radius_m for point in points]  # [m] a lower bound for each point
+    start_cell = grid.geometry.world_to_cell(*start)
+    clear = [
+        gap
+        for gap, point in zip(straight, points, strict=True)
+        if _clear_to_radius(grid, start_cell, start, point, radius_m)
+    ]
+    if clear and min(clear) <= min(straight) + 1e-9:  # in sight and no other point can be nearer: no search
+        return min(clear)
     xs, ys = grid.geometry.centres()
     regions = [
         _Region(point, (np.hypot(xs - point[0], ys - point[1]) <= radius_m) & ~grid.blocked, radius_m)
@@ -319,6 +328,16 @@ def _cached_goal_distance(
     if found is None:
         return None
     return _taut_length(grid, found[0].cells, start, points, radius_m)
+
+
+def _clear_to_radius(grid: OccupancyGrid, cell: Cell, start: Point, point: Point, radius_m: float) -> bool:
+    """Whether the straight line from `start` toward `point` is free until `radius_m` [m] from it."""
+    if not grid.geometry.contains(cell) or grid.blocked[cell]:
+        return False
+    gap = math.dist(start, point) - radius_m
+    t = gap / (gap + radius_m)
+    entry = grid.geometry.world_to_cell(start[0] + (point[0] - start[0]) * t, start[1] + (point[1] - start[1]) * t)
+    return grid.geometry.contains(entry) and line_of_sight(grid.blocked, cell, entry)
 
 
 def _taut_length(
@@ -333,7 +352,7 @@ def _taut_length(
     straight toward a point until the radius, when that leg is clear.
     """
     blocked, geometry = grid.blocked, grid.geometry
-    where = [start, *(geometry.cell_to_world(*cell) for cell in cells[1:])]
+    where: list[Point] = [start, *(geometry.cell_to_world(*cell) for cell in cells[1:])]
     index = {cell: i for i, cell in enumerate(cells)}
     keep = [index[cell] for cell in shortcut(list(cells), blocked)]
 
@@ -356,13 +375,10 @@ def _taut_length(
     best = path_length([where[i] for i in keep])
     for k, i in enumerate(keep):
         travelled += leg(keep[k - 1], i) if k else 0.0
-        for x, y in points:  # leave here straight toward (x, y), stop at the radius
-            gap = math.dist(where[i], (x, y)) - radius_m
+        for point in points:  # leave here straight toward the point, stop at the radius
+            gap = math.dist(where[i], point) - radius_m
             if gap <= 0 or travelled + gap >= best:
                 continue
-            t = gap / (gap + radius_m)
-            entry = (where[i][0] + (x - where[i][0]) * t, where[i][1] + (y - where[i][1]) * t)
-            entry_cell = geometry.world_to_cell(*entry)
-            if geometry.contains(entry_cell) and line_of_sight(blocked, cells[i], entry_cell):
+            if _clear_to_radius(grid, cells[i], where[i], point, radius_m):
                 best = travelled + gap
     return best
