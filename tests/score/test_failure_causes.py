@@ -177,7 +177,10 @@ def test_collision_is_counted_from_the_end_reason_when_no_action_records_it() ->
     [
         ({"outcome": "not_found", "reason": "explored 93 % of the reachable floor; no landmark fits"}, "not_found"),
         ({"outcome": "failed", "reason": "no reachable frontier left and no target detected"}, "not_found"),
+        ({"outcome": "failed", "reason": "target RB detected but unreachable"}, "not_found"),
+        ({"outcome": "failed", "reason": "no sign found while searching"}, "not_found"),
         ({"outcome": "failed", "reason": "no finish within 30 decisions"}, "cap"),
+        ({"outcome": "failed", "reason": "exploration budget spent (8 frontiers) without detecting a target"}, "cap"),
         ({"outcome": "failed", "reason": "tick budget exhausted (3000 ticks)"}, "cap"),
         ({"outcome": "failed", "reason": "motion vetoed: leg blocked"}, "veto"),
         ({"outcome": "failed", "reason": "path to room 101 still blocked (vetoed) after 3 replans"}, "veto"),
@@ -189,3 +192,22 @@ def test_collision_is_counted_from_the_end_reason_when_no_action_records_it() ->
 )
 def test_every_end_the_planners_write_maps_to_one_cause(summary: dict[str, Any], cause: str | None) -> None:
     assert failure_cause(summary) == cause
+
+
+def test_a_summary_written_before_these_keys_scores_from_its_log(suite: Path, tmp_path: Path) -> None:
+    import shutil
+
+    from llmnav.metrics import RESCORED_KEYS
+    from llmnav.score import load_run
+
+    new = (*RESCORED_KEYS, "collisions", "collided_with")
+    for name in ("collide", "cap"):
+        old = tmp_path / name
+        shutil.copytree(suite / name, old)
+        written = json.loads((old / "summary.json").read_text())
+        (old / "summary.json").write_text(json.dumps({k: v for k, v in written.items() if k not in new}))
+        recomputed = load_run(old).summary
+        assert {k: recomputed[k] for k in new} == {k: written[k] for k in new}, name
+    result = CliRunner().invoke(app, ["score", str(tmp_path), "--format", "md"])
+    assert result.exit_code == 0, result.output
+    assert "collided:" in result.stderr and "Collisions" in result.stdout
