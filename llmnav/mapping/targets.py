@@ -287,11 +287,12 @@ def goal_distance(
 
     The oracle's geometry: A* on the scenario's true grid inflated by the robot radius (`config`: no extra
     margin by default), to every free cell whose centre lies within `radius_m` of a point, then the
-    line-of-sight shortcut of that path. 0 when `start` is already within the radius of a point; None when
-    no point is given, `start` lies off the grid or deeper than `snap_m` [m] inside an obstacle's inflation,
-    or no path exists. Cached per scenario content, points, start and radius.
+    line-of-sight shortcut of that path pulled taut (`_taut_length`). 0 when `start` is already within the
+    radius of a point; None when no point is given, a coordinate is not finite, `start` lies off the grid or
+    deeper than `snap_m` [m] inside an obstacle's inflation, or no path exists. Cached per scenario content,
+    points, start and radius.
     """
-    if not points:
+    if not points or not all(math.isfinite(v) for v in (*start, *(c for point in points for c in point), radius_m)):
         return None
     if any(math.hypot(start[0] - x, start[1] - y) <= radius_m for x, y in points):
         return 0.0
