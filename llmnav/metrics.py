@@ -12,15 +12,23 @@ calls it on runs that were cut short. Definitions (see docs/metrics.md):
 - success = the episode completed (the model said COMPLETE or the planner reached its own end) with
   d <= 2.5 m; rotate tasks: completed with a total rotation of at least 360 deg minus 10 deg (score 1 when
   the rotation holds, else 0); explore tasks: score N.A. (None), success = completed.
+- oracle success = the trajectory came within the success radius of an acceptable target at any time;
+- SPL = S * l / max(p, l) and Soft-SPL = progress * l / max(p, l), with l the shortest collision-free path
+  from the start to within the success radius of the nearest acceptable target (the oracle's grid), p the
+  true path length and progress = clip(1 - d_T / d_0, 0, 1) over the same geodesic distance;
+- failure_cause: one cause per failed run (`llmnav.failures`).
+The success radius is 2.5 m unless `llmnav score --success-radius` asks for another.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+import re
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from llmnav.failures import failure_cause
 from llmnav.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
 
 if TYPE_CHECKING:
@@ -226,6 +234,15 @@ def _rounded(value: float | None, digits: int = 4) -> float | None:
     return None if value is None else round(value, digits)
 
 
+def _added_obstacles(config: dict[str, Any]) -> list[Point]:
+    """The centres of the boxes `--obstacle` dropped (logged in the options), for the scoring grid."""
+    added = (config.get("options") or {}).get("obstacles") or []
+    try:
+        return [(float(o[0]), float(o[1])) for o in added]
+    except (TypeError, ValueError, IndexError):
+        return []
+
+
 # --- the summary -------------------------------------------------------------------------------
 
 
@@ -238,14 +255,119 @@ def aborted_by_infrastructure(summary: dict[str, Any]) -> bool:
     return summary.get("outcome") == "aborted" and isinstance(metrics, dict) and metrics.get("failure") == "backend"
 
 
+# "collided with X", "collision with X"; not "no collision-free path"
+_COLLISION_REASON = re.compile(r"\bcolli(?:ded|sion)\b(?!-free)(?: with (?P<what>.+))?", re.I)
+
+
+def count_collisions(
+    actions: Sequence[Mapping[str, Any]], planner_metrics: Mapping[str, Any], reason: str
+) -> tuple[int, list[str]]:
+    """The episode's collision events and what was hit (distinct names, in order).
+
+    Counted: `action` events with `collided: true`; the planner's own count when it is larger (a planner that
+    keeps driving after a contact); and one for an episode whose end reason reports a contact no `action`
+    event recorded (a velocity controller logs ticks, not actions).
+    """
+    count = sum(1 for a in actions if a.get("collided"))
+    hit = [str(a.get("collision_with") or "an obstacle") for a in actions if a.get("collided")]
+    own = planner_metrics.get("collisions")
+    if isinstance(own, int) and not isinstance(own, bool):
+        count = max(count, own)
+    said = _COLLISION_REASON.search(reason)
+    if count == 0 and said is not None:
+        count = 1
+        hit.append((said.group("what") or "an obstacle").strip())
+    return count, list(dict.fromkeys(hit))
+
+
+def _progress(d_start: float | None, d_end: float | None) -> float | None:
+    """Soft success: 1 - d_T / d_0 clipped to [0, 1] (None when either is unknown or d_0 is 0)."""
+    if d_start is None or d_end is None or d_start <= 0.0:
+        return None
+    return min(1.0, max(0.0, 1.0 - d_end / d_start))
+
+
+def _weighted(value: float | None, shortest_m: float | None, travelled_m: float) -> float | None:
+    """The SPL weighting value * l / max(p, l)'s path weighting (None without l or when l is 0: no path to weigh)."""
+    if value is None or shortest_m is None or shortest_m <= 0.0:
+        return None
+    return value * shortest_m / max(travelled_m, shortest_m)
+
+
+def reach_metrics(
+    *,
+    targets: Sequence[Point],
+    best: TargetScore | None,
+    completed: bool,
+    poses: Sequence[Sequence[float]],
+    start: Pose2D | None,
+    final: Pose2D | None,
+    scenario: Scenario | None,
+    obstacles: Sequence[Point],
+    radius_m: float = SUCCESS_RADIUS_M,
+) -> dict[str, Any]:
+    """Success at `radius_m` [m], oracle success, and SPL and Soft-SPL for a target task.
+
+    - success: completed and the best target (`best_target`) within the radius of the final pose;
+    - oracle_success: some trajectory sample came within the radius of an acceptable target;
+    - shortest_path_m (l): `llmnav.mapping.targets.goal_distance` from the start (the oracle's true grid,
+      inflated by the robot radius, added obstacles included): the shortest collision-free path to within
+      the radius of the nearest acceptable target; goal_distance_m (d_T): the same from the final pose;
+    - spl = S * l / max(p, l) (Anderson et al. 2018), p the true path length;
+    - soft_spl = progress * l / max(p, l), progress = clip(1 - d_T / d_0, 0, 1) with d_0 = l (Habitat).
+    Geodesic values need the scenario; without it (or with l = 0: the start already within the radius) the
+    SPLs are None.
+    """
+    travelled = path_length(poses)
+    closest = min((math.hypot(p[0] - x, p[1] - y) for p in poses for x, y in targets), default=None)
+    shortest = final_distance = None
+    if scenario is not None and targets:
+        from llmnav.mapping.targets import goal_distance, with_added_obstacles
+
+        known = with_added_obstacles(scenario, obstacles)
+        if start is not None:
+            shortest = goal_distance(known, targets, (start.x, start.y), radius_m)
+        if final is not None:
+            final_distance = goal_distance(known, targets, (final.x, final.y), radius_m)
+    success = completed and best is not None and best.distance_m <= radius_m
+    return {
+        "success": success,
+        "success_radius_m": radius_m,
+        "oracle_success": closest is not None and closest <= radius_m,
+        "closest_approach_m": _rounded(closest),
+        "shortest_path_m": _rounded(shortest),
+        "goal_distance_m": _rounded(final_distance),
+        "spl": _rounded(_weighted(1.0 if success else 0.0, shortest, travelled)),
+        "soft_spl": _rounded(_weighted(_progress(shortest, final_distance), shortest, travelled)),
+    }
+
+
+NO_REACH: dict[str, Any] = {  # tasks without a target (rotate, explore) and runs nothing of the model's ended
+    "oracle_success": None,
+    "closest_approach_m": None,
+    "shortest_path_m": None,
+    "goal_distance_m": None,
+    "spl": None,
+    "soft_spl": None,
+}
+# What `llmnav score` recomputes from the log at another success radius (and fills in for older summaries).
+RESCORED_KEYS: tuple[str, ...] = ("success", "success_radius_m", *NO_REACH, "failure_cause")
+
+
 def summarize_run(
-    record: RunRecord, scenario: Scenario | None, outcome: EpisodeOutcome | None = None
+    record: RunRecord,
+    scenario: Scenario | None,
+    outcome: EpisodeOutcome | None = None,
+    *,
+    success_radius_m: float = SUCCESS_RADIUS_M,
 ) -> dict[str, Any]:
     """Every metric of one episode, from its run log (complete or cut short) and its scenario.
 
     `outcome` is the planner's return value when the runner calls this at the end of an episode;
     otherwise the `end` event is used, and a run without one counts as aborted ("cut short").
     `scenario` may be None when it cannot be loaded: targets logged as points still score.
+    `success_radius_m` [m]: the radius success is judged at (`llmnav score --success-radius`); the score's
+    distance term keeps its own 2.5 m.
     """
     config = record.config
     events = record.events
@@ -287,6 +409,7 @@ def summarize_run(
     kind = task.get("kind")
     rotation = total_rotation(poses)
     best = best_target(final, targets, faces) if final is not None and kind == "target" else None
+    reach: dict[str, Any] = {**NO_REACH, "success_radius_m": success_radius_m}
     score: float | None
     if kind == "rotate":
         score = 1.0 if rotation_done(rotation) else 0.0
@@ -295,18 +418,29 @@ def summarize_run(
         score, success = None, completed
     elif best is not None:
         score = best.score
-        success = completed and best.distance_m <= SUCCESS_RADIUS_M
+        reach = reach_metrics(
+            targets=targets,
+            best=best,
+            completed=completed,
+            poses=poses,
+            start=_as_pose(config.get("start_pose")),
+            final=final,
+            scenario=scenario,
+            obstacles=_added_obstacles(config),
+            radius_m=success_radius_m,
+        )
+        success = reach["success"]
     else:  # a target task whose targets cannot be resolved: nothing to score against
         score, success = None, False
 
     if result == "aborted" and planner_metrics.get("failure") == "backend":
-        score, success = None, False  # the server failed, not the model: nothing of the model's to score
+        # the server failed, not the model: nothing of the model's to score
+        score, success = None, False
+        reach = {**NO_REACH, "success_radius_m": success_radius_m}
 
-    collisions = sum(1 for a in actions if a.get("collided"))
-    if isinstance(planner_metrics.get("collisions"), int):
-        collisions = max(collisions, planner_metrics["collisions"])
+    collisions, collided_with = count_collisions(actions, planner_metrics, reason)
 
-    return {
+    summary: dict[str, Any] = {
         "outcome": result,
         "reason": reason,
         "cut_short": end is None and outcome is None,
@@ -332,13 +466,17 @@ def summarize_run(
         "target_index": best.index if best is not None else None,
         "score": _rounded(score),
         "success": bool(success),
+        **{k: v for k, v in reach.items() if k != "success"},
         "path_length_m": round(path_length(poses), 4),
         "rotation_total_rad": round(rotation, 4),
         "collisions": collisions,
+        "collided_with": collided_with,
         "sim_time_s": _rounded(_last_time(events, "t_sim")),
         "wall_time_s": _rounded(_last_time(events, "t_wall")),
         "planner_metrics": planner_metrics,
     }
+    summary["failure_cause"] = failure_cause(summary, actions[-1] if actions else None)
+    return summary
 
 
 def new_prompt_tokens_median(calls: Sequence[dict[str, Any]]) -> float | None:

@@ -23,7 +23,14 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
 from llmnav.errors import BadInputError
-from llmnav.metrics import CONDITION_KEYS, aborted_by_infrastructure, summarize_run
+from llmnav.failures import FAILURE_CAUSES
+from llmnav.metrics import (
+    CONDITION_KEYS,
+    RESCORED_KEYS,
+    SUCCESS_RADIUS_M,
+    aborted_by_infrastructure,
+    summarize_run,
+)
 from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, read_run
 from llmnav.stats import Comparison, compare, describe
 
@@ -166,8 +173,17 @@ def scenario_of(config: dict[str, Any]) -> Scenario | None:
     return load_scenario_of(config)[0]
 
 
-def load_run(run_dir: Path) -> Run:
-    """A run's summary: summary.json when the run ended, else computed from its (cut-short) log."""
+# Keys a summary written before collisions, SPL and failure causes were recorded lacks: computed from the log.
+_COLLISION_KEYS = ("collisions", "collided_with")
+
+
+def load_run(run_dir: Path, success_radius_m: float | None = None) -> Run:
+    """A run's summary: summary.json when the run ended, else computed from its (cut-short) log.
+
+    `success_radius_m` [m]: success, oracle success, SPL, Soft-SPL and the failure cause are recomputed from
+    the log at this radius (`--success-radius`). A summary written before some of these keys existed gets
+    them computed from its log the same way (`llmnav.metrics.summarize_run`).
+    """
     record = read_run(run_dir)
     summary = record.summary
     problems = []
@@ -175,29 +191,41 @@ def load_run(run_dir: Path) -> Run:
         scenario, why = load_scenario_of(record.config)
         if scenario is None:
             problems.append(f"{why}; its targets are scored only where the log records them as points")
-        summary = summarize_run(record, scenario)
+        summary = summarize_run(record, scenario, success_radius_m=success_radius_m or SUCCESS_RADIUS_M)
+    else:
+        missing = [k for k in (*RESCORED_KEYS, *_COLLISION_KEYS) if k not in summary]
+        if success_radius_m is not None or missing:
+            scenario, why = load_scenario_of(record.config)
+            fresh = summarize_run(record, scenario, success_radius_m=success_radius_m or SUCCESS_RADIUS_M)
+            redo = RESCORED_KEYS if success_radius_m is not None else ()
+            if "collided_with" in missing:  # older counts missed contacts only the end reason reported
+                redo = (*redo, *_COLLISION_KEYS, "failure_cause")
+            summary = {**summary, **{k: fresh[k] for k in dict.fromkeys((*missing, *redo))}}
+            if scenario is None and summary.get("task_kind") == "target":
+                problems.append(f"{why}; no SPL or Soft-SPL")
     # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
     if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_by_infrastructure(summary):
         problems.append("no score: the task's targets could not be resolved")
     return Run(Path(run_dir), summary, record.config, problems)
 
 
-def load_runs(paths: Sequence[Path]) -> list[Run]:
+def load_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> list[Run]:
     """Every run below the given paths (BadInputError at the first that cannot be read)."""
-    return [load_run(d) for d in find_run_dirs(paths)]
+    return [load_run(d, success_radius_m) for d in find_run_dirs(paths)]
 
 
-def read_runs(paths: Sequence[Path]) -> tuple[list[Run], list[str]]:
+def read_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> tuple[list[Run], list[str]]:
     """Every readable run below the given paths, and "folder: why" for each that is not.
 
     One damaged log among thousands must not cancel the tables of the rest; when none can be read, the
     first one's error is raised (a single broken run named on the command line is an error).
+    `success_radius_m`: as for `load_run`.
     """
     runs: list[Run] = []
     broken: list[tuple[Path, BadInputError]] = []
     for run_dir in find_run_dirs(paths):
         try:
-            runs.append(load_run(run_dir))
+            runs.append(load_run(run_dir, success_radius_m))
         except BadInputError as err:
             broken.append((run_dir, err))
     if broken and not runs:
@@ -315,12 +343,15 @@ def episodes_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
         return None
     columns = [
         "Task", "Condition", "N", "Iterations", "Latency (s)", "#JSON", "#Safety", "Success", "Score", "New tok",
+        "Oracle SR", *COMMON_COLUMNS,
     ]  # fmt: skip
     rows, records = [], []
     for task, cond, group in group_runs(runs, keys):
         successes = sum(1 for r in group if r.summary.get("success"))
         scores = _values(group, lambda r: r.summary.get("score"))
         no_target = all(r.summary.get("task_kind") == "explore" for r in group)
+        common_cells, common_fields = common_columns(group)
+        reached = [bool(r.summary["oracle_success"]) for r in group if r.summary.get("oracle_success") is not None]
         fields = {
             "iterations": _values(group, lambda r: r.summary.get("iterations")),
             "latency_s": _values(group, lambda r: r.summary.get("latency_s_mean")),
@@ -341,6 +372,8 @@ def episodes_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 f"{successes}/{len(group)}",
                 NA if no_target else _mean_sd(scores, 2),
                 _median(fields["new_prompt_tokens"]),
+                f"{sum(reached)}/{len(reached)}" if reached else MISSING,
+                *common_cells,
             ]
         )
         records.append(
@@ -351,12 +384,51 @@ def episodes_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 "n": len(group),
                 "successes": successes,
                 "success_rate": successes / len(group),
+                "oracle_successes": sum(reached) if reached else None,
+                "oracle_success_n": len(reached),
                 "score": None if no_target else _stats_record(scores),
+                **common_fields,
                 **{name: _stats_record(vals) for name, vals in fields.items()},
             }
         )
-    note = "mean ± SD per run; New tok: median over runs of each run's median new prompt tokens per call"
+    note = (
+        "mean ± SD per run; New tok: median over runs of each run's median new prompt tokens per call; "
+        f"Oracle SR: runs that came within the success radius at any time; {COMMON_NOTE}"
+    ) + _radius_note(runs)
     return Table("Episodes (stepwise source, Table 1 style)", columns, rows, records, note, name="episodes")
+
+
+# Columns every per-task table carries after its own (the episodes table and every declared table).
+COMMON_COLUMNS = ("Collisions", "SPL", "Soft-SPL")
+COMMON_NOTE = (
+    "Collisions: collision events summed over the runs; SPL and Soft-SPL: mean ± SD per run, "
+    "weighted by the shortest collision-free path (docs/metrics.md)"
+)
+
+
+def common_columns(group: Sequence[Run]) -> tuple[list[str], dict[str, Any]]:
+    """The cells and record fields of COMMON_COLUMNS for a group: collisions, SPL and Soft-SPL.
+
+    Collisions are the group's total (a record also holds how many runs had one); a group where no run
+    records a count shows "—". SPL and Soft-SPL exist for target tasks only: "—" elsewhere.
+    """
+    counts = [int(c) for c in (_num(r.summary.get("collisions")) for r in group) if c is not None]
+    spl = _values(group, lambda r: r.summary.get("spl"))
+    soft = _values(group, lambda r: r.summary.get("soft_spl"))
+    cells = [str(sum(counts)) if counts else MISSING, _mean_sd(spl, 2), _mean_sd(soft, 2)]
+    fields = {
+        "collisions": sum(counts) if counts else None,
+        "runs_collided": sum(1 for c in counts if c > 0) if counts else None,
+        "spl": _stats_record(spl),
+        "soft_spl": _stats_record(soft),
+    }
+    return cells, fields
+
+
+def _radius_note(runs: Sequence[Run]) -> str:
+    """The note "; success within R m" when success was judged at a radius other than the default."""
+    radii = {r for r in _values(runs, lambda run: run.summary.get("success_radius_m")) if r != SUCCESS_RADIUS_M}
+    return f"; success within {', '.join(f'{r:g}' for r in sorted(radii))} m (--success-radius)" if radii else ""
 
 
 def _start_key(run: Run) -> tuple[str, Any]:
@@ -419,6 +491,7 @@ def path_table(
     columns = ["Task", "Condition", "N ok", "Path (m)", "Oracle (m)", "Ratio"]
     for ref in references.values():
         columns += [f"{ref.label} (m)", "Ratio"]
+    columns += COMMON_COLUMNS
     rows, records = [], []
     for task, cond, group in group_runs(successful, keys):
         paths = _values(group, lambda r: r.summary.get("path_length_m"))
@@ -452,8 +525,9 @@ def path_table(
             row += [_mean_sd(ref_m[name], 2), _mean_sd(ref_ratio[name], 2)]
             record[f"{ref.key}_length_m"] = _stats_record(ref_m[name])
             record[f"{ref.key}_ratio"] = _stats_record(ref_ratio[name])
-        rows.append(row)
-        records.append(record)
+        common_cells, common_fields = common_columns(group)
+        rows.append(row + common_cells)
+        records.append(record | common_fields)
     title = "Path length (stepwise source, Table 2 style; successful runs)"
     return Table(title, columns, rows, records, name="path")
 
@@ -517,14 +591,15 @@ def declared_table(
     if not covered:
         return None
     label_column = "Command" if spec.rows == "command" else "Task"
-    columns = [label_column, "Condition", "N", *(c.label for c in spec.columns)]
+    columns = [label_column, "Condition", "N", *(c.label for c in spec.columns), *COMMON_COLUMNS]
     rows, records = [], []
 
     def add(label: str, cond: str, group: Sequence[Run]) -> None:
         cells, fields = _declared_row(spec, group)
-        rows.append([label, cond, str(len(group)), *cells])
+        common_cells, common_fields = common_columns(group)
+        rows.append([label, cond, str(len(group)), *cells, *common_cells])
         lead = {label_column.lower(): label, "condition": cond, **condition_fields(group[0], keys), "n": len(group)}
-        records.append(lead | fields)
+        records.append(lead | fields | common_fields)
 
     for task, cond, group in group_runs(covered, keys):
         add(str(group[0].summary.get("task_text") or task) if spec.rows == "command" else task, cond, group)
@@ -578,8 +653,46 @@ def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -
     tables += declared_tables(results, keys, declared)
     policies = (null_policy_table, ceiling_table, wording_table, wording_spread_table)
     tables += [t for t in (b(results, keys) for b in policies) if t is not None]
-    table = aborted_table(aborted, keys)
-    return tables + ([table] if table is not None else [])
+    tables += [t for t in (failures_table(runs, keys), aborted_table(aborted, keys)) if t is not None]
+    return tables
+
+
+def failures_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
+    """Per condition: how many runs failed, and of what (`failure_cause`, see `llmnav.failures`).
+
+    Every run counts, those aborted by a backend or server failure too (cause `outage`).
+    """
+    if not runs:
+        return None
+    rows, records = [], []
+    for _task, cond, group in group_runs(runs, keys, by_task=False):
+        causes = [r.summary.get("failure_cause") for r in group if not r.summary.get("success")]
+        counts = {cause: causes.count(cause) for cause in FAILURE_CAUSES}
+        rows.append([cond, str(len(group)), str(len(causes)), *(str(counts[c]) for c in FAILURE_CAUSES)])
+        records.append(
+            {"condition": cond, **condition_fields(group[0], keys), "n": len(group), "failed": len(causes), **counts}
+        )
+    return Table(
+        "Failure causes (one per run that did not succeed)",
+        ["Condition", "N", "Failed", *FAILURE_CAUSES],
+        rows,
+        records,
+        note="docs/metrics.md defines each cause and the order they are tried in" + _radius_note(runs),
+        name="failures",
+    )
+
+
+def collided_runs(runs: Sequence[Run]) -> list[str]:
+    """One line per run that had a collision: its folder, how many and with what (`score` prints them)."""
+    lines = []
+    for run in runs:
+        count = _num(run.summary.get("collisions"))
+        if count is None or count <= 0:
+            continue
+        hit = run.summary.get("collided_with")
+        what = f" with {', '.join(map(str, hit))}" if isinstance(hit, list) and hit else ""
+        lines.append(f"{run.run_dir}: {int(count)} collision{'s' if count != 1 else ''}{what}")
+    return lines
 
 
 def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
@@ -624,6 +737,9 @@ COMPARE_METRICS: dict[str, Callable[[Run], Any]] = {
     "score": lambda r: r.summary.get("score"),
     "success": lambda r: 1.0 if r.summary.get("success") else 0.0,
     "path_length_m": lambda r: r.summary.get("path_length_m"),
+    "spl": lambda r: r.summary.get("spl"),
+    "soft_spl": lambda r: r.summary.get("soft_spl"),
+    "collisions": lambda r: r.summary.get("collisions"),
     "iterations": lambda r: r.summary.get("iterations"),
     "latency_s": lambda r: r.summary.get("latency_s_mean"),
     "e_pos_m": _metric("e_pos_m"),

@@ -23,12 +23,14 @@ from typing import Any, TypeVar
 
 from llmnav.metrics import CONDITION_KEYS
 from llmnav.score import (
+    COMMON_COLUMNS,
     MISSING,
     Run,
     Table,
     _hashable,
     _num,
     _task_sort_key,
+    common_columns,
     condition_fields,
     condition_label,
     is_oracle,
@@ -68,6 +70,9 @@ class Outcomes:
     successes: int
     score_mean: float | None
     score_n: int
+    spl_mean: float | None = None  # over the runs that have one (target tasks)
+    soft_spl_mean: float | None = None
+    collisions: int | None = None  # collision events summed; None when no run records a count
 
     @property
     def success_rate(self) -> float | None:
@@ -79,7 +84,18 @@ class Outcomes:
         """Tally `runs`."""
         scores = [v for v in (_num(r.summary.get("score")) for r in runs) if v is not None]
         mean, _, n_scores = mean_sd(scores)
-        return cls(len(runs), sum(1 for r in runs if r.summary.get("success")), _finite(mean), n_scores)
+        spl = [v for v in (_num(r.summary.get("spl")) for r in runs) if v is not None]
+        soft = [v for v in (_num(r.summary.get("soft_spl")) for r in runs) if v is not None]
+        counts = [int(v) for v in (_num(r.summary.get("collisions")) for r in runs) if v is not None]
+        return cls(
+            len(runs),
+            sum(1 for r in runs if r.summary.get("success")),
+            _finite(mean),
+            n_scores,
+            _finite(mean_sd(spl)[0]) if spl else None,
+            _finite(mean_sd(soft)[0]) if soft else None,
+            sum(counts) if counts else None,
+        )
 
     def record(self) -> dict[str, Any]:
         """Raw numbers for JSON and CSV."""
@@ -89,6 +105,9 @@ class Outcomes:
             "success_rate": self.success_rate,
             "score_mean": self.score_mean,
             "score_n": self.score_n,
+            "spl_mean": self.spl_mean,
+            "soft_spl_mean": self.soft_spl_mean,
+            "collisions": self.collisions,
         }
 
     def success_cell(self) -> str:
@@ -98,6 +117,23 @@ class Outcomes:
     def score_cell(self) -> str:
         """`0.45 (n=18)`: the mean with its n."""
         return MISSING if self.score_mean is None else f"{self.score_mean:.2f} (n={self.score_n})"
+
+
+# Collisions, SPL and Soft-SPL of each side of a comparison, in one cell: "0.41 / 0.55 / 0.80".
+SIDE_COLUMNS = ("Collisions", "SPL", "Soft-SPL")
+
+
+def _side_cells(*sides: Outcomes) -> list[str]:
+    """The SIDE_COLUMNS cells of several sides (model / null, or floor / model / ceiling); "—" where absent."""
+
+    def joined(values: Iterable[float | int | None], digits: int) -> str:
+        return " / ".join(MISSING if v is None else f"{v:.{digits}f}" for v in values)
+
+    return [
+        joined((s.collisions if s.n else None for s in sides), 0),
+        joined((s.spl_mean if s.n else None for s in sides), 2),
+        joined((s.soft_spl_mean if s.n else None for s in sides), 2),
+    ]
 
 
 def _finite(value: float | None) -> float | None:
@@ -186,6 +222,7 @@ def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     columns = [
         "Task", "Condition", "Model success", "Model score", "Best null policy", "Null success", "Null score",
         "Δ success", "Δ score", "Null ≥ model", "Every null policy (success, score)",
+        *(f"{c} model / null" for c in SIDE_COLUMNS),
     ]  # fmt: skip
     rows, records = [], []
     for task, label, setting in _ordered(groups):
@@ -211,6 +248,7 @@ def null_policy_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 _signed(d_score),
                 "YES" if matches else "no",
                 every,
+                *_side_cells(best.model, best.null),
             ]
         )
         records.append(
@@ -344,6 +382,7 @@ def _ceiling_row(
         *_cells(span.ceiling),
         _share_cell(span.gap_success, span.episodes),
         _share_cell(span.gap_score, span.scored_episodes),
+        *_side_cells(span.floor, span.model, span.ceiling),
     ]
     record = {
         "task": task,
@@ -374,6 +413,7 @@ def ceiling_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     columns = [
         "Task", "Condition", "Floor: best null policy", "Floor success", "Floor score", "Model success",
         "Model score", "Oracle answers success", "Oracle answers score", "Gap closed: success", "Gap closed: score",
+        *(f"{c} floor / model / ceiling" for c in SIDE_COLUMNS),
     ]  # fmt: skip
     rows, records = [], []
     for task, label, setting in _ordered(groups):
@@ -421,20 +461,22 @@ def wording_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
     groups = _by_wording(runs, keys)
     if not groups:
         return None
-    columns = ["Task", "Condition", "Wording", "Success", "Success rate", "Score"]
+    columns = ["Task", "Condition", "Wording", "Success", "Success rate", "Score", *COMMON_COLUMNS]
     rows, records = [], []
     for task, label in _ordered(groups):
         for wording in sorted(groups[(task, label)], key=_wording_order):
-            tally = Outcomes.of(groups[(task, label)][wording])
+            group = groups[(task, label)][wording]
+            tally = Outcomes.of(group)
             rate = tally.success_rate
+            common_cells, common_fields = common_columns(group)
             rows.append(
                 [task, label, wording, tally.success_cell(), MISSING if rate is None else f"{rate:.2f}",
-                 tally.score_cell()]
+                 tally.score_cell(), *common_cells]
             )  # fmt: skip
-            first = groups[(task, label)][wording][0]
             records.append(
-                {"task": task, "condition": label, **condition_fields(first, keys), "wording": wording}
+                {"task": task, "condition": label, **condition_fields(group[0], keys), "wording": wording}
                 | tally.record()
+                | common_fields
             )
     return Table("Success and score per task wording", columns, rows, records, name="wording")
 

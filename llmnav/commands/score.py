@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from enum import StrEnum
 from pathlib import Path
@@ -44,13 +45,21 @@ def score(
         str | None,
         typer.Option(
             "--table",
-            help="Only this table: episodes, path, null_policies, ceiling, wording, wording_spread, aborted, "
+            help="Only this table: episodes, path, null_policies, ceiling, wording, wording_spread, failures, aborted, "
             "comparison, or one a planner declares (its name is in the JSON). CSV writes one table (default: "
             "the first).",
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")] = None,
+    success_radius: Annotated[
+        float | None,
+        typer.Option(
+            "--success-radius",
+            help="Judge success (and oracle success, SPL, Soft-SPL, failure causes) within this distance [m] "
+            "of the target, recomputed from each run's log (default: 2.5, as recorded).",
+        ),
+    ] = None,
 ) -> None:
     """Turn run logs into the sources' tables: episodes, path length, each planner's own, null policies; statistics.
 
@@ -58,6 +67,7 @@ def score(
     """
     from llmnav.score import (
         build_tables,
+        collided_runs,
         compare_groups,
         problems,
         read_runs,
@@ -69,7 +79,9 @@ def score(
     if out is not None:
         check_output_path(out, "--out", paths)
     chart_folder_option(plot)
-    runs, broken = read_runs(paths)
+    if success_radius is not None and not (math.isfinite(success_radius) and success_radius > 0):
+        raise BadInputError(f"--success-radius {success_radius}: expected a distance in metres above 0")
+    runs, broken = read_runs(paths, success_radius)
     keys = varying_keys(runs) if by is None else parse_keys(by)
     tables = build_tables(runs, keys)
     results, aborted = split_aborted(runs)
@@ -90,6 +102,8 @@ def score(
 
         written = plot_conditions(results, keys, plot)
         err_console.print(f"[dim]{len(written)} chart(s) written to {esc(plot)}[/]")
+    for line in collided_runs(runs):  # every run that touched something, named: collisions are never pooled away
+        err_console.print(f"[red]collided:[/] {esc(line)}", highlight=False, soft_wrap=True)
     for line in problems(runs):
         err_console.print(f"[yellow]not computed:[/] {esc(line)}", highlight=False, soft_wrap=True)
     for line in broken:

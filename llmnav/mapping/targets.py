@@ -36,7 +36,7 @@ import numpy as np
 
 from llmnav.errors import BadInputError
 from llmnav.geometry import Point, Pose2D, path_length
-from llmnav.mapping.astar import GridPath, astar, densify, shortcut
+from llmnav.mapping.astar import GridPath, astar, densify, line_of_sight, shortcut
 from llmnav.mapping.grid import Cell, GridConfig, OccupancyGrid, build_grid, nearest_free_cell
 
 if TYPE_CHECKING:
@@ -110,6 +110,44 @@ def _approach_goal(
     return _Goal(target, point, mask, high)
 
 
+@dataclass(frozen=True)
+class _Region:
+    """Cells to reach around a point, and the radius the heuristic needs."""
+
+    point: Point
+    mask: np.ndarray
+    reach_m: float  # [m] every cell centre of `mask` lies within this of `point`
+
+
+def _search(
+    grid: OccupancyGrid, goals: Sequence[_Goal | _Region], start: Point, snap_m: float
+) -> tuple[GridPath, int] | None:
+    """A* from `start` (snapped up to `snap_m` [m] to a free cell) to the union of the goals' cells.
+
+    Returns the grid path and the index of the goal it reached.
+    """
+    geometry = grid.geometry
+    union = np.zeros(geometry.shape, dtype=bool)
+    for goal in goals:
+        union |= goal.mask
+    start_cell = nearest_free_cell(grid.blocked, geometry, start[0], start[1], snap_m)
+    if start_cell is None or not union.any():
+        return None
+    # Octile distance is a norm at most OCTILE_STRETCH times the Euclidean one, so octile(cell, point) minus
+    # OCTILE_STRETCH x reach never overestimates the cost to any goal cell within `reach` of the point.
+    xs, ys = geometry.centres()
+    heuristic = np.full(geometry.shape, np.inf)
+    for goal in goals:
+        dx, dy = np.abs(xs - goal.point[0]), np.abs(ys - goal.point[1])
+        octile = np.maximum(dx, dy) + (SQRT2 - 1.0) * np.minimum(dx, dy)
+        heuristic = np.minimum(heuristic, octile - OCTILE_STRETCH * goal.reach_m)
+    heuristic = np.maximum(heuristic, 0.0)
+    path = astar(grid.blocked, start_cell, union, resolution_m=geometry.resolution, heuristic=heuristic)
+    if path is None:
+        return None
+    return path, next(i for i, g in enumerate(goals) if g.mask[path.goal])
+
+
 def plan_to_targets(
     grid: OccupancyGrid,
     scenario: Scenario,
@@ -131,28 +169,11 @@ def plan_to_targets(
         if exact:  # standing on the stand point, face the object (a plate on the wall), not the point
             goal = replace(goal, face=scenario.object(target.object or "").center)
         goals.append(goal)
-    union = np.zeros(geometry.shape, dtype=bool)
-    for goal in goals:
-        union |= goal.mask
-    start_cell = nearest_free_cell(grid.blocked, geometry, start[0], start[1], config.start_snap_m)
-    if start_cell is None or not union.any():
+    found = _search(grid, goals, start, config.start_snap_m)
+    if found is None:
         return None
-
-    # Octile distance is a norm at most OCTILE_STRETCH times the Euclidean one, so octile(cell, point) minus
-    # OCTILE_STRETCH x reach never overestimates the cost to any goal cell within `reach` of the point.
-    xs, ys = geometry.centres()
-    heuristic = np.full(geometry.shape, np.inf)
-    for goal in goals:
-        dx, dy = np.abs(xs - goal.point[0]), np.abs(ys - goal.point[1])
-        octile = np.maximum(dx, dy) + (SQRT2 - 1.0) * np.minimum(dx, dy)
-        heuristic = np.minimum(heuristic, octile - OCTILE_STRETCH * goal.reach_m)
-    heuristic = np.maximum(heuristic, 0.0)
-    path: GridPath | None = astar(
-        grid.blocked, start_cell, union, resolution_m=geometry.resolution, heuristic=heuristic
-    )
-    if path is None:
-        return None
-    goal = next(g for g in goals if g.mask[path.goal])
+    path, index = found
+    goal = goals[index]
     centres = [geometry.cell_to_world(*cell) for cell in path.cells]
     # The exact start pose replaces its cell's centre; a path of one cell still steps to that centre.
     grid_points = [(start[0], start[1]), *(centres[1:] if len(centres) > 1 else centres)]
@@ -249,3 +270,118 @@ def oracle_length(scenario: Scenario, task: Task | str, start_pose_index_or_pose
     if not task_obj.targets:
         return None
     return _cached_length(_ScenarioKey.of(scenario), task_obj.id, round(pose.x, 6), round(pose.y, 6))
+
+
+# For scoring: the robot's own footprint and nothing more, so no driven path can be shorter than this one.
+SCORING_GRID = GridConfig(margin_m=0.0)
+
+
+def goal_distance(
+    scenario: Scenario,
+    points: Sequence[Point],
+    start: Point,
+    radius_m: float,
+    *,
+    config: GridConfig = SCORING_GRID,
+    snap_m: float = 0.5,
+) -> float | None:
+    """Shortest collision-free path length [m] from `start` to within `radius_m` of any of `points`.
+
+    The oracle's geometry: A* on the scenario's true grid inflated by the robot radius (`config`: no extra
+    margin by default), to every free cell whose centre lies within `radius_m` of a point, then the
+    line-of-sight shortcut of that path pulled taut (`_taut_length`). 0 when `start` is already within the
+    radius of a point; None when no point is given, a coordinate is not finite, `start` lies off the grid or
+    deeper than `snap_m` [m] inside an obstacle's inflation, or no path exists. Cached per scenario content,
+    points, start and radius.
+    """
+    if not points or not all(math.isfinite(v) for v in (*start, *(c for point in points for c in point), radius_m)):
+        return None
+    if any(math.hypot(start[0] - x, start[1] - y) <= radius_m for x, y in points):
+        return 0.0
+    key = (round(start[0], 6), round(start[1], 6))
+    rounded = tuple((round(x, 6), round(y, 6)) for x, y in points)
+    return _cached_goal_distance(_ScenarioKey.of(scenario), rounded, key, float(radius_m), config, float(snap_m))
+
+
+@lru_cache(maxsize=4096)
+def _cached_goal_distance(
+    key: _ScenarioKey,
+    points: tuple[Point, ...],
+    start: Point,
+    radius_m: float,
+    config: GridConfig,
+    snap_m: float,
+) -> float | None:
+    grid = _grid_for(key, config)
+    straight = [math.dist(start, point) - radius_m for point in points]  # [m] a lower bound for each point
+    start_cell = grid.geometry.world_to_cell(*start)
+    clear = [
+        gap
+        for gap, point in zip(straight, points, strict=True)
+        if _clear_to_radius(grid, start_cell, start, point, radius_m)
+    ]
+    if clear and min(clear) <= min(straight) + 1e-9:  # in sight and no other point can be nearer: no search
+        return min(clear)
+    xs, ys = grid.geometry.centres()
+    regions = [
+        _Region(point, (np.hypot(xs - point[0], ys - point[1]) <= radius_m) & ~grid.blocked, radius_m)
+        for point in points
+    ]
+    found = _search(grid, regions, start, snap_m)
+    if found is None:
+        return None
+    return _taut_length(grid, found[0].cells, start, points, radius_m)
+
+
+def _clear_to_radius(grid: OccupancyGrid, cell: Cell, start: Point, point: Point, radius_m: float) -> bool:
+    """Whether the straight line from `start` toward `point` is free until `radius_m` [m] from it."""
+    if not grid.geometry.contains(cell) or grid.blocked[cell]:
+        return False
+    gap = math.dist(start, point) - radius_m
+    t = gap / (gap + radius_m)
+    entry = grid.geometry.world_to_cell(start[0] + (point[0] - start[0]) * t, start[1] + (point[1] - start[1]) * t)
+    return grid.geometry.contains(entry) and line_of_sight(grid.blocked, cell, entry)
+
+
+def _taut_length(
+    grid: OccupancyGrid, cells: Sequence[Cell], start: Point, points: Sequence[Point], radius_m: float
+) -> float:
+    """The length [m] of an A* path pulled taut, ending where it first may: within `radius_m` of a point.
+
+    The greedy shortcut keeps grid corners where the taut string would bend a little earlier, and the
+    8-connected search picks its end cell by grid cost (a diagonal approach to the circle), both a few
+    percent long. So: (1) each kept corner moves to the path cell between its neighbours that makes the
+    two legs shortest with line of sight (a few passes), and (2) the path may leave at any kept point
+    straight toward a point until the radius, when that leg is clear.
+    """
+    blocked, geometry = grid.blocked, grid.geometry
+    where: list[Point] = [start, *(geometry.cell_to_world(*cell) for cell in cells[1:])]
+    index = {cell: i for i, cell in enumerate(cells)}
+    keep = [index[cell] for cell in shortcut(list(cells), blocked)]
+
+    def leg(i: int, j: int) -> float:
+        return math.dist(where[i], where[j])
+
+    for _ in range(4):  # corner refinement; each pass only shortens, so it settles
+        moved = False
+        for k in range(1, len(keep) - 1):
+            a, b = keep[k - 1], keep[k + 1]
+            for m in sorted(range(a + 1, b), key=lambda m: leg(a, m) + leg(m, b)):
+                if leg(a, m) + leg(m, b) >= leg(a, keep[k]) + leg(keep[k], b) - 1e-9:
+                    break
+                if line_of_sight(blocked, cells[a], cells[m]) and line_of_sight(blocked, cells[m], cells[b]):
+                    keep[k], moved = m, True
+                    break
+        if not moved:
+            break
+    travelled = 0.0
+    best = path_length([where[i] for i in keep])
+    for k, i in enumerate(keep):
+        travelled += leg(keep[k - 1], i) if k else 0.0
+        for point in points:  # leave here straight toward the point, stop at the radius
+            gap = math.dist(where[i], point) - radius_m
+            if gap <= 0 or travelled + gap >= best:
+                continue
+            if _clear_to_radius(grid, cells[i], where[i], point, radius_m):
+                best = travelled + gap
+    return best

@@ -102,7 +102,7 @@ def test_no_share_when_the_ceiling_is_the_floor(runs: Path) -> None:
     assert (t2["floor"]["successes"], t2["ceiling"]["successes"]) == (1, 1)
     assert t2["gap_closed_success"] is None and t2["gap_closed_score"] is None
     line = _md_row(runs, "ceiling", "T2")
-    assert line[-2:] == ["—", "—"]
+    assert line[9:11] == ["—", "—"]
 
 
 def test_the_gap_share() -> None:
@@ -135,9 +135,11 @@ def test_the_human_table_names_the_ceiling_as_oracle_answers(runs: Path) -> None
     text = _invoke(str(runs), "--format", "md", "--table", "ceiling").stdout
     assert "### Floor, model and ceiling (same episodes)" in text
     assert "Oracle answers success" in text and "no gap to close" in text
-    assert _md_row(runs, "ceiling", "T1")[2:] == [
+    row = _md_row(runs, "ceiling", "T1")
+    assert row[2:11] == [
         "policy:first", "0/2", "0.44 (n=2)", "1/2", "0.72 (n=2)", "2/2", "1.00 (n=2)", "50% (n=2)", "50% (n=2)",
     ]  # fmt: skip
+    assert row[11] == "0 / 0 / 0"  # collisions of floor / model / ceiling: these runs touched nothing
 
 
 def test_the_oracle_runs_are_labelled_in_the_episode_table(runs: Path) -> None:
@@ -155,7 +157,7 @@ def test_the_oracle_runs_are_labelled_in_the_episode_table(runs: Path) -> None:
 
 def test_json_and_csv_hold_the_new_fields(runs: Path) -> None:
     data = json.loads(_invoke(str(runs), "--format", "json").stdout)
-    assert [t["name"] for t in data] == ["episodes", "path", "null_policies", "ceiling"]
+    assert [t["name"] for t in data] == ["episodes", "path", "null_policies", "ceiling", "failures"]
     rows = list(csv.DictReader(io.StringIO(_invoke(str(runs), "--format", "csv", "--table", "ceiling").stdout)))
     assert [r["task"] for r in rows] == ["T1", "T2", "All tasks"]
     t1, t2, _ = rows
@@ -178,6 +180,8 @@ def test_floor_and_ceiling_without_a_model(tmp_path: Path) -> None:
     assert (t1["condition"], t1["floor_policy"], t1["n"]) == (ORACLE_T1, "policy:first", 1)
     assert (t1["model"]["n"], t1["floor"]["successes"], t1["ceiling"]["successes"], t1["ceiling"]["n"]) == (0, 0, 1, 1)
     assert t1["gap_closed_success"] is None and t1["gap_closed_score"] is None
-    assert _md_row(root, "ceiling", "T1", ORACLE_T1)[2:] == [
+    row = _md_row(root, "ceiling", "T1", ORACLE_T1)
+    assert row[2:11] == [
         "policy:first", "0/1", "0.44 (n=1)", "—", "—", "1/1", "1.00 (n=1)", "—", "—",
     ]  # fmt: skip
+    assert row[11] == "0 / — / 0"  # no model side

@@ -59,7 +59,7 @@ def test_json_on_stdout_is_only_json(policy_runs: Path) -> None:
     result = _invoke(str(policy_runs), "--format", "json")
     assert result.exit_code == 0, result.output
     data = json.loads(result.stdout)  # nothing but the document
-    assert [t["name"] for t in data] == ["episodes", "path", "null_policies"]
+    assert [t["name"] for t in data] == ["episodes", "path", "null_policies", "failures"]
     assert "7 run(s) read" in result.stderr and "run(s) read" not in result.stdout
 
 
