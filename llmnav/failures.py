@@ -4,8 +4,8 @@ A leaf module: it reads a summary's fields (and the run's last `action` event, w
 planners, so every planner's end is classified the same way. The causes, tried in this order (the first
 that holds is the cause):
 
-- `outage`: nothing of the navigation to judge: the backend or its server failed (no answer came), the run
-  crashed, was interrupted, or was cut short (no `end` event).
+- `outage`: nothing of the navigation to judge: the backend or its server failed (no answer came), a range
+  sensor the collision monitor relies on failed, the run crashed, was interrupted, or was cut short (no `end` event).
 - `collision`: the robot touched something during the episode (`collisions` > 0), however it ended.
 - `not_found`: the planner ended without a target it could reach: the outcome `not_found` ("explored the
   reachable floor; no landmark fits"), exploration with no frontier left, a target no collision-free path
@@ -50,7 +50,7 @@ def _outage(summary: Mapping[str, Any]) -> bool:
     metrics = summary.get("planner_metrics")
     reason = str(summary.get("reason") or "")
     return (
-        (isinstance(metrics, dict) and metrics.get("failure") == "backend")
+        (isinstance(metrics, dict) and metrics.get("failure") in ("backend", "sensor"))
         or bool(summary.get("cut_short"))
         or reason.startswith("crash:")
         or reason == "interrupted"

@@ -19,7 +19,15 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from llmnav.errors import BadInputError, LlmnavError, ModelError, ReplayDivergenceError, one_line, redact_userinfo
+from llmnav.errors import (
+    BadInputError,
+    LlmnavError,
+    ModelError,
+    ReplayDivergenceError,
+    SensorFailure,
+    one_line,
+    redact_userinfo,
+)
 from llmnav.planners.base import (
     DriveOptions,
     EpisodeContext,
@@ -162,9 +170,7 @@ def answers_information(backend: Backend | None) -> str | None:
 
 def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
     """LiDAR and camera configs: the scenario's defaults, the camera at the requested resolution."""
-    camera = scenario.sensors.camera.model_copy(
-        update={"width": options.image_width, "height": options.image_height}
-    )
+    camera = scenario.sensors.camera.model_copy(update={"width": options.image_width, "height": options.image_height})
     return {"lidar": scenario.sensors.lidar, "camera": camera}
 
 
@@ -299,16 +305,17 @@ def _run_logged(
         outcome = planner.run(ctx)
     except LlmnavError as err:
         # `failure` tells a resume what to run again: the model or server failing (not a navigation result)
-        failure = "backend" if isinstance(err, BACKEND_FAILURES) else "model"
+        # (or a range sensor the collision monitor relies on: an outage of the robot, not of the model)
+        failure = (
+            "backend" if isinstance(err, BACKEND_FAILURES) else "sensor" if isinstance(err, SensorFailure) else "model"
+        )
         outcome = EpisodeOutcome("aborted", one_line(err), metrics={"failure": failure})
         if isinstance(err, BadInputError):  # e.g. a server that takes no images: exit 2 with its hint
             crash = err
     except BaseException as err:  # a bug or Ctrl-C: keep the log valid, then let it propagate
         crash = err
         reason = (
-            "interrupted"
-            if isinstance(err, KeyboardInterrupt)
-            else f"crash: {type(err).__name__}: {one_line(err)}"
+            "interrupted" if isinstance(err, KeyboardInterrupt) else f"crash: {type(err).__name__}: {one_line(err)}"
         )
         outcome = EpisodeOutcome("aborted", reason)
     finally:

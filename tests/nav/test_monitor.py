@@ -243,3 +243,11 @@ def test_the_obstacle_flag_takes_a_time_and_refuses_a_bad_one(tmp_path) -> None:
         ],
     )
     assert outside.exit_code == 2 and "outside the world" in outside.output
+
+
+def test_a_sensor_outage_is_its_own_failure_cause() -> None:
+    from llmnav.failures import failure_cause
+
+    summary = {"success": False, "outcome": "aborted", "reason": "the low scanner failed", "collisions": 0}
+    assert failure_cause({**summary, "planner_metrics": {"failure": "sensor"}}) == "outage"
+    assert failure_cause({**summary, "planner_metrics": {"failure": "model"}}) == "model_failure"
