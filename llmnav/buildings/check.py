@@ -7,6 +7,8 @@ For every task and start pose:
 - reachability: one of the task's approach cells (the oracle's: 1.5-2.5 m from a target's goal point,
   shrunk by its slack; a point target's own cell when free) lies in the same 8-connected free region of the
   inflated grid as the start cell — exactly when the oracle's A* finds a path;
+- not already there: every target's goal point lies farther than the scorer's success radius (the oracle's
+  `approach_max_m`, 2.5 m) plus `START_SLACK_M` from the start, walls or no walls;
 - not visible: no target is in line of sight within the camera's view at the start pose (its horizontal
   field of view plus `FOV_MARGIN_DEG` each side; `sightlines`), and the start is not on a target's own
   footprint (a room's floor). The generator asks more of its own start poses: no target in sight in any
@@ -45,6 +47,7 @@ MAX_CELLS = 4_000_000  # grid cells (0.05 m): 10 000 m², e.g. 100 m x 100 m
 MAX_SHAPES = 5_000  # walls, obstacles and objects together
 MAX_STARTS = 2_000  # start poses over all tasks
 MAX_LINES = 100  # problems listed before the rest are counted
+START_SLACK_M = 0.5  # [m] beyond the success radius: a task must not begin solved
 FOV_MARGIN_DEG = 7.5  # [deg] beyond the camera's half field of view (the factory's +-45 deg for +-37.6)
 
 
@@ -66,7 +69,10 @@ def _yaml_problems(text: str, source: str) -> list[str]:
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "(file)"
-        return [f"{source}: {where}: {getattr(err, 'problem', None) or 'invalid YAML'}"]
+        if isinstance(err, yaml.reader.ReaderError):  # a control character or undecodable byte
+            where = f"character {err.position + 1}"
+        problem = getattr(err, "problem", None) or getattr(err, "reason", None) or "invalid YAML"
+        return [f"{source}: {where}: {problem}"]
     return []
 
 
@@ -86,6 +92,8 @@ def load_for_check(path: Path) -> tuple[Scenario | None, list[str]]:
         return None, [f"{source}: no such file"]
     except BadInputError as err:
         return None, [str(err)]
+    except OSError as err:  # a folder opens, then cannot be read
+        return None, [f"{source}: cannot read: {err.strerror or err}"]
     problems = _yaml_problems(text, source)
     if problems:
         return None, problems
@@ -188,8 +196,14 @@ class Judge:
     def sight_problem(
         self, x: float, y: float, targets: list[LabelledObject], blocking: list[Shape], yaw: float | None = None
     ) -> str | None:
-        """Why a start at (x, y) sees its target, or None when it sees none (in view of `yaw` [rad], or anywhere)."""
+        """Why a start at (x, y) is too near or sees its target, or None (seen in view of `yaw` [rad], or anywhere)."""
+        near_m = OracleConfig().approach_max_m + START_SLACK_M
         for obj in targets:
+            gx, gy = obj.goal_point
+            away_m = math.hypot(gx - x, gy - y)
+            if away_m <= near_m:
+                radius_m = near_m - START_SLACK_M
+                return f"target '{obj.id}' is {away_m:.2f} m away: the task begins within {radius_m:g} m + {START_SLACK_M:g} m"
             if not obj.solid and obj.contains(x, y):
                 return f"starts on its target '{obj.id}'"
             if yaw is None and visible((x, y), obj, blocking):

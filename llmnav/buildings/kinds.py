@@ -119,12 +119,12 @@ ROOM_TYPES: dict[str, RoomType] = {
 KINDS: dict[str, KindSpec] = {
     kind.name: kind
     for kind in (
-        KindSpec("flat", "bsp", "pr2", (12.0, 9.0), 5, 8, 2.6, 1.1, 0.0,
+        KindSpec("flat", "bsp", "pr2", (12.0, 9.0), 5, 8, 2.6, 1.2, 0.0,
                  ("living", "kitchen", "bathroom", "bedroom"), ("bedroom", "study", "dining", "hallway", "laundry")),
-        KindSpec("office", "corridor", "pr2", (20.0, 12.0), 7, 14, 3.0, 1.2, 2.2,
+        KindSpec("office", "corridor", "pr2", (20.0, 12.0), 7, 14, 3.0, 1.3, 2.2,
                  ("corridor", "reception", "office", "meeting", "restroom"),
                  ("office", "kitchenette", "copy", "office", "server")),
-        KindSpec("warehouse", "hall", "pr2", (24.0, 18.0), 4, 7, 3.5, 1.4, 5.0,
+        KindSpec("warehouse", "hall", "pr2", (24.0, 18.0), 4, 7, 3.5, 1.6, 5.0,
                  ("hall", "site-office", "restroom", "workshop"), ("staff-room", "site-office")),
     )
 }

@@ -7,9 +7,10 @@ Kinds of task, each worded from templates that name only what the catalogue give
 - a room ("Go to the kitchen"; the room's floor, a labelled object, is the target);
 - turn around once (a `rotate` task) and look around (an `explore` task).
 
-Start poses are drawn in rooms that hold none of the task's targets, on a 0.05 m raster with headings in
-15 degree steps, and kept only when `check.Judge` passes them: clearance, a target reachable, no target in
-line of sight. A target task for which no start pose is found is left out.
+Up to `starts` start poses are drawn in rooms that hold none of the task's targets, on a 0.05 m raster with
+headings in 15 degree steps, and kept only when `check.Judge` passes them: clearance, a target reachable,
+none within the success radius and none in line of sight in any direction. A task whose targets fill most
+rooms may keep fewer; one for which no start pose is found is left out.
 """
 
 from __future__ import annotations
