@@ -202,8 +202,8 @@ class Judge:
             gx, gy = obj.goal_point
             away_m = math.hypot(gx - x, gy - y)
             if away_m <= near_m:
-                radius_m = near_m - START_SLACK_M
-                return f"target '{obj.id}' is {away_m:.2f} m away: the task begins within {radius_m:g} m + {START_SLACK_M:g} m"
+                within = f"{near_m - START_SLACK_M:g} m + {START_SLACK_M:g} m"
+                return f"target '{obj.id}' is {away_m:.2f} m away: the task begins within {within}"
             if not obj.solid and obj.contains(x, y):
                 return f"starts on its target '{obj.id}'"
             if yaw is None and visible((x, y), obj, blocking):
