@@ -10,7 +10,7 @@ number is snapped or rounded, so the text depends on nothing else (not the machi
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from llmnav.buildings.emit import to_yaml
@@ -26,6 +26,7 @@ GENERATOR_VERSION = 1  # bump when the same request would give different bytes
 MIN_SIDE_M = 4.0  # [m] smallest building side accepted
 MAX_SIDE_M = 80.0  # [m] largest (the checker rasterises at most 10 000 m²)
 MAX_STARTS = 10  # start poses per task
+MAX_SUITE = 1000  # buildings in one suite
 WALL_HEIGHT_M = 2.5  # [m]
 DOOR_HEIGHT_M = 2.1  # [m] lintels above the doorways fill the wall up from here
 WALL_COLOR = (0.86, 0.85, 0.8, 1.0)
@@ -185,3 +186,10 @@ def generate(request: Request) -> Building:
         "solid, with a target reachable and none in line of sight (llmnav scenarios check).",
     ]
     return Building(scenario, to_yaml(data, header))
+
+
+def generate_suite(request: Request, count: int) -> list[Building]:
+    """`count` buildings of seeds `request.seed`, `request.seed + 1`, ... (all made before any is returned)."""
+    if not 1 <= count <= MAX_SUITE:
+        raise BadInputError(f"--count {count}: a suite holds 1 to {MAX_SUITE} buildings")
+    return [generate(replace(request, seed=request.seed + k)) for k in range(count)]

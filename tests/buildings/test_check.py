@@ -156,10 +156,10 @@ def test_a_world_too_large_to_rasterise_is_refused_before_building_a_grid(tmp_pa
     assert "grid cells" in line
 
 
-def test_missing_files_fifos_and_folders_are_lines_too(tmp_path: Path) -> None:
+def test_missing_files_and_fifos_are_lines_too(tmp_path: Path) -> None:
     fifo = tmp_path / "pipe.yaml"
     os.mkfifo(fifo)
-    for path in (tmp_path / "missing.yaml", fifo, tmp_path):
+    for path in (tmp_path / "missing.yaml", fifo):
         code, output = invoke("scenarios", "check", str(path))
         assert code == 2 and len(output.strip().splitlines()) == 1 and "Traceback" not in output, output
 

@@ -7,8 +7,13 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from llmnav.buildings.generate import Request, generate
 from llmnav.cli import app
 from llmnav.scenario import load_scenario
+
+
+def generate_text(kind: str, seed: int) -> str:
+    return generate(Request(kind, seed)).text
 
 
 def invoke(*args: str) -> tuple[int, str]:
@@ -66,3 +71,29 @@ def test_the_output_must_be_a_yaml_file_name(tmp_path: Path) -> None:
     for out, needle in ((tmp_path / "b.txt", "ends in .yaml"), (tmp_path, "ends in .yaml")):
         code, output = invoke("scenarios", "generate", "--kind", "flat", "--seed", "1", "-o", str(out))
         assert code == 2 and needle in output, output
+
+
+def test_a_suite_is_a_folder_of_buildings_that_check_passes(tmp_path: Path) -> None:
+    suite = tmp_path / "suite"
+    code, output = invoke("scenarios", "generate", "--kind", "flat", "--seed", "5", "--count", "3", "-o", str(suite))
+    assert code == 0, output
+    names = sorted(p.name for p in suite.iterdir())
+    assert names == ["flat-5.yaml", "flat-6.yaml", "flat-7.yaml"]
+    assert (suite / "flat-6.yaml").read_text(encoding="utf-8") == generate_text("flat", 6)
+    code, output = invoke("scenarios", "check", str(suite))
+    assert code == 0 and output.count(": ok") == 3, output
+
+
+def test_a_suite_too_large_or_into_a_file_is_refused(tmp_path: Path) -> None:
+    file = tmp_path / "x.yaml"
+    file.write_text("x", encoding="utf-8")
+    cases = ((tmp_path / "s", "0", "1 to 1000"), (tmp_path / "s", "1001", "1 to 1000"), (file, "2", "a folder"))
+    for out, count, needle in cases:
+        code, output = invoke("scenarios", "generate", "--kind", "flat", "--seed", "1", "--count", count, "-o", str(out))
+        assert code == 2 and needle in output, output
+    assert not (tmp_path / "s").exists()
+
+
+def test_check_on_an_empty_folder_says_so(tmp_path: Path) -> None:
+    code, output = invoke("scenarios", "check", str(tmp_path))
+    assert code == 2 and "without scenario files" in output, output
