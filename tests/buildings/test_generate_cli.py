@@ -89,7 +89,8 @@ def test_a_suite_too_large_or_into_a_file_is_refused(tmp_path: Path) -> None:
     file.write_text("x", encoding="utf-8")
     cases = ((tmp_path / "s", "0", "1 to 1000"), (tmp_path / "s", "1001", "1 to 1000"), (file, "2", "a folder"))
     for out, count, needle in cases:
-        code, output = invoke("scenarios", "generate", "--kind", "flat", "--seed", "1", "--count", count, "-o", str(out))
+        args = ["--kind", "flat", "--seed", "1", "--count", count, "-o", str(out)]
+        code, output = invoke("scenarios", "generate", *args)
         assert code == 2 and needle in output, output
     assert not (tmp_path / "s").exists()
 
