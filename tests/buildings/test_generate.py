@@ -126,3 +126,20 @@ def test_options_change_the_building(tmp_path: Path) -> None:
     assert sum(1 for o in scenario.objects if o.id.startswith("room-")) == 3
     assert all(1 <= len(t.start_poses) <= 2 for t in scenario.tasks)
     assert check_file(tmp_path / "flat-3.yaml") == []
+
+
+def test_catalogue_names_and_use_wordings_copy_no_bundled_task() -> None:
+    from llmnav.buildings.catalogue import ITEMS, USES
+    from llmnav.buildings.kinds import ROOM_TYPES
+    from llmnav.scenario import list_scenarios
+
+    def norm(text: str) -> str:
+        return " ".join(text.lower().strip(" ?!.").split())
+
+    tasks = [t for name in list_scenarios() for t in load_scenario(name).tasks]
+    bundled = {norm(w) for t in tasks for w in (t.text, *t.paraphrases)}
+    names = {norm(n) for item in ITEMS for n in (item.label, *item.aliases)}
+    names |= {norm(n) for room in ROOM_TYPES.values() for n in (room.label, *room.aliases)}
+    wordings = {norm(w) for texts in USES.values() for w in texts}
+    assert not names & bundled
+    assert not wordings & bundled
