@@ -4,5 +4,5 @@
 by room type) and its tasks; `check.check_file(path)` tests what a scenario promises a robot (clear start
 poses, reachable targets, targets out of sight). Modules: `catalogue` (objects), `kinds` (room types and
 building kinds), `layout` (rooms, doorways, walls), `furnish` (placement), `sightlines` (line of sight),
-`check`, `tasks` (tasks and start poses), `emit` (YAML text), `generate`.
+`check`, `tasks` (tasks and start poses), `emit` (YAML text), `generate`, `suite` (suites for sweeps).
 """
