@@ -137,6 +137,8 @@ def make_tasks(
         drafts.append(("target", "easy" if len(ids) == 1 else "medium", wordings, ids))
     uses = sorted(by_use)
     rng.shuffle(uses)
+    named = [sorted(d[3]) for d in drafts]
+    uses = [u for u in uses if sorted(by_use[u]) not in named]  # "throw away rubbish" = "the waste bin": once
     for use in uses[:USE_TASKS]:
         drafts.append(("target", "hard", list(USES[use]), by_use[use]))
     room_keys = sorted(by_room)

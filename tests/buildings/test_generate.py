@@ -143,3 +143,11 @@ def test_catalogue_names_and_use_wordings_copy_no_bundled_task() -> None:
     wordings = {norm(w) for texts in USES.values() for w in texts}
     assert not names & bundled
     assert not wordings & bundled
+
+
+def test_no_two_tasks_of_a_building_ask_for_the_same_targets() -> None:
+    for kind in ("flat", "office", "warehouse"):
+        for seed in range(5):
+            tasks = generate(Request(kind, seed)).scenario.tasks
+            sets = [tuple(sorted(str(t.object) for t in task.targets)) for task in tasks if task.targets]
+            assert len(sets) == len(set(sets)), (kind, seed, sets)
