@@ -419,6 +419,11 @@ def _check_consistency(sc: Scenario) -> list[tuple[str, str]]:
     return problems
 
 
+def consistency_problems(scenario: Scenario) -> list[tuple[str, str]]:
+    """Every cross-field problem of a validated scenario as (path, problem) pairs (`parse_scenario` raises one)."""
+    return _check_consistency(scenario)
+
+
 def parse_scenario(data: object, source: str) -> Scenario:
     """Validate already-loaded YAML data; `source` names the file in error messages."""
     if not isinstance(data, dict):

@@ -18,7 +18,10 @@ _LIST = "comma-separated"
 
 @cli_errors
 def ablate(
-    scenario: Annotated[str | None, typer.Option("--scenario", help="Scenario name or file.")] = None,
+    scenario: Annotated[
+        str | None,
+        typer.Option("--scenario", help="Scenario name or file; a suite: a folder of files, or generated:KIND:N."),
+    ] = None,
     tasks: Annotated[str | None, typer.Option("--tasks", help=f"Task ids ({_LIST}) or 'all'.")] = None,
     poses: Annotated[str | None, typer.Option("--poses", help="Start poses: 1-5, 1,3 or all.")] = None,
     trials: Annotated[
@@ -129,32 +132,55 @@ def ablate(
     if timing:
         data["options"] = {**data.get("options", {}), **timing}
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
-    root = path_option(out, "--out") or Path("ablations") / spec.default_name()
-    ablation = lib.plan(spec, root, max_episodes or lib.MAX_EPISODES)  # the size is checked before the grid is built
+    root = path_option(out, "--out") or Path("ablations") / spec.default_name().replace(":", "-")
+    limit = max_episodes or lib.MAX_EPISODES
+    from llmnav.buildings.suite import is_suite, suite_files
+
+    if is_suite(spec.scenario):  # one ablation per building, each in its own folder under root
+        files = suite_files(spec.scenario, root / "scenarios")
+        ablations = [lib.plan(spec.model_copy(update={"scenario": str(f)}), root / f.stem, limit) for f in files]
+    else:
+        ablations = [lib.plan(spec, root, limit)]  # the size is checked before the grid is built
     if dry_run:
-        _print_plan(ablation)
+        for ablation in ablations:
+            _print_plan(ablation)
         _note_inapplicable(spec)
         return
     if model_layout not in lib.LAYOUTS:
         raise BadInputError(f"--model-layout {model_layout!r}: choose one of {', '.join(lib.LAYOUTS)}")
     workers = _usable_workers(workers)
-    with _progress() as progress:
-        lib.run(
-            ablation,
-            workers=workers,
-            ray_address=ray,
-            plots=plots,
-            layout=model_layout,
-            on_layout=_say_layout,
-            on_start=lambda *_: progress.start(ablation),
-            on_result=progress.advance,
-        )
-    _print_results(ablation)
-    if view_page:
-        from llmnav.view.api import write_view
+    for ablation in ablations:
+        with _progress() as progress:
+            lib.run(
+                ablation,
+                workers=workers,
+                ray_address=ray,
+                plots=plots,
+                layout=model_layout,
+                on_layout=_say_layout,
+                on_start=lambda *_, ab=ablation: progress.start(ab),
+                on_result=progress.advance,
+            )
+        _print_results(ablation)
+        if view_page:
+            from llmnav.view.api import write_view
 
-        console.print(f"page: {esc(str(write_view(ablation.root).page))}", highlight=False, soft_wrap=True)
+            console.print(f"page: {esc(str(write_view(ablation.root).page))}", highlight=False, soft_wrap=True)
+    if len(ablations) > 1:
+        _print_suite(ablations)
     _note_inapplicable(spec)  # after the work: a failure stays one error line
+
+
+def _print_suite(ablations: list[Ablation]) -> None:
+    """One line for the whole suite: episodes done and successes over every building."""
+    counts = [ablation.counts() for ablation in ablations]
+    done, successes, errors = (sum(c[k] for c in counts) for k in range(3))
+    total = sum(ablation.size for ablation in ablations)
+    console.print(
+        f"suite of {len(ablations)} scenarios: {done}/{total} episodes done, {successes} successes, {errors} error(s)",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 def _say_layout(layout: Any) -> None:

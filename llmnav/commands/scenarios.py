@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console, esc, plot_option
-from llmnav.errors import BadInputError
+from llmnav.commands.common import cli_errors, console, err_console, esc, path_option, plot_option
+from llmnav.errors import BadInputError, one_line
 
 if TYPE_CHECKING:
     from llmnav.scenario import Scenario, Task
 
 app = typer.Typer(
-    help="List the bundled scenarios or show one (tasks, start poses, top-view plot).", no_args_is_help=False
+    help="List the bundled scenarios, show one (tasks, start poses, top-view plot), generate or check one.",
+    no_args_is_help=False,
 )
 
 
@@ -102,3 +104,99 @@ def show(
 
         written = plot_scenario(scenario, plot_path, task=chosen)
         console.print(f"top view written to {esc(written)}", highlight=False, soft_wrap=True)
+
+
+def _size_option(text: str | None) -> tuple[float, float] | None:
+    """`--size 12x9` as metres (x, y)."""
+    if text is None:
+        return None
+    parts = text.lower().replace(" ", "").split("x")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        width, depth = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise BadInputError(f"--size {text!r}: expected WIDTHxDEPTH in metres, e.g. 12x9") from None
+    if not (math.isfinite(width) and math.isfinite(depth)):
+        raise BadInputError(f"--size {text!r}: sides must be finite numbers")
+    return (width, depth)
+
+
+@app.command("generate")
+@cli_errors
+def generate_command(
+    kind: Annotated[str, typer.Option("--kind", help="flat, office or warehouse.")],
+    seed: Annotated[int, typer.Option("--seed", help="Seed: the same seed writes the same file, byte for byte.")],
+    out: Annotated[str, typer.Option("-o", "--out", help="Scenario file to write (.yaml); with --count a folder.")],
+    rooms: Annotated[int | None, typer.Option("--rooms", help="Number of rooms (default: the kind's).")] = None,
+    size: Annotated[str | None, typer.Option("--size", help="Outer size WxD in metres, e.g. 12x9.")] = None,
+    starts: Annotated[int, typer.Option("--starts", help="Start poses per task (at most).")] = 3,
+    robot: Annotated[str | None, typer.Option("--robot", help="pr2 or burger (default: the kind's).")] = None,
+    count: Annotated[
+        int | None, typer.Option("--count", help="A suite: this many buildings, seeds SEED.., into the folder -o.")
+    ] = None,
+) -> None:
+    """Generate a building (rooms, doorways, furniture by room type, tasks with checked start poses)."""
+    from llmnav.buildings.generate import Request, generate_suite
+    from llmnav.safefiles import write_text
+
+    path = path_option(out, "--out")
+    assert path is not None
+    if count is None:
+        if path.suffix.lower() not in (".yaml", ".yml"):
+            raise BadInputError(f"--out {out}: a scenario file ends in .yaml")
+    elif path.exists() and not path.is_dir():
+        raise BadInputError(f"--out {out}: with --count, a folder to write the suite into")
+    request = Request(kind, seed, rooms, _size_option(size), starts, robot)
+    buildings = generate_suite(request, 1 if count is None else count)  # every file is made before any is written
+    targets = [path] if count is None else [path / f"{b.scenario.name}.yaml" for b in buildings]
+    try:
+        if count is not None:
+            path.mkdir(parents=True, exist_ok=True)
+        for target, building in zip(targets, buildings, strict=True):
+            write_text(target, building.text)
+    except OSError as err:
+        raise BadInputError(f"--out {out}: cannot write: {err.strerror or err}") from None
+    for target, building in zip(targets, buildings, strict=True):
+        scenario = building.scenario
+        err_console.print(
+            f"wrote {esc(str(target))}: {esc(scenario.description)} {len(scenario.tasks)} tasks.",
+            highlight=False,
+            soft_wrap=True,
+        )
+
+
+@app.command("check")
+@cli_errors
+def check_command(
+    files: Annotated[list[str], typer.Argument(help="Scenario files, or folders of them (*.yaml).")],
+) -> None:
+    """Check start-pose clearance, target reachability for the robot's footprint and hidden targets."""
+    from pathlib import Path
+
+    from llmnav.buildings.check import check_file
+
+    failed = False
+    expanded: list[str] = []
+    for name in files:
+        folder = Path(name)
+        if folder.is_dir():
+            inside = sorted(str(p) for p in folder.glob("*.yaml"))
+            if not inside:
+                err_console.print(
+                    f"{esc(name)}: a folder without scenario files (*.yaml)", highlight=False, soft_wrap=True
+                )
+                failed = True
+            expanded += inside
+        else:
+            expanded.append(name)
+    for name in expanded:
+        problems = check_file(Path(name))
+        for line in problems:
+            err_console.print(esc(one_line(line)), highlight=False, soft_wrap=True)
+        if problems:
+            failed = True
+        else:
+            console.print(f"{esc(name)}: ok", highlight=False, soft_wrap=True)
+    if failed:
+        raise typer.Exit(2)

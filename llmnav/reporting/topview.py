@@ -82,6 +82,9 @@ def draw_scenario(ax: Axes, scenario: Scenario, *, labels: bool = True) -> None:
             )
         )
     for wall in scenario.walls:
+        if wall.z > 0:  # a lintel over a doorway: drawn light and dashed, so the doorway below shows
+            ax.add_patch(_patch(wall, color=(*_WALL_RGBA[:3], 0.15), edge=_WALL_RGBA, dashed=True)).set_zorder(3)
+            continue
         ax.add_patch(_patch(wall, color=_WALL_RGBA, edge=_WALL_RGBA)).set_zorder(3)
     for obstacle in scenario.obstacles:
         ax.add_patch(_patch(obstacle, color=obstacle.color, edge=(0.1, 0.1, 0.1, 1.0))).set_zorder(3)
