@@ -42,3 +42,14 @@ def test_an_upward_import_breaks_the_contract(tmp_path: Path) -> None:
     )
     assert done.returncode != 0
     assert "llmnav.chat is not allowed to import llmnav.planners" in done.stdout
+
+
+def test_the_architecture_page_lists_the_layers_the_contract_enforces() -> None:
+    import re
+    import tomllib
+
+    contract = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"][0]
+    page = (ROOT / "docs" / "architecture.md").read_text()
+    listed = re.search(r"```text\n(llmnav\.cli\n.*?)```", page, re.S)
+    assert listed is not None, "docs/architecture.md has no layer list"
+    assert listed.group(1).splitlines() == contract["layers"]
