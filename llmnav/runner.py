@@ -65,6 +65,8 @@ class EpisodeSpec(BaseModel):
     quiet: bool = True
     plots: bool = True  # write trajectory.png (ablations turn it off: it costs more than a short episode)
     condition: str | None = None  # an ablation's hash of the episode's full condition, logged in the config
+    # [Hz] also log full scans, odometry and velocity at this rate (llmnav.ros.record)
+    record_hz: float | None = Field(default=None, gt=0, le=50)
 
     @field_validator("options", mode="before")
     @classmethod
@@ -278,13 +280,24 @@ def _run_logged(
     """
     from llmnav.knowledge import scenario_view
 
+    recorder = None
+    if spec.record_hz is not None:
+        from llmnav.ros.record import Recorder
+
+        recorder = Recorder(world, log, spec.record_hz, spec.options.seed)
+
     def on_pose(pose: Pose2D, t_sim: float) -> None:
         log.sim_time = t_sim
         log.event("pose", pose=pose.as_list())
+        if recorder is not None:
+            recorder.sample(t_sim)
 
     world.motion.on_pose = on_pose
     log.sim_time = world.sim_time
     log.event("pose", pose=world.robot.pose().as_list())
+    if recorder is not None:
+        recorder.log_map(scenario)
+        recorder.sample(world.sim_time)
     from llmnav.guard.view import PlannerWorld
 
     known = scenario_view(scenario, information)

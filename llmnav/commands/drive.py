@@ -155,6 +155,13 @@ def drive(
     drop_images: Annotated[
         bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
     ] = False,
+    record_hz: Annotated[
+        float | None,
+        typer.Option(
+            "--record-hz",
+            help="Also log full LiDAR scans, odometry and velocity at this rate [Hz] (for `llmnav export --mcap`).",
+        ),
+    ] = None,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
     from pydantic import ValidationError
@@ -164,6 +171,13 @@ def drive(
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario
 
     out_dir = path_option(out, "--out")
+    if record_hz is not None:
+        from llmnav.ros.record import check_rate
+
+        try:
+            check_rate(record_hz)
+        except ValueError as err:
+            raise BadInputError(f"--record-hz: {err}") from None
     if task and not all(t.strip() for t in task):
         raise BadInputError("--task: empty task text; say where to go, e.g. --task 'go to the red box'")
     texts = [t for t in (task or []) if t.strip()]
@@ -214,6 +228,7 @@ def drive(
         backend=backend_spec,
         out_dir=out_dir or default_out_dir(options.planner, task_id or (texts[0] if texts else "task")),
         quiet=quiet or json_output,
+        record_hz=record_hz,
     )
     later: list[Callable[[], None]] = []  # the figures: drawn after the result is shown
     summary = _run_with_view(spec, quiet=quiet, json_output=json_output, later=later)
