@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console, esc, plot_option
+from llmnav.commands.common import check_output_path, cli_errors, console, esc, plot_option
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
     from llmnav.scenario import Scenario, Task
 
 app = typer.Typer(
-    help="List the bundled scenarios or show one (tasks, start poses, top-view plot).", no_args_is_help=False
+    help="List the bundled scenarios, show one (tasks, start poses, top-view plot) or import a nav2 map.",
+    no_args_is_help=False,
 )
 
 
@@ -102,3 +104,36 @@ def show(
 
         written = plot_scenario(scenario, plot_path, task=chosen)
         console.print(f"top view written to {esc(written)}", highlight=False, soft_wrap=True)
+
+
+@app.command("import-map")
+@cli_errors
+def import_map(
+    map_yaml: Annotated[Path, typer.Argument(help="A nav2 map_server map: YAML naming a PGM or PNG image.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="The world (scenario YAML) to write.")],
+    objects: Annotated[
+        Path | None,
+        typer.Option("--objects", help="Overlay YAML: labelled objects (id, label, position, size), tasks, start."),
+    ] = None,
+    robot: Annotated[str, typer.Option("--robot", help="Robot model: burger | pr2.")] = "burger",
+    tasks: Annotated[int, typer.Option("--tasks", help="Point tasks to draw on the free space (seeded).")] = 5,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the drawn tasks.")] = 0,
+) -> None:
+    """Turn a nav2 map (map.yaml + image) into a world: occupied and unknown cells become merged wall boxes."""
+    from llmnav.ros.mapimport import import_map as build
+    from llmnav.ros.mapimport import write_world
+
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise BadInputError(f"-o {out}: give a file name ending in .yaml")
+    if out.exists() or out.is_symlink():
+        raise BadInputError(f"-o {out}: already exists; choose another file (nothing is overwritten)")
+    check_output_path(out, "-o", [map_yaml, *([objects] if objects else [])])
+    result = build(map_yaml, overlay=objects, robot=robot, tasks=tasks, seed=seed)
+    written = write_world(result, out, map_yaml)
+    width, height = result.size_px
+    console.print(
+        f"wrote {esc(str(written))}: {width} x {height} cells, {result.walls} wall boxes, "
+        f"{len(result.scenario.objects)} objects, {len(result.scenario.tasks)} tasks",
+        highlight=False,
+        soft_wrap=True,
+    )
