@@ -34,7 +34,7 @@ from llmnav.errors import BadInputError
 from llmnav.geometry import logged_pose
 from llmnav.ros.messages import JSON_TOPICS, TYPES, RosMessages, json_schema, missing_dependency
 from llmnav.ros.record import unpack_occupancy
-from llmnav.runlog import IMAGES_DIR, RunRecord, dumps, read_run
+from llmnav.runlog import IMAGES_DIR, RUN_FILE, SUPERSEDED_FILE, RunRecord, dumps, read_run
 from llmnav.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes, write_bytes
 
 ROS_TOPICS: dict[str, str] = {  # topic -> ROS 2 type (the key into messages.TYPES)
@@ -308,3 +308,29 @@ def export_mcap(run_dir: Path, out_path: Path, *, ros_only: bool = False) -> Exp
     except OSError as err:
         raise BadInputError(f"cannot write {out_path}: {err.strerror or err}") from None
     return ExportResult(out_path, writer.counts, _lacks(record, writer.counts), skipped)
+
+
+def sweep_runs(folder: Path) -> list[Path]:
+    """The run folders directly inside a sweep folder (an ablation's), minus those marked superseded."""
+    try:
+        children = sorted(p for p in Path(folder).iterdir() if p.is_dir() and not p.is_symlink())
+    except OSError as err:
+        raise BadInputError(f"cannot read {folder}: {err.strerror or err}") from None
+    return [p for p in children if (p / RUN_FILE).is_file() and not (p / SUPERSEDED_FILE).exists()]
+
+
+def export_sweep(folder: Path, out_dir: Path, *, ros_only: bool = False) -> list[ExportResult]:
+    """Each run of a sweep as OUT_DIR/<run folder name>.mcap; OUT_DIR is created and must hold no such file."""
+    runs = sweep_runs(folder)
+    if not runs:
+        raise BadInputError(f"{folder}: neither a run folder nor a folder of runs")
+    out_dir = Path(out_dir)
+    targets = [out_dir / f"{run.name}.mcap" for run in runs]
+    clashes = [t.name for t in targets if t.exists() or t.is_symlink()]
+    if clashes:
+        raise BadInputError(f"{out_dir}: already holds {clashes[0]}; choose another folder (nothing is overwritten)")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise BadInputError(f"cannot create {out_dir}: {err.strerror or err}") from None
+    return [export_mcap(run, target, ros_only=ros_only) for run, target in zip(runs, targets, strict=True)]

@@ -318,7 +318,7 @@ def test_bad_export_arguments_are_one_line_and_write_nothing(
 
 def test_a_folder_without_a_run_is_refused(tmp_path: Path) -> None:
     result = runner.invoke(app, ["export", str(tmp_path), "--mcap", str(tmp_path / "x.mcap")])
-    assert result.exit_code == 2 and "not a run folder" in result.stderr
+    assert result.exit_code == 2 and "neither a run folder nor a folder of runs" in result.stderr
     assert not (tmp_path / "x.mcap").exists()
 
 
@@ -330,3 +330,21 @@ def test_a_bad_recording_rate_is_refused_before_driving(tmp_path: Path, rate: st
     )
     assert result.exit_code == 2 and "--record-hz" in result.stderr
     assert not out.exists()
+
+
+def test_a_sweep_exports_one_file_per_run(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    args = ["ablate", "--scenario", "factory", "--tasks", "T1,T2", "--poses", "1", "--planner", "oracle"]
+    result = runner.invoke(app, [*args, "--out", str(sweep), "--export", "mcap"])
+    assert result.exit_code == 0, result.output
+    runs = sorted(p for p in sweep.iterdir() if (p / "run.jsonl").is_file())
+    assert len(runs) == 2
+    again = runner.invoke(app, ["export", str(sweep), "--mcap", str(tmp_path / "again")])
+    assert again.exit_code == 0, again.output
+    for folder in (sweep / "mcap", tmp_path / "again"):
+        assert sorted(p.name for p in folder.iterdir()) == [f"{run.name}.mcap" for run in runs]
+        for run in runs:
+            poses = [e for e in _events(run) if e["type"] == "pose"]
+            assert len(_read(folder / f"{run.name}.mcap")["/ground_truth/pose"]) == len(poses)
+    clash = runner.invoke(app, ["export", str(sweep), "--mcap", str(tmp_path / "again")])
+    assert clash.exit_code == 2 and "already holds" in clash.stderr
