@@ -22,6 +22,7 @@ Messages are serialised by rosbags (CDR) into an MCAP container written by the `
 
 from __future__ import annotations
 
+import base64
 import io
 import json
 import math
@@ -29,6 +30,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from llmnav.errors import BadInputError
 from llmnav.geometry import logged_pose
@@ -213,17 +216,28 @@ def _export_sample(event: dict[str, Any], t_sim: float, out: _Writer, messages: 
     scan = event.get("scan")
     if not isinstance(scan, dict):
         return 0
-    ranges = scan.get("ranges")
     numbers = [_number(scan.get(k)) for k in ("angle_min", "angle_increment", "range_min", "range_max")]
-    if (
-        any(n is None for n in numbers)
-        or not isinstance(ranges, list)
-        or not ranges
-        or not all(r is None or _number(r) is not None for r in ranges)
-    ):
+    ranges = _ranges(scan.get("ranges_f32"))
+    if any(n is None for n in numbers) or ranges is None:
         return 1
-    out.ros("/scan", t_sim, messages.scan(t_sim, scan))
+    out.ros("/scan", t_sim, messages.scan(t_sim, {**scan, "ranges": ranges}))
     return 0
+
+
+def _ranges(packed: Any) -> np.ndarray | None:
+    """A sample's ranges [m] (float32; +inf = no return), or None when damaged (NaN, negative, bad base64)."""
+    if not isinstance(packed, str) or not packed:
+        return None
+    try:
+        raw = base64.b64decode(packed, validate=True)
+    except ValueError:
+        return None
+    if len(raw) % 4:
+        return None
+    ranges = np.frombuffer(raw, dtype="<f4")
+    if not len(ranges) or np.isnan(ranges).any() or (ranges < 0).any():
+        return None
+    return ranges
 
 
 def _export_map(event: dict[str, Any], t_sim: float, out: _Writer, messages: RosMessages) -> int:

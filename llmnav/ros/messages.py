@@ -129,7 +129,7 @@ class RosMessages:
 
     def scan(self, t_sim: float, scan: dict[str, Any]) -> Any:
         """sensor_msgs/LaserScan from a recorded `sample` scan; no return is +inf (REP 117)."""
-        ranges = np.array([math.inf if r is None else r for r in scan["ranges"]], dtype=np.float32)
+        ranges = np.asarray(scan["ranges"], dtype=np.float32)
         increment = float(scan["angle_increment"])
         return self._t["sensor_msgs/msg/LaserScan"](
             header=self._header(t_sim, BASE_FRAME),

@@ -2,7 +2,8 @@
 
 A run logs the planner's observations (LiDAR summarised into sectors), not the full scans, odometry or
 wheel commands between decisions. `Recorder` adds, at a stated rate, `sample` events with the full LiDAR
-scan, the odometry pose, the commanded and applied velocity; and one `map` event with the world's true
+scan (`ranges_f32`: base64 of little-endian float32 ranges [m], +inf where nothing was hit), the odometry
+pose, the commanded and applied velocity; and one `map` event with the world's true
 occupancy at the start. The scans come from a second LiDAR of the same model with its own noise stream, so
 the planner's sensor readings, and so the run, stay exactly what they are without recording.
 
@@ -28,7 +29,6 @@ if TYPE_CHECKING:
 
 MAP_RESOLUTION_M = 0.05  # [m] the recorded map's cell side (nav2 maps are commonly 0.05 m)
 MAX_RECORD_HZ = 50.0  # [Hz] beyond any pose rate: a larger value is a typo
-RANGE_DECIMALS = 3  # scan ranges logged to the millimetre
 
 
 def check_rate(rate_hz: float) -> float:
@@ -85,7 +85,8 @@ class Recorder:
         scan = self._lidar.scan()
         angles = scan.angles
         increment = float(angles[1] - angles[0]) if len(angles) > 1 else 0.0  # [rad]
-        ranges = [round(float(r), RANGE_DECIMALS) if math.isfinite(r) else None for r in scan.ranges]
+        # float32 as in sensor_msgs/LaserScan, +inf for no return; one base64 string logs ~10x faster than a list
+        ranges = base64.b64encode(np.asarray(scan.ranges, dtype="<f4").tobytes()).decode("ascii")
         cmd_v, cmd_w = robot.command()
         v, w = robot.velocity()
         self._log.event(
@@ -99,6 +100,6 @@ class Recorder:
                 "angle_increment": increment,
                 "range_min": scan.range_min,
                 "range_max": scan.range_max,
-                "ranges": ranges,
+                "ranges_f32": ranges,
             },
         )
