@@ -29,7 +29,7 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -154,47 +154,64 @@ class _Writer:
         self._writer.finish()
 
 
-def _export_events(record: RunRecord, out: _Writer, messages: RosMessages) -> int:
-    """Write every event's messages; returns how many events were skipped as damaged."""
-    t_sim = 0.0  # [s] the latest sim time seen: events without one (none normally) take it
-    true_pose: list[float] | None = None
-    skipped = 0
-    for event in record.events:
+class Sink(Protocol):
+    """Where translated messages go: an MCAP file, or a live Foxglove server."""
+
+    def ros(self, topic: str, t_sim: float, message: Any) -> None:
+        """One ROS 2 message (a rosbags message object) at sim time `t_sim` [s]."""
+
+    def json(self, topic: str, t_sim: float, record: dict[str, Any]) -> None:
+        """One JSON message."""
+
+
+class Translator:
+    """Run-log events to topic messages, one event at a time (a live view feeds it as the run logs)."""
+
+    def __init__(self, run_dir: Path, messages: RosMessages) -> None:
+        self.run_dir = run_dir
+        self.messages = messages
+        self.t_sim = 0.0  # [s] the latest sim time seen: events without one (none normally) take it
+        self.true_pose: list[float] | None = None
+        self.skipped = 0  # events whose numbers were damaged
+
+    def feed(self, event: dict[str, Any], out: Sink) -> None:
+        """Send one event's messages to `out`."""
         kind = event.get("type")
         stamp = _number(event.get("t_sim"))
         if stamp is not None and stamp >= 0.0:
-            t_sim = stamp
+            self.t_sim = stamp
+        t_sim = self.t_sim
         if kind == "pose":
             pose = logged_pose(event.get("pose"))
             if pose is None:
-                skipped += 1
-                continue
-            true_pose = pose
-            out.ros("/ground_truth/pose", t_sim, messages.pose_stamped(t_sim, pose))
+                self.skipped += 1
+                return
+            self.true_pose = pose
+            out.ros("/ground_truth/pose", t_sim, self.messages.pose_stamped(t_sim, pose))
         elif kind in ("observation", "sample"):
             odom, pose = logged_pose(event.get("odom")), logged_pose(event.get("pose"))
-            true_pose = pose or true_pose
+            self.true_pose = pose or self.true_pose
             velocity = _pair(event.get("velocity"))
             if odom is not None and len(odom) == 3:
-                out.ros("/odom", t_sim, messages.odometry(t_sim, odom, velocity))
-                if true_pose is not None and len(true_pose) == 3:
-                    out.ros("/tf", t_sim, messages.tf(t_sim, true_pose, odom))
+                out.ros("/odom", t_sim, self.messages.odometry(t_sim, odom, velocity))
+                if self.true_pose is not None and len(self.true_pose) == 3:
+                    out.ros("/tf", t_sim, self.messages.tf(t_sim, self.true_pose, odom))
             elif "odom" in event:
-                skipped += 1
+                self.skipped += 1
             if kind == "observation":
-                _export_image(record.run_dir, event.get("image"), t_sim, out, messages)
+                _export_image(self.run_dir, event.get("image"), t_sim, out, self.messages)
             else:
-                skipped += _export_sample(event, t_sim, out, messages)
+                self.skipped += _export_sample(event, t_sim, out, self.messages)
         elif kind == "map":
-            skipped += _export_map(event, t_sim, out, messages)
+            self.skipped += _export_map(event, t_sim, out, self.messages)
         elif kind == "planner":
             out.json("/llmnav/planner", t_sim, _json_record(event))
             points = plan_points(event)
             if points is not None:
-                out.ros("/plan", t_sim, messages.path(t_sim, points))
+                out.ros("/plan", t_sim, self.messages.path(t_sim, points))
             fused = _pair(event.get("fused")) if event.get("kind") == "cmd" else None
             if fused is not None:
-                out.ros("/cmd_vel", t_sim, messages.twist(*fused))
+                out.ros("/cmd_vel", t_sim, self.messages.twist(*fused))
         elif kind == "llm_call":
             out.json("/llmnav/llm_call", t_sim, _json_record(event))
         elif kind == "guard":
@@ -205,10 +222,9 @@ def _export_events(record: RunRecord, out: _Writer, messages: RosMessages) -> in
                 out.json("/llmnav/veto", t_sim, _json_record(event))
         elif kind == "end":
             out.json("/llmnav/end", t_sim, _json_record(event))
-    return skipped
 
 
-def _export_sample(event: dict[str, Any], t_sim: float, out: _Writer, messages: RosMessages) -> int:
+def _export_sample(event: dict[str, Any], t_sim: float, out: Sink, messages: RosMessages) -> int:
     """A recorded sample's scan and velocity command; 1 when its scan is damaged."""
     cmd = _pair(event.get("cmd_vel"))
     if cmd is not None:
@@ -240,7 +256,7 @@ def _ranges(packed: Any) -> np.ndarray | None:
     return ranges
 
 
-def _export_map(event: dict[str, Any], t_sim: float, out: _Writer, messages: RosMessages) -> int:
+def _export_map(event: dict[str, Any], t_sim: float, out: Sink, messages: RosMessages) -> int:
     """The recorded occupancy grid; 1 when it is damaged."""
     rows, cols = event.get("rows"), event.get("cols")
     origin, resolution = _pair(event.get("origin")), _number(event.get("resolution_m"))
@@ -264,7 +280,7 @@ def _export_map(event: dict[str, Any], t_sim: float, out: _Writer, messages: Ros
     return 0
 
 
-def _export_image(run_dir: Path, digest: Any, t_sim: float, out: _Writer, messages: RosMessages) -> None:
+def _export_image(run_dir: Path, digest: Any, t_sim: float, out: Sink, messages: RosMessages) -> None:
     """The observation's stored JPEG, if the run kept it (a hash only names a file of hex digits)."""
     if not isinstance(digest, str) or not digest or not all(c in "0123456789abcdef" for c in digest):
         return
@@ -315,13 +331,15 @@ def export_mcap(run_dir: Path, out_path: Path, *, ros_only: bool = False) -> Exp
     stream = io.BytesIO()
     writer = _Writer(stream, messages, ros_only=ros_only)
     writer.metadata("llmnav.config", {"json": dumps(record.config)})
-    skipped = _export_events(record, writer, messages)
+    translator = Translator(record.run_dir, messages)
+    for event in record.events:
+        translator.feed(event, writer)
     writer.finish()
     try:
         write_bytes(out_path, stream.getvalue())
     except OSError as err:
         raise BadInputError(f"cannot write {out_path}: {err.strerror or err}") from None
-    return ExportResult(out_path, writer.counts, _lacks(record, writer.counts), skipped)
+    return ExportResult(out_path, writer.counts, _lacks(record, writer.counts), translator.skipped)
 
 
 def sweep_runs(folder: Path) -> list[Path]:
