@@ -67,6 +67,7 @@ class EpisodeSpec(BaseModel):
     condition: str | None = None  # an ablation's hash of the episode's full condition, logged in the config
     # [Hz] also log full scans, odometry and velocity at this rate (llmnav.ros.record)
     record_hz: float | None = Field(default=None, gt=0, le=50)
+    foxglove_port: int | None = Field(default=None, ge=0, le=65535)  # live view on 127.0.0.1 (0: any free port)
 
     @field_validator("options", mode="before")
     @classmethod
@@ -255,7 +256,17 @@ def run_episode(
             # the key and URL credentials the backend holds are never logged or shown, even when echoed
             with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
                 shown = RedactedView(view or NullView(), getattr(backend, "secrets", ()))
-                return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information, later)
+                live = None
+                if spec.foxglove_port is not None:  # the same topics as the MCAP export, while it drives
+                    from llmnav.ros.live import LiveView
+
+                    live = LiveView(spec.foxglove_port, log.run_dir)
+                    log.listeners.append(live.on_event)
+                try:
+                    return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information, later)
+                finally:
+                    if live is not None:
+                        live.close()
     finally:
         if owns_backend and backend is not None:
             backend.close()

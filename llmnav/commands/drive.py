@@ -162,6 +162,15 @@ def drive(
             help="Also log full LiDAR scans, odometry and velocity at this rate [Hz] (for `llmnav export --mcap`).",
         ),
     ] = None,
+    foxglove: Annotated[
+        int | None,
+        typer.Option(
+            "--foxglove",
+            min=1,
+            max=65535,
+            help="Live view for Foxglove on ws://127.0.0.1:PORT (records scans at --record-hz, default 4).",
+        ),
+    ] = None,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
     from pydantic import ValidationError
@@ -228,8 +237,11 @@ def drive(
         backend=backend_spec,
         out_dir=out_dir or default_out_dir(options.planner, task_id or (texts[0] if texts else "task")),
         quiet=quiet or json_output,
-        record_hz=record_hz,
+        record_hz=record_hz if record_hz is not None or foxglove is None else 4.0,
+        foxglove_port=foxglove,
     )
+    if foxglove is not None:
+        err_console.print(f"Foxglove live view: ws://127.0.0.1:{foxglove}", highlight=False)
     later: list[Callable[[], None]] = []  # the figures: drawn after the result is shown
     summary = _run_with_view(spec, quiet=quiet, json_output=json_output, later=later)
     _note_inapplicable(options.planner, ignored, set(from_o))  # after the run: a failure to start stays one line
