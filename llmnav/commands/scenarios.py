@@ -137,3 +137,21 @@ def import_map(
         highlight=False,
         soft_wrap=True,
     )
+
+
+@app.command("export-map")
+@cli_errors
+def export_map(
+    world: Annotated[str, typer.Argument(help="Bundled scenario name or path to a scenario YAML file.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="The nav2 map YAML to write (the PGM goes beside it).")],
+    resolution: Annotated[float, typer.Option("--resolution", help="Cell side [m].")] = 0.05,
+) -> None:
+    """Write a world as a nav2 map_server map (YAML + PGM): solid shapes occupied, the rest free."""
+    from llmnav.ros.mapexport import export_map as write_map
+    from llmnav.scenario import load_scenario
+
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise BadInputError(f"-o {out}: give a file name ending in .yaml")
+    check_output_path(out, "-o")
+    written, image = write_map(load_scenario(world), out, resolution)
+    console.print(f"wrote {esc(str(written))} and {esc(image.name)}", highlight=False, soft_wrap=True)

@@ -343,3 +343,37 @@ def test_an_overlay_with_an_unknown_field_or_bad_object_is_refused(tmp_path: Pat
         result = _import(TB3, out, "--objects", str(overlay))
         assert result.exit_code == 2 and words in result.stderr, result.stderr
         assert len(result.stderr.strip().splitlines()) == 1 and not out.exists()
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / (a | b).sum())
+
+
+def test_import_export_round_trip_keeps_the_occupancy(tmp_path: Path) -> None:
+    world = tmp_path / "world.yaml"
+    assert _import(TB3, world).exit_code == 0
+    result = runner.invoke(app, ["scenarios", "export-map", str(world), "-o", str(tmp_path / "back.yaml")])
+    assert result.exit_code == 0, result.output
+    back = yaml.safe_load((tmp_path / "back.yaml").read_text())
+    assert back["image"] == "back.pgm" and back["resolution"] == 0.05 and back["origin"] == [-10.0, -10.0, 0.0]
+    spec = yaml.safe_load(TB3.read_text())
+    original = _expected_solid(
+        _read_pgm(TB3.parent / spec["image"]), False, spec["occupied_thresh"], spec["free_thresh"]
+    )
+    exported = _read_pgm(tmp_path / "back.pgm")
+    assert set(np.unique(exported)) <= {0, 254}
+    assert _iou(np.flipud(exported == 0), original) >= 0.98  # unknown comes back as occupied: solid either way
+    # and a world drawn by hand: factory -> map -> world -> map
+    assert runner.invoke(app, ["scenarios", "export-map", "factory", "-o", str(tmp_path / "f.yaml")]).exit_code == 0
+    assert _import(tmp_path / "f.yaml", tmp_path / "fw.yaml", "--robot", "pr2").exit_code == 0
+    assert runner.invoke(app, ["scenarios", "export-map", str(tmp_path / "fw.yaml"), "-o", str(tmp_path / "f2.yaml")])
+    first, second = _read_pgm(tmp_path / "f.pgm") == 0, _read_pgm(tmp_path / "f2.pgm") == 0
+    assert first.shape == second.shape and first.sum() > 1000
+    assert _iou(first, second) >= 0.98
+
+
+def test_export_map_refuses_to_overwrite(tmp_path: Path) -> None:
+    (tmp_path / "m.pgm").write_bytes(b"mine")
+    result = runner.invoke(app, ["scenarios", "export-map", "factory", "-o", str(tmp_path / "m.yaml")])
+    assert result.exit_code == 2 and "already exists" in result.stderr
+    assert (tmp_path / "m.pgm").read_bytes() == b"mine" and not (tmp_path / "m.yaml").exists()
