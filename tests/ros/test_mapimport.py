@@ -377,3 +377,19 @@ def test_export_map_refuses_to_overwrite(tmp_path: Path) -> None:
     result = runner.invoke(app, ["scenarios", "export-map", "factory", "-o", str(tmp_path / "m.yaml")])
     assert result.exit_code == 2 and "already exists" in result.stderr
     assert (tmp_path / "m.pgm").read_bytes() == b"mine" and not (tmp_path / "m.yaml").exists()
+
+
+def test_ascii_and_16_bit_pgm_read_like_the_binary_one(tmp_path: Path) -> None:
+    overlay = tmp_path / "o.yaml"
+    overlay.write_text(yaml.safe_dump({"default_start": {"x": 0.75, "y": 3.75}}))
+    height, width = PIXELS.shape
+    ascii_pgm = f"P2\n{width} {height}\n255\n" + "\n".join(" ".join(str(v) for v in row) for row in PIXELS) + "\n"
+    wide = (PIXELS.astype(np.uint32) * 257).astype(">u2")  # the same grey levels on a 0..65535 scale
+    files = {"ascii.pgm": ascii_pgm.encode(), "wide.pgm": f"P5\n{width} {height}\n65535\n".encode() + wide.tobytes()}
+    want = _expected_solid(PIXELS, False, 0.65, 0.2)
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+        out = tmp_path / f"{name}.yaml"
+        result = _import(_map_yaml(tmp_path, image=name), out, "--tasks", "0", "--objects", str(overlay))
+        assert result.exit_code == 0, result.output
+        assert (_solid_cells(load_scenario(out), PIXELS.shape, (-1.0, 2.0), 0.5) == want).all(), name
