@@ -254,19 +254,20 @@ def run_episode(
                 information,
             )
             # the key and URL credentials the backend holds are never logged or shown, even when echoed
-            with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
-                shown = RedactedView(view or NullView(), getattr(backend, "secrets", ()))
-                live = None
-                if spec.foxglove_port is not None:  # the same topics as the MCAP export, while it drives
-                    from llmnav.ros.live import LiveView
+            live = None
+            if spec.foxglove_port is not None:  # the export's topics while it drives; a busy port fails here
+                from llmnav.ros.live import LiveView
 
-                    live = LiveView(spec.foxglove_port, log.run_dir)
-                    log.listeners.append(live.on_event)
-                try:
-                    return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information, later)
-                finally:
+                live = LiveView(spec.foxglove_port, spec.out_dir)
+            try:
+                with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
+                    shown = RedactedView(view or NullView(), getattr(backend, "secrets", ()))
                     if live is not None:
-                        live.close()
+                        log.listeners.append(live.on_event)
+                    return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information, later)
+            finally:
+                if live is not None:
+                    live.close()
     finally:
         if owns_backend and backend is not None:
             backend.close()

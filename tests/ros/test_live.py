@@ -135,6 +135,7 @@ def test_a_port_in_use_is_one_line(tmp_path: Path) -> None:
             + ["--foxglove", str(port), "--out", str(tmp_path / "run")],
         )
     assert result.exit_code == 2 and "cannot listen" in result.stderr, result.output
+    assert not (tmp_path / "run" / "run.jsonl").exists()  # refused before the run began
     assert len([line for line in result.stderr.splitlines() if "error" in line]) == 1
 
 
