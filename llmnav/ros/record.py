@@ -44,8 +44,11 @@ def pack_occupancy(occupied: np.ndarray) -> str:
 
 
 def unpack_occupancy(packed: str, rows: int, cols: int) -> np.ndarray:
-    """The inverse of `pack_occupancy`."""
-    bits = np.unpackbits(np.frombuffer(base64.b64decode(packed), dtype=np.uint8), count=rows * cols)
+    """The inverse of `pack_occupancy`; ValueError unless it holds exactly the bytes rows x cols cells need."""
+    data = np.frombuffer(base64.b64decode(packed, validate=True), dtype=np.uint8)
+    if len(data) != (rows * cols + 7) // 8:  # unpackbits would pad a short one with free cells
+        raise ValueError(f"{len(data)} bytes for {rows} x {cols} cells")
+    bits = np.unpackbits(data, count=rows * cols)
     return bits.astype(bool).reshape(rows, cols)
 
 

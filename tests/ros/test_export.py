@@ -350,3 +350,21 @@ def test_a_sweep_exports_one_file_per_run(tmp_path: Path) -> None:
             assert len(_read(folder / f"{run.name}.mcap")["/ground_truth/pose"]) == len(poses)
     clash = runner.invoke(app, ["export", str(sweep), "--mcap", str(tmp_path / "again")])
     assert clash.exit_code == 2 and "already holds" in clash.stderr
+
+
+def test_damaged_numbers_are_skipped_and_counted(recorded: tuple, tmp_path: Path) -> None:
+    run_dir, _ = recorded
+    copy = tmp_path / "damaged"
+    shutil.copytree(run_dir, copy)
+    events = _events(copy)
+    first_sample = next(i for i, e in enumerate(events) if e["type"] == "sample")
+    events[first_sample]["scan"]["ranges_f32"] = "not base64!"
+    next(e for e in events if e["type"] == "map")["occupied"] = "AAAA"  # too few bits for the grid
+    next(e for e in events if e["type"] == "pose")["pose"] = [1e308, 0.0, 0.0]
+    (copy / "run.jsonl").write_text("".join(json.dumps(e) + "\n" for e in events))
+    result = _export(copy, tmp_path / "run.mcap")
+    assert "3 damaged event(s) skipped" in result.stderr
+    topics = _read(tmp_path / "run.mcap")
+    assert len(topics["/scan"]) == sum(e["type"] == "sample" for e in events) - 1
+    assert "/map" not in topics
+    assert len(topics["/ground_truth/pose"]) == sum(e["type"] == "pose" for e in events) - 1
