@@ -368,3 +368,18 @@ def test_damaged_numbers_are_skipped_and_counted(recorded: tuple, tmp_path: Path
     assert len(topics["/scan"]) == sum(e["type"] == "sample" for e in events) - 1
     assert "/map" not in topics
     assert len(topics["/ground_truth/pose"]) == sum(e["type"] == "pose" for e in events) - 1
+
+
+def test_an_image_linked_out_of_the_run_folder_is_not_embedded(stepwise: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "linked"
+    shutil.copytree(stepwise, copy)
+    outside = tmp_path / "secret.jpg"
+    outside.write_bytes(b"\xff\xd8\xff not the camera's")
+    images = sorted((copy / "images").iterdir())
+    images[0].unlink()
+    images[0].symlink_to(outside)
+    _export(copy, tmp_path / "run.mcap")
+    got = [bytes(m[2].data) for m in _read(tmp_path / "run.mcap")["/camera/image/compressed"]]
+    observed = [e["image"] for e in _events(copy) if e["type"] == "observation"]
+    assert len(got) == len(observed) - observed.count(images[0].stem)
+    assert outside.read_bytes() not in got
