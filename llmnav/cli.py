@@ -27,6 +27,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("transcribe", "transcribe", "transcribe"),
     ("view", "view", "view"),
     ("serve", "serve", "serve"),
+    ("export", "export", "export"),
 ]
 _GROUPS: list[tuple[str, str]] = [("scenarios", "scenarios")]
 

@@ -35,7 +35,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -172,6 +172,7 @@ class RunLog:
         self._lock = threading.Lock()  # a model worker thread may log while the control loop does
         self.sim_time: float | None = None
         self.write_error: str | None = None  # the first failed write (disk full): nothing is written after it
+        self.listeners: list[Callable[[dict[str, Any]], None]] = []  # each event as logged (a live view)
         self._write({"type": "config", **config})
         if self.write_error is not None:
             self.close()
@@ -191,7 +192,8 @@ class RunLog:
         """Replace these strings (a backend's key, URL credentials) by `***` in every line written from now."""
         self._secrets = tuple(sorted({s for s in (*self._secrets, *secrets) if len(s) >= 4}, key=len, reverse=True))
 
-    def _write(self, record: dict[str, Any]) -> None:
+    def _write(self, record: dict[str, Any]) -> str:
+        """Append the record as one line; returns the line (capped, secrets redacted)."""
         record, cut = cap_text(record)
         if cut:
             record["truncated"] = cut
@@ -200,12 +202,13 @@ class RunLog:
             line = line.replace(secret, "***")
         with self._lock:
             if self._file.closed or self.write_error:  # a late model call, or the disk is full
-                return
+                return line
             try:
                 self._file.write(line)
                 self._file.flush()  # survives SIGKILL: the line is in the kernel's page cache
             except OSError as err:  # the log keeps its complete lines (a torn last one is ignored)
                 self.write_error = f"cannot write {RUN_FILE}: {err.strerror or err}"
+        return line
 
     def event(self, type_: str, **fields: Any) -> None:
         """Append one event (flushed at once)."""
@@ -213,7 +216,11 @@ class RunLog:
         if self.sim_time is not None and "t_sim" not in fields:
             record["t_sim"] = round(self.sim_time, 4)
         record.update(fields)
-        self._write(record)
+        line = self._write(record)
+        if self.listeners:  # they see the event as logged: capped, secrets redacted
+            logged = json.loads(line)
+            for listener in self.listeners:
+                listener(logged)
 
     def image(self, image: Image) -> str:
         """Store an image once beside the log; returns its hash."""

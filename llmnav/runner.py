@@ -73,6 +73,9 @@ class EpisodeSpec(BaseModel):
     quiet: bool = True
     plots: bool = True  # write trajectory.png (ablations turn it off: it costs more than a short episode)
     condition: str | None = None  # an ablation's hash of the episode's full condition, logged in the config
+    # [Hz] also log full scans, odometry and velocity at this rate (llmnav.ros.record)
+    record_hz: float | None = Field(default=None, gt=0, le=50)
+    foxglove_port: int | None = Field(default=None, ge=0, le=65535)  # live view on 127.0.0.1 (0: any free port)
 
     @field_validator("options", mode="before")
     @classmethod
@@ -261,9 +264,20 @@ def run_episode(
                 information,
             )
             # the key and URL credentials the backend holds are never logged or shown, even when echoed
-            with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
-                shown = RedactedView(view or NullView(), getattr(backend, "secrets", ()))
-                return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information, later)
+            live = None
+            if spec.foxglove_port is not None:  # the export's topics while it drives; a busy port fails here
+                from llmnav.ros.live import LiveView
+
+                live = LiveView(spec.foxglove_port, spec.out_dir)
+            try:
+                with RunLog(spec.out_dir, config, secrets=getattr(backend, "secrets", ())) as log:
+                    shown = RedactedView(view or NullView(), getattr(backend, "secrets", ()))
+                    if live is not None:
+                        log.listeners.append(live.on_event)
+                    return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information, later)
+            finally:
+                if live is not None:
+                    live.close()
     finally:
         if owns_backend and backend is not None:
             backend.close()
@@ -288,13 +302,24 @@ def _run_logged(
     """
     from llmnav.knowledge import scenario_view
 
+    recorder = None
+    if spec.record_hz is not None:
+        from llmnav.ros.record import Recorder
+
+        recorder = Recorder(world, log, spec.record_hz, spec.options.seed)
+
     def on_pose(pose: Pose2D, t_sim: float) -> None:
         log.sim_time = t_sim
         log.event("pose", pose=pose.as_list())
+        if recorder is not None:
+            recorder.sample(t_sim)
 
     world.motion.on_pose = on_pose
     log.sim_time = world.sim_time
     log.event("pose", pose=world.robot.pose().as_list())
+    if recorder is not None:
+        recorder.log_map(scenario)
+        recorder.sample(world.sim_time)
     from llmnav.guard.view import PlannerWorld
 
     known = scenario_view(scenario, information)

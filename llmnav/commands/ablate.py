@@ -100,6 +100,9 @@ def ablate(
     view_page: Annotated[
         bool, typer.Option("--view", help="Write the sweep's HTML page (and its runs' pages) at the end.")
     ] = False,
+    export: Annotated[
+        str | None, typer.Option("--export", help="At the end, also write each run as: mcap (into FOLDER/mcap).")
+    ] = None,
 ) -> None:
     """Run an ablation grid (resumable: run it again to finish it), then print the tables by factor."""
     from llmnav import ablate as lib
@@ -131,6 +134,8 @@ def ablate(
     timing = {k: v for k, v in (("model_latency", model_latency), ("ttl", ttl)) if v is not None}
     if timing:
         data["options"] = {**data.get("options", {}), **timing}
+    if export not in (None, "mcap"):
+        raise BadInputError(f"--export {export!r}: the one format is mcap")
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
     root = path_option(out, "--out") or Path("ablations") / spec.default_name().replace(":", "-")
     limit = max_episodes or lib.MAX_EPISODES
@@ -162,6 +167,12 @@ def ablate(
                 on_result=progress.advance,
             )
         _print_results(ablation)
+        if export == "mcap":
+            from llmnav.ros.export import export_sweep
+
+            folder = ablation.root / "mcap"
+            written = export_sweep(ablation.root, folder)
+            console.print(f"{len(written)} MCAP file(s) in {esc(str(folder))}", highlight=False, soft_wrap=True)
         if view_page:
             from llmnav.view.api import write_view
 

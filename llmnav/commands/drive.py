@@ -160,6 +160,22 @@ def drive(
     drop_images: Annotated[
         bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
     ] = False,
+    record_hz: Annotated[
+        float | None,
+        typer.Option(
+            "--record-hz",
+            help="Also log full LiDAR scans, odometry and velocity at this rate [Hz] (for `llmnav export --mcap`).",
+        ),
+    ] = None,
+    foxglove: Annotated[
+        int | None,
+        typer.Option(
+            "--foxglove",
+            min=1,
+            max=65535,
+            help="Live view for Foxglove on ws://127.0.0.1:PORT (records scans at --record-hz, default 4).",
+        ),
+    ] = None,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
     from pydantic import ValidationError
@@ -169,6 +185,13 @@ def drive(
     from llmnav.tasks import SEQUENCE_JOIN, default_scenario
 
     out_dir = path_option(out, "--out")
+    if record_hz is not None:
+        from llmnav.ros.record import check_rate
+
+        try:
+            check_rate(record_hz)
+        except ValueError as err:
+            raise BadInputError(f"--record-hz: {err}") from None
     if task and not all(t.strip() for t in task):
         raise BadInputError("--task: empty task text; say where to go, e.g. --task 'go to the red box'")
     texts = [t for t in (task or []) if t.strip()]
@@ -221,7 +244,11 @@ def drive(
         backend=backend_spec,
         out_dir=out_dir or default_out_dir(options.planner, task_id or (texts[0] if texts else "task")),
         quiet=quiet or json_output,
+        record_hz=record_hz if record_hz is not None or foxglove is None else 4.0,
+        foxglove_port=foxglove,
     )
+    if foxglove is not None:
+        err_console.print(f"Foxglove live view: ws://127.0.0.1:{foxglove}", highlight=False)
     later: list[Callable[[], None]] = []  # the figures: drawn after the result is shown
     summary = _run_with_view(spec, quiet=quiet, json_output=json_output, later=later)
     _note_inapplicable(options.planner, ignored, set(from_o))  # after the run: a failure to start stays one line

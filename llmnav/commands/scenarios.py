@@ -3,19 +3,29 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console, err_console, esc, path_option, plot_option
+from llmnav.commands.common import (
+    check_output_path,
+    cli_errors,
+    console,
+    err_console,
+    esc,
+    path_option,
+    plot_option,
+)
 from llmnav.errors import BadInputError, one_line
 
 if TYPE_CHECKING:
     from llmnav.scenario import Scenario, Task
 
 app = typer.Typer(
-    help="List the bundled scenarios, show one (tasks, start poses, top-view plot), generate or check one.",
+    help="List the bundled scenarios, show one (tasks, start poses, top-view plot), generate or check one, "
+    "import or export a nav2 map.",
     no_args_is_help=False,
 )
 
@@ -200,3 +210,54 @@ def check_command(
             console.print(f"{esc(name)}: ok", highlight=False, soft_wrap=True)
     if failed:
         raise typer.Exit(2)
+
+
+@app.command("import-map")
+@cli_errors
+def import_map(
+    map_yaml: Annotated[Path, typer.Argument(help="A nav2 map_server map: YAML naming a PGM or PNG image.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="The world (scenario YAML) to write.")],
+    objects: Annotated[
+        Path | None,
+        typer.Option("--objects", help="Overlay YAML: labelled objects (id, label, position, size), tasks, start."),
+    ] = None,
+    robot: Annotated[str, typer.Option("--robot", help="Robot model: burger | pr2.")] = "burger",
+    tasks: Annotated[int, typer.Option("--tasks", help="Point tasks to draw on the free space (seeded).")] = 5,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the drawn tasks.")] = 0,
+) -> None:
+    """Turn a nav2 map (map.yaml + image) into a world: occupied and unknown cells become merged wall boxes."""
+    from llmnav.ros.mapimport import import_map as build
+    from llmnav.ros.mapimport import write_world
+
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise BadInputError(f"-o {out}: give a file name ending in .yaml")
+    if out.exists() or out.is_symlink():
+        raise BadInputError(f"-o {out}: already exists; choose another file (nothing is overwritten)")
+    check_output_path(out, "-o", [map_yaml, *([objects] if objects else [])])
+    result = build(map_yaml, overlay=objects, robot=robot, tasks=tasks, seed=seed)
+    written = write_world(result, out, map_yaml)
+    width, height = result.size_px
+    console.print(
+        f"wrote {esc(str(written))}: {width} x {height} cells, {result.walls} wall boxes, "
+        f"{len(result.scenario.objects)} objects, {len(result.scenario.tasks)} tasks",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+@app.command("export-map")
+@cli_errors
+def export_map(
+    world: Annotated[str, typer.Argument(help="Bundled scenario name or path to a scenario YAML file.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="The nav2 map YAML to write (the PGM goes beside it).")],
+    resolution: Annotated[float, typer.Option("--resolution", help="Cell side [m].")] = 0.05,
+) -> None:
+    """Write a world as a nav2 map_server map (YAML + PGM): solid shapes occupied, the rest free."""
+    from llmnav.ros.mapexport import export_map as write_map
+    from llmnav.scenario import load_scenario
+
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise BadInputError(f"-o {out}: give a file name ending in .yaml")
+    check_output_path(out, "-o")
+    written, image = write_map(load_scenario(world), out, resolution)
+    console.print(f"wrote {esc(str(written))} and {esc(image.name)}", highlight=False, soft_wrap=True)
