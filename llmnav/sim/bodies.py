@@ -56,6 +56,9 @@ def create_shape(p: Any, client: int, shape: Shape) -> int:
             baseVisualShapeIndex=vis,
             basePosition=centre,
             baseOrientation=_yaw_quaternion(shape.yaw),
+            # Static scenery needs no articulated body: maximal coordinates make each physics step cheaper
+            # in worlds of many boxes (an imported map: ~2 ms -> ~0.4 ms a step with 1,200 boxes).
+            useMaximalCoordinates=True,
             physicsClientId=client,
         )
     )
