@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 @dataclass(frozen=True)
@@ -67,20 +67,6 @@ BURGER = RobotSpec(
 
 # The PR2's real base: a 0.668 m square. Turning in place sweeps its circumcircle (radius 0.47 m), so a
 # turn beside a wall end can touch it, which the round `pr2` never does; maps inflate by that radius.
-PR2_SQUARE = RobotSpec(
-    name="pr2-square",
-    radius_m=0.4724,
-    height_m=PR2.height_m,
-    mass_kg=PR2.mass_kg,
-    wheel_radius_m=PR2.wheel_radius_m,
-    half_track_m=PR2.half_track_m,
-    max_wheel_speed=PR2.max_wheel_speed,
-    max_linear=PR2.max_linear,
-    max_angular=PR2.max_angular,
-    lidar_height_m=PR2.lidar_height_m,
-    camera_height_m=PR2.camera_height_m,
-    color=PR2.color,
-    box_m=(0.668, 0.668),
-)
+PR2_SQUARE = replace(PR2, name="pr2-square", radius_m=0.4724, box_m=(0.668, 0.668))
 
 ROBOT_SPECS: dict[str, RobotSpec] = {"pr2": PR2, "burger": BURGER, "pr2-square": PR2_SQUARE}
