@@ -57,6 +57,7 @@ class Option:
     at: tuple[str, ...] = ()  # Finish: the names of the landmarks the robot stands at
     distance_m: float = 0.0  # [m] from the robot to `goal`
     standing: bool = False  # landmark: the robot is there (at its stand point, or as close as is safe)
+    utility: float = 0.0  # frontier: what exploring it is worth (`frontier_utility`)
 
     @property
     def goal_name(self) -> str:
@@ -170,16 +171,35 @@ def frontier_options(inputs: MenuInputs) -> list[Option]:
     if inputs.ctx.scenario.corridors:
         return []
     pose, cfg, memory = inputs.pose, inputs.cfg, inputs.memory
-    centres = [
-        centre
-        for centre in frontier_points(inputs)
-        if pose.distance_to(*centre) > cfg.arrived_m
+    found = [
+        (centre, length)
+        for centre, length in frontier_points(inputs)
+        if pose.distance_to(*centre) >= cfg.min_hop_m
         and all(math.dist(centre, seen) > cfg.rescan_m for seen in memory.explored)
     ]
+    worth = [(frontier_utility(length, pose.distance_to(*c), cfg.frontier_decay_per_m), c) for c, length in found]
+    ranked = sorted(worth, key=lambda item: -item[0])  # stable: among equals the nearer (found is nearest first)
     return [
-        Option(0, "frontier", f"Explore, {where(pose, centre)}", goal=centre, distance_m=pose.distance_to(*centre))
-        for centre in centres[: cfg.max_frontiers]
+        Option(
+            0,
+            "frontier",
+            f"Explore, {where(pose, centre)}",
+            goal=centre,
+            distance_m=pose.distance_to(*centre),
+            utility=utility,
+        )
+        for utility, centre in ranked[: cfg.max_frontiers]
     ]
+
+
+def frontier_utility(length_m: float, distance_m: float, decay_per_m: float) -> float:
+    """What exploring a frontier is worth: length * exp(-decay * distance).
+
+    Its length [m] says how much unknown it borders; the drive to it discounts that (the gain-over-cost
+    form of next-best-view exploration, Gonzalez-Banos & Latombe 2002). A long frontier across the flat
+    beats a speck next to the robot.
+    """
+    return length_m * math.exp(-decay_per_m * distance_m)
 
 
 # --- the orders ----------------------------------------------------------------------------------
@@ -245,12 +265,16 @@ def _finish_note(arrived: list[Option], turning_task: bool, memory: Memory) -> s
 
 
 # --- geometry of the entries ---------------------------------------------------------------------
+PLAIN_GRIDS = 2  # the roomy and the plain planning grids come first in `MenuInputs.grids`
+
+
 def approach(inputs: MenuInputs, goal: Point | None, position: Point) -> Point | None:
     """Where to stand: the goal point if the robot fits there, else the nearest free stand-off cell.
 
     The stand-off cell comes from the roomiest grid that has one.
     """
-    grids, cfg, pose = inputs.grids, inputs.cfg, inputs.pose
+    # Stand points keep the plain clearance at least: the narrower grids are for passing through doorways.
+    grids, cfg, pose = inputs.grids[:PLAIN_GRIDS], inputs.cfg, inputs.pose
     if goal is not None and grids[-1].is_free(*goal):
         return goal
     for grid in grids:
@@ -283,8 +307,8 @@ def _window(geometry: GridGeometry, centre: Point, radius_m: float) -> tuple[sli
     return rows, cols
 
 
-def frontier_points(inputs: MenuInputs) -> list[Point]:
-    """A reachable target point per frontier cluster (`llmnav.mapping.frontiers`), nearest first.
+def frontier_points(inputs: MenuInputs) -> list[tuple[Point, float]]:
+    """A reachable target point per frontier cluster (`llmnav.mapping.frontiers`) and the cluster's length [m].
 
     With a static map the point is the cluster cell nearest its centroid (free, on the frontier). Sensed,
     unknown space is inflated, so no frontier cell is free: the point is the free cell within the
@@ -294,9 +318,15 @@ def frontier_points(inputs: MenuInputs) -> list[Point]:
     free = None if inputs.sensed else lidar_map.free & ~grid.blocked
     labels = frontier_clusters(lidar_map, inputs.cfg.frontier_min_cells, free)
     targets = goal_cells(labels, grid, grid.inflation_m + FRONTIER_GOAL_BAND_M) if inputs.sensed else labels
-    points = [grid.geometry.cell_to_world(row, col) for row, col in _nearest_to_centroids(labels, targets)]
-    points.sort(key=lambda point: pose.distance_to(*point))
-    return points
+    cells = np.bincount(labels.ravel())  # [cells] per cluster label
+    resolution = grid.geometry.resolution
+    # (a target cell holds its cluster's label)
+    found = [
+        (grid.geometry.cell_to_world(row, col), float(cells[targets[row, col]]) * resolution)
+        for row, col in _nearest_to_centroids(labels, targets)
+    ]
+    found.sort(key=lambda item: pose.distance_to(*item[0]))
+    return found
 
 
 def _nearest_to_centroids(labels: np.ndarray, targets: np.ndarray) -> list[tuple[int, int]]:

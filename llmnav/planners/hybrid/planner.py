@@ -90,7 +90,9 @@ class HybridConfig:
     # Options offered per decision: a short menu keeps every decision within ~120 new prompt tokens and
     # is an easier choice; farther landmarks come back into the menu as the robot moves.
     max_landmarks: int = 4
-    max_frontiers: int = 2
+    max_frontiers: int = 2  # frontiers offered, the most useful first (`menu.frontier_utility`)
+    min_hop_m: float = 1.0  # [m] a frontier nearer than this shows next to nothing new: not offered
+    frontier_decay_per_m: float = 0.2  # [1/m] how fast a frontier's worth falls with the drive to it
     frontier_min_cells: int = 12  # smaller frontier clusters are noise
     # [m] the preferred planning grid keeps the robot's corners this far off walls both ways (a clearance
     # of hypot(r + c, r + c) - r plus a cell beyond a robot of radius r); the plain grid's 0.10 m is the
@@ -167,7 +169,10 @@ class HybridPlanner(Planner):
         json_errors = vetoes = 0
         mode = self.decision_mode(ctx)
         ctx.event("planner", decide=mode, requested=ctx.options.decide)
-        chooser = ScoredChooser(ctx, ctx.task.text, mapped=bool(scenario.corridors)) if mode == "score" else None
+        bounds = scenario.bounds  # the extent the explorer may know: a bigger world gets more looks
+        area = (bounds.x[1] - bounds.x[0]) * (bounds.y[1] - bounds.y[0])  # [m^2]
+        mapped = bool(scenario.corridors)
+        chooser = ScoredChooser(ctx, ctx.task.text, mapped=mapped, area_m2=area) if mode == "score" else None
         done = {"json_errors": 0, "vetoes": 0, "decide": mode}
         # Render the camera image only for a request that carries it (scored decisions send none),
         # unless the user keeps every frame for the viewer.
@@ -261,7 +266,7 @@ class _Maps:
     """
 
     def __init__(self, ctx: EpisodeContext, cfg: HybridConfig) -> None:
-        from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate
+        from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate, margins_from
 
         scenario = ctx.scenario
         self.cfg = cfg
@@ -270,7 +275,9 @@ class _Maps:
         plain = GridConfig()
         corner = self.radius_m + cfg.roomy_corner_m
         roomy = math.hypot(corner, corner) - self.radius_m + plain.resolution_m
-        self.margins = (max(plain.margin_m, roomy), plain.margin_m)
+        # Roomiest first, then the plain margin, then the narrow fallbacks a tight doorway needs (the leg check
+        # and the collision monitor still keep the robot off its frame).
+        self.margins = (max(plain.margin_m, roomy), *margins_from(plain.margin_m))
         self.lidar_map = LidarMap(GridGeometry.from_bounds(scenario.bounds, plain.resolution_m))
         self.static: list[OccupancyGrid] = []
         self.near_known: Any = None

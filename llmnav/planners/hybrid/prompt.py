@@ -90,6 +90,7 @@ def scored_choice(
             o.kind,
             (o.name,) if o.kind == "landmark" and o.name else o.at,
             o.distance_m,
+            o.utility,
         )
         for o in options
     ]

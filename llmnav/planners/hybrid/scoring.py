@@ -20,7 +20,8 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
 3. Every known landmark gets the value PMI - `distance_cost` x distance [m] (the affordance term: between
    equally relevant landmarks, such as two oil barrels, the nearer wins). The best one is the target.
 4. A target is sure when its PMI reaches `sure_pmi`. An unsure one is not taken while there is more to
-   see: explore the nearest frontier first (at most `explore_budget` times in an episode). Exploring
+   see: explore the frontier worth the most first (its length discounted by the drive to it), at most
+   max(`explore_budget`, the world's area / `explore_area_m2`) times in an episode. Exploring
    ends early when something new comes into view, and the decision is made again.
 5. With nothing left to explore, a target whose PMI reaches `min_pmi` (the task makes it e times
    likelier) is taken; below that, look around where the robot has not yet, else the episode ends
@@ -38,6 +39,7 @@ policy reaches in this mode is the rule's merit, and the tables show it beside t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -60,7 +62,8 @@ class ScoringConfig:
 
     min_pmi: float = 1.0  # [nats] a landmark the task makes less than e times likelier is no target
     sure_pmi: float = 5.0  # [nats] a landmark this relevant is taken without exploring further
-    explore_budget: int = 8  # [decisions] explorations before an unsure target is taken
+    explore_budget: int = 8  # [decisions] explorations before an unsure target is taken, at the least ...
+    explore_area_m2: float = 25.0  # [m^2] ... or one per this much of the world's extent (a room's worth)
     distance_cost: float = 0.05  # [nats/m] affordance: among equally relevant landmarks, the nearer wins
 
 
@@ -72,6 +75,7 @@ class Candidate:
     kind: CandidateKind
     names: tuple[str, ...] = ()  # landmark: its name; complete: the names of the landmarks the robot is at
     distance_m: float = 0.0  # [m] from the robot to where the option drives
+    utility: float = 0.0  # frontier: what exploring it is worth (`llmnav.planners.hybrid.menu.frontier_utility`)
 
 
 @dataclass
@@ -98,13 +102,27 @@ class Decision:
 class ScoredChooser:
     """Chooses menu entries by scores (see the module docstring)."""
 
-    def __init__(self, ctx: EpisodeContext, task: str, *, mapped: bool, config: ScoringConfig | None = None) -> None:
+    def __init__(
+        self,
+        ctx: EpisodeContext,
+        task: str,
+        *,
+        mapped: bool,
+        config: ScoringConfig | None = None,
+        area_m2: float = 0.0,
+    ) -> None:
+        """`area_m2` [m^2]: the world's extent (what the explorer may know): a bigger building gets more looks."""
         self.cfg = config or ScoringConfig()
+        self.area_m2 = area_m2
         self.step: int | None = None  # the decision the scores are logged with
         self.scorer = TextRelevance(lambda request: ctx.score(request, self.step), task)
         self.mapped = mapped  # a published map lists every landmark: no need to look before choosing
         self.intent: Intent | None = None
         self.explored = 0  # decisions that chose to explore
+
+    def explore_budget(self) -> int:
+        """[decisions] explorations allowed before an unsure target is taken."""
+        return max(self.cfg.explore_budget, math.ceil(self.area_m2 / self.cfg.explore_area_m2))
 
     def relevance(self, names: list[str], step: int | None) -> dict[str, float]:
         """PMI [nats] of landmark names with the task."""
@@ -150,7 +168,7 @@ class ScoredChooser:
             return Decision(finish.number, why, intent, scores, True)
         value, name, best = max(options, key=lambda item: item[0])
         sure = scores[name] >= self.cfg.sure_pmi
-        if not sure and self.explored < self.cfg.explore_budget and by_kind.get("frontier"):
+        if not sure and self.explored < self.explore_budget() and by_kind.get("frontier"):
             self.explored += 1
             return self._frontier(by_kind, intent, scores, f"{name} {scores[name]:+.1f} is unsure")
         if scores[name] < self.cfg.min_pmi:
@@ -168,6 +186,6 @@ class ScoredChooser:
 
     @staticmethod
     def _frontier(by_kind: dict[str, list[Candidate]], intent: Intent, scores: dict[str, float], why: str) -> Decision:
-        """Explore the nearest frontier."""
-        nearest = min(by_kind["frontier"], key=lambda c: c.distance_m)
-        return Decision(nearest.number, f"{why}: explore", intent, scores)
+        """Explore the frontier worth the most (ties: the nearer)."""
+        best = max(by_kind["frontier"], key=lambda c: (c.utility, -c.distance_m))
+        return Decision(best.number, f"{why}: explore", intent, scores)
