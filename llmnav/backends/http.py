@@ -38,7 +38,14 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
-from llmnav.errors import BackendSpecError, ImagesRejectedError, LlmnavError, ModelError, one_line, redact_userinfo
+from llmnav.errors import (
+    BackendSpecError,
+    ImagesRejectedError,
+    LlmnavError,
+    ModelError,
+    one_line,
+    redact_secrets,
+)
 from llmnav.safefiles import loads as bounded_loads
 
 if TYPE_CHECKING:
@@ -109,23 +116,30 @@ def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) 
 
 
 def redact(text: str, secrets: Iterable[str] = ()) -> str:
-    """Remove API keys from text: every known secret, secret-looking URL query values, URL credentials."""
-    for secret in secrets:
-        if secret:
-            text = text.replace(secret, "***")
-    return redact_userinfo(_SECRET_QUERY.sub(r"\1***", text))
+    """Remove API keys from text: every known secret in any form, secret query values, URL credentials."""
+    return _SECRET_QUERY.sub(r"\1***", redact_secrets(text, secrets))
 
 
 def url_secrets(url: str) -> tuple[str, ...]:
-    """The credentials written into a URL (`user:password@`), as secrets to redact wherever they appear."""
+    """The credentials written into a URL, as secrets to redact wherever they appear.
+
+    `user:password@` gives the password and `user:password` (what Basic auth encodes); a lone `token@` gives
+    the token and `token:` (sent as a user with an empty password). Each decoded and as written.
+    """
     from urllib.parse import unquote, urlsplit
 
     try:
         parts = urlsplit(url)
     except ValueError:
         return ()
-    found = [parts.password, f"{parts.username}:{parts.password}" if parts.password else None]
-    return tuple(unquote(s) for s in found if s) + tuple(s for s in found if s)
+    user, password = parts.username, parts.password
+    if password:
+        found = [password, f"{user or ''}:{password}"]
+    elif user:
+        found = [user, f"{user}:"]
+    else:
+        return ()
+    return tuple(unquote(s) for s in found) + tuple(found)
 
 
 def parse_retry_delay(value: str, now: datetime | None = None) -> float | None:
@@ -592,8 +606,8 @@ class HttpBackend(Backend):
             backend = cls(arg, max_retries=0, timeout_s=CHECK_CHAT_TIMEOUT_S, connect_timeout_s=CHECK_LIST_TIMEOUT_S)
         except LlmnavError as err:
             return [Check("configured", False, str(err))]
-        try:
-            return backend.check_server()
+        try:  # every line, server-provided names included: a server may list a model named after the key
+            return [Check(c.name, c.ok, backend.client.redact(c.detail)) for c in backend.check_server()]
         finally:
             backend.close()
 
