@@ -37,7 +37,8 @@ from llmnav.backends.http import (
     probe,
     short_reason,
 )
-from llmnav.errors import BackendSpecError, MissingKeyError, ModelError
+from llmnav.backends.reply import obj, seq, text_or_none, token_ids, usage_counts
+from llmnav.errors import BackendSpecError, MissingKeyError, ModelError, one_line
 
 DEFAULT_BASE_URL = "https://api.openai.com/v1"
 DEFAULT_MODEL = "gpt-4o-mini"
@@ -110,10 +111,7 @@ class OpenAIBackend(HttpBackend):
         found = self._tokens.get(text)
         if found is None:
             data = self._root_client().post("/tokenize", {"content": text, "add_special": True}).data
-            tokens = data.get("tokens")
-            if not isinstance(tokens, list) or not all(isinstance(t, int) and not isinstance(t, bool) for t in tokens):
-                raise ModelError("openai: the server's /tokenize did not answer with token ids")
-            found = self._tokens[text] = tokens
+            found = self._tokens[text] = token_ids(data.get("tokens"), "openai: the server's /tokenize tokens")
         return found
 
     @property
@@ -221,23 +219,27 @@ class OpenAIBackend(HttpBackend):
         """One chat-completions call."""
         post = self.post_chat(request)
         reply, data = post.reply, post.reply.data
-        choices = data.get("choices")
-        first = choices[0] if isinstance(choices, list) and choices and isinstance(choices[0], dict) else None
-        message = first.get("message") if first else None
+        choices = seq(data.get("choices"), "openai: reply's choices")
+        first = obj(choices[0], "openai: reply's choices[0]") if choices else {}
+        message = first.get("message")
         if not isinstance(message, dict):
             raise ModelError("openai: reply has no choices[0].message")
-        content = message.get("content")
-        if not isinstance(content, str):
-            refusal = message.get("refusal")
-            raise ModelError(f"openai: model refused: {refusal}" if refusal else "openai: reply has no content")
-        usage = data.get("usage") or {}
+        content = text_or_none(message.get("content"), "openai: reply's choices[0].message.content")
+        if content is None:
+            refusal = text_or_none(message.get("refusal"), "openai: reply's choices[0].message.refusal")
+            why = f"model refused: {one_line(refusal, 200)}" if refusal else "reply has no content"
+            raise ModelError(f"openai: {why}")
+        prompt_tokens, completion_tokens = usage_counts(
+            data.get("usage"), "openai: reply's usage", "prompt_tokens", "completion_tokens"
+        )
+        finish = text_or_none(first.get("finish_reason"), "openai: reply's choices[0].finish_reason")
         return ChatResult(
             text=content,
             latency_s=reply.elapsed_s,
-            model=str(data.get("model") or self.model),
-            prompt_tokens=usage.get("prompt_tokens"),
-            completion_tokens=usage.get("completion_tokens"),
-            meta={**post.meta(), "finish_reason": first.get("finish_reason") if first else None},
+            model=text_or_none(data.get("model"), "openai: reply's model") or self.model,
+            prompt_tokens=prompt_tokens,
+            completion_tokens=completion_tokens,
+            meta={**post.meta(), "finish_reason": finish},
         )
 
     @classmethod

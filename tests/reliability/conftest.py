@@ -34,6 +34,7 @@ CATEGORIES = {
     "test_hostile_folders": "hostile folders",
     "test_hostile_sizes": "hostile sizes",
     "test_servers": "servers",
+    "test_hostile_replies": "hostile replies",
 }
 
 
