@@ -35,6 +35,7 @@ CATEGORIES = {
     "test_hostile_sizes": "hostile sizes",
     "test_servers": "servers",
     "test_hostile_replies": "hostile replies",
+    "test_serve_bounds": "serve bounds",
 }
 
 
