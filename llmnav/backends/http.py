@@ -83,6 +83,9 @@ class HttpOptions(BaseModel):
     model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
 
     timeout_s: float = Field(default=60.0, gt=0)  # [s] read/write timeout of one attempt
+    # [s] one request whole: every attempt, its connect and every wait between them. None: DEADLINE_S, or
+    # one attempt's timeout when that is longer (a slow model given more time per answer keeps it)
+    deadline_s: float | None = Field(default=None, gt=0)
     connect_timeout_s: float = Field(default=5.0, gt=0)  # [s]
     max_retries: int = Field(default=4, ge=0)  # attempts = max_retries + 1
     backoff_base_s: float = Field(default=1.0, ge=0)  # [s] first backoff ceiling, doubled each retry
@@ -102,6 +105,9 @@ OptionsT = TypeVar("OptionsT", bound=BaseModel)
 CHECK_LIST_TIMEOUT_S = 4.0
 CHECK_CHAT_TIMEOUT_S = 30.0
 MAX_REPLY_BYTES = 64 << 20  # [bytes] one reply (a chat answer with reasoning is at most a few MB)
+# [s] a request and all its retries, by default: a dead or dripping server costs a run at most this long
+# per request, where five tries of 60 s read + 30 s backoff each once took 930 s
+DEADLINE_S = 60.0
 
 
 def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) -> OptionsT:
@@ -310,12 +316,9 @@ class JsonHttpClient:
 
         url = f"{self.base_url}{path}"
         attempts = self.options.max_retries + 1 if retries else 1
-        timeout = (
-            httpx.Timeout(timeout_s, connect=min(timeout_s, self.options.connect_timeout_s))
-            if timeout_s is not None
-            else None
-        )
+        per_attempt = timeout_s or self.options.timeout_s  # [s]
         t0 = time.perf_counter()
+        deadline = t0 + (self.options.deadline_s or max(DEADLINE_S, per_attempt))
         failure = "no attempt made"
         status: int | None = None  # the last error status the server answered with, if it answered
         reason = ""
@@ -324,13 +327,18 @@ class JsonHttpClient:
             attempt += 1
             self._respect_rate_limit()
             server_delay: float | None = None
+            budget = min(per_attempt, deadline - time.perf_counter())  # [s] what this attempt may take
+            if budget <= 0:
+                failure += "; no time left"
+                break
+            timeout = httpx.Timeout(budget, connect=min(budget, self.options.connect_timeout_s))
             try:
-                response = self._send(method, url, body, timeout, timeout_s or self.options.timeout_s)
+                response = self._send(method, url, body, timeout, deadline)
             except (httpx.InvalidURL, httpx.UnsupportedProtocol) as err:
                 failure = f"bad URL: {one_line(str(err), 100)}"
                 break
             except httpx.TimeoutException as err:
-                failure, status = _timeout_reason(err, timeout_s or self.options.timeout_s), None
+                failure, status = _timeout_reason(err, round(budget, 1)), None
             except httpx.TransportError as err:
                 failure, status = _transport_reason(err), None
             else:
@@ -353,6 +361,9 @@ class JsonHttpClient:
                 if server_delay is not None
                 else backoff_delay(attempt, self.options.backoff_base_s, self.options.backoff_max_s, self._rng)
             )
+            if time.perf_counter() + delay >= deadline:
+                failure += f"; no time left to retry within {deadline - t0:.0f} s"
+                break
             log.info(
                 "%s: %s; retry %d/%d in %.2f s",
                 self.label,
@@ -370,18 +381,19 @@ class JsonHttpClient:
         raise ModelError(message)
 
     def _send(
-        self, method: str, url: str, body: dict[str, Any] | None, timeout: httpx.Timeout | None, budget_s: float
+        self, method: str, url: str, body: dict[str, Any] | None, timeout: httpx.Timeout, deadline: float
     ) -> httpx.Response:
-        """One attempt whose reply must arrive whole within `budget_s` [s] (plus the connect timeout).
+        """One attempt whose reply must arrive whole within its read plus connect timeouts, and by `deadline`.
 
-        httpx's read timeout bounds each read, not the reply: a server trickling a byte every second
-        would otherwise hold an attempt (and the run) for as long as it likes.
+        `deadline` is a `time.perf_counter()` value (the request's, shared by its attempts). httpx's read
+        timeout bounds each read, not the reply: a server trickling a byte every second would otherwise
+        hold an attempt (and the run) for as long as it likes.
         """
         import httpx
 
-        deadline = time.perf_counter() + budget_s + self.options.connect_timeout_s
-        extra: dict[str, Any] = {} if timeout is None else {"timeout": timeout}
-        with self._client.stream(method, url, json=body, **extra) as response:
+        own = time.perf_counter() + (timeout.read or 0.0) + (timeout.connect or 0.0)
+        deadline = min(deadline, own)
+        with self._client.stream(method, url, json=body, timeout=timeout) as response:
             chunks: list[bytes] = []
             size = 0
             for chunk in response.iter_bytes():

@@ -43,6 +43,7 @@ from llmnav.errors import BackendSpecError, MissingKeyError, ModelError, one_lin
 DEFAULT_BASE_URL = "https://api.openai.com/v1"
 DEFAULT_MODEL = "gpt-4o-mini"
 KEY_VARIABLE = "OPENAI_API_KEY"
+PROBE_TIMEOUT_S = 10.0  # [s] asking /tokenize whether the server scores (it answers in milliseconds)
 
 
 class OpenAIOptions(HttpOptions):
@@ -107,10 +108,13 @@ class OpenAIBackend(HttpBackend):
             self._root = JsonHttpClient(self.name, root, self.settings, headers=headers, secrets=secrets)
         return self._root
 
-    def _tokenize(self, text: str) -> list[int]:
+    def _tokenize(self, text: str, *, probe: bool = False) -> list[int]:
         found = self._tokens.get(text)
         if found is None:
-            data = self._root_client().post("/tokenize", {"content": text, "add_special": True}).data
+            body = {"content": text, "add_special": True}
+            # the probe is one short try: a dead server then costs one chat request's deadline, not two
+            bounds: dict[str, Any] = {"timeout_s": PROBE_TIMEOUT_S, "retries": False} if probe else {}
+            data = self._root_client().request("POST", "/tokenize", body, **bounds).data
             found = self._tokens[text] = token_ids(data.get("tokens"), "openai: the server's /tokenize tokens")
         return found
 
@@ -122,7 +126,7 @@ class OpenAIBackend(HttpBackend):
                 self._scores = False
             else:
                 try:
-                    self._tokenize("probe")
+                    self._tokenize("probe", probe=True)
                     self._scores = True
                 except ModelError:
                     self._scores = False
