@@ -24,8 +24,8 @@ from llmnav.planners.base import (
     option_names,
     option_value,
     planner_class,
-    planner_names,
     planner_taking,
+    usable_planner_names,
 )
 
 if TYPE_CHECKING:
@@ -49,7 +49,7 @@ def _factor_values(values: list[Any] | None) -> list[Any] | None:
 def factor_order() -> list[str]:
     """Option factors in a stable order: each registered planner's declared `grid_factors`, by name."""
     order: list[str] = []
-    for name in planner_names():
+    for name in usable_planner_names():
         order += [f for f in planner_class(name).grid_factors if f not in order]
     return order
 
@@ -366,13 +366,9 @@ def _prompt_hashes_cached(options_json: str) -> tuple[tuple[str, str], ...]:
 
 def check_backend(spec: str) -> None:
     """Refuse a backend spec naming no installed backend (what the real run would refuse, before any work)."""
-    from llmnav.backends.base import _entry_points, parse_spec
-    from llmnav.errors import BackendSpecError
+    from llmnav.backends.base import backend_class
 
-    name, _ = parse_spec(spec)
-    points = _entry_points()
-    if name not in points:
-        raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {', '.join(sorted(points))})")
+    backend_class(spec)  # unknown, clashing or broken: a one-line BackendSpecError
 
 
 MAX_EPISODES = 20_000  # a grid larger than this is a typo more often than a plan (`--max-episodes` raises it)

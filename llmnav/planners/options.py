@@ -8,11 +8,11 @@ this module is below every planner and names none.
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from llmnav import plugins
 from llmnav.errors import BadInputError
 from llmnav.planners import DEFAULT_PLANNER
 
@@ -24,8 +24,6 @@ PLANNER_GROUP = "llmnav.planners"
 Information = Literal["map", "sensed", "oracle"]
 # How a model-driven choice is made: scored option texts, generated answers, or scores where the backend can.
 Decide = Literal["auto", "score", "generate"]
-
-
 
 
 class DriveOptions(BaseModel):
@@ -114,13 +112,12 @@ def option_value(model: type[DriveOptions], name: str, value: Any) -> Any:
     return value
 
 
-def _registered_points() -> dict[str, Any]:
-    return {ep.name: ep for ep in entry_points(group=PLANNER_GROUP)}
-
-
 def planner_names() -> list[str]:
-    """Every planner name registered under the `llmnav.planners` entry-point group, sorted."""
-    return sorted(_registered_points())
+    """Every planner name registered under the `llmnav.planners` entry-point group, sorted.
+
+    Broken ones too: `planners.base.usable_planner_names` leaves those out.
+    """
+    return sorted(plugins.registrations(PLANNER_GROUP))
 
 
 def decides_by_scores(options: ChoiceOptions, backend: Backend | None) -> bool:
@@ -128,5 +125,3 @@ def decides_by_scores(options: ChoiceOptions, backend: Backend | None) -> bool:
     if options.decide == "generate" or backend is None:
         return False
     return options.decide == "score" or backend.can_score
-
-

@@ -36,6 +36,7 @@ CATEGORIES = {
     "test_servers": "servers",
     "test_hostile_replies": "hostile replies",
     "test_serve_bounds": "serve bounds",
+    "test_hostile_plugins": "hostile plugins",
 }
 
 
