@@ -46,6 +46,8 @@ class ImagesRejectedError(BadInputError):
 class ModelError(LlmnavError):
     """A backend call failed after its last retry (HTTP status, timeout, garbage body)."""
 
+    exit_code = 4  # the backend or its server failed, as a run aborted by one exits (never 2: not bad input)
+
 
 class RunFolderError(LlmnavError):
     """A run folder could not be written (disk full, I/O error); what was written before stays readable."""

@@ -214,6 +214,7 @@ def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
         for planner in grid.planners():  # the fixed options one planner takes
             episode_options(planner, grid.options, {}, grid.seed)
         _check_fixed_options(grid)
+        _check_distinct(grid)
     except ValidationError as err:
         raise BadInputError(f"{source}: {_validation_message(err)}") from None
     return grid
@@ -229,6 +230,27 @@ def _check_fixed_options(grid: GridSpec) -> None:
             f"options {', '.join(unknown)}: no option of planner {', '.join(planners)} "
             f"(options: {', '.join(sorted(known))})"
         )
+
+
+def _check_distinct(grid: GridSpec) -> None:
+    """Refuse a task or a factor value given twice, however written (`T6,t6`; `0.3,0.30`; `8,08,8.0`).
+
+    Run twice, one condition would get two episodes with the same key and seeds (two workers once
+    collided on one folder).
+    """
+    if isinstance(grid.tasks, list):
+        _refuse_repeats("--tasks", grid.tasks, [task.strip().lower() for task in grid.tasks])
+    planner = grid.planners()[0]
+    for key, values in grid.option_factors().items():
+        _refuse_repeats(key, values, [repr(check_option_value(key, value, planner)) for value in values])
+
+
+def _refuse_repeats(what: str, given: list[Any], meant: list[str]) -> None:
+    seen: dict[str, Any] = {}
+    for value, canonical in zip(given, meant, strict=True):
+        if canonical in seen:
+            raise BadInputError(f"{what}: {seen[canonical]!s} and {value!s} are the same value; give it once")
+        seen[canonical] = value
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
@@ -368,7 +390,8 @@ def check_backend(spec: str) -> None:
     """Refuse a backend spec naming no installed backend (what the real run would refuse, before any work)."""
     from llmnav.backends.base import backend_class
 
-    backend_class(spec)  # unknown, clashing or broken: a one-line BackendSpecError
+    cls, arg = backend_class(spec)  # unknown, clashing or broken: a one-line BackendSpecError
+    cls.check_arg(arg)  # and an argument no run could use (`openai:m@http://`)
 
 
 MAX_EPISODES = 20_000  # a grid larger than this is a typo more often than a plan (`--max-episodes` raises it)

@@ -111,6 +111,11 @@ class Backend(ABC):
         return BackendStatus(True, "")
 
     @classmethod
+    def check_arg(cls, arg: str | None) -> None:
+        """Raise `BackendSpecError` now for an argument no run could use (a sweep checks before any folder)."""
+        return  # most backends check their argument when built
+
+    @classmethod
     def check(cls, arg: str | None = None) -> list[Check]:
         """What `llmnav backends --check` reports for this spec (HTTP backends probe their server)."""
         status = cls.status(arg)

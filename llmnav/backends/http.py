@@ -467,7 +467,11 @@ def normalise_url(url: str) -> str:
     A URL no request could use (another scheme, no host, an IPv4 address out of range, a bad port) is a
     BackendSpecError here, before any run folder exists, instead of an aborted run.
     """
-    url = url.strip().rstrip("/")
+    url = url.strip()
+    scheme, sep, rest = url.partition("://")
+    if sep and not rest.strip("/"):  # `http://` would become http://http: after the slashes went
+        raise BackendSpecError(f"server URL {redact(url)}: no host after '{scheme}://'")
+    url = url.rstrip("/")
     if "://" not in url:
         url = f"http://{url}"
     check_url(url)

@@ -31,6 +31,7 @@ from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_r
 from llmnav.backends.http import (
     HttpBackend,
     HttpOptions,
+    HttpStatusError,
     JsonHttpClient,
     bearer,
     normalise_url,
@@ -100,6 +101,13 @@ class OpenAIBackend(HttpBackend):
         self._root: JsonHttpClient | None = None
         self._tokens: dict[str, list[int]] = {}
 
+    @classmethod
+    def check_arg(cls, arg: str | None) -> None:
+        """The spec's `@URL`, when given, must name a server (a host, a usable scheme and port)."""
+        _, spec_base = split_arg(arg)
+        if spec_base is not None:
+            normalise_url(spec_base)
+
     def _root_client(self) -> JsonHttpClient:
         """A client for the server's root, where llama.cpp keeps `/tokenize` (the base URL ends in /v1)."""
         if self._root is None:
@@ -108,28 +116,38 @@ class OpenAIBackend(HttpBackend):
             self._root = JsonHttpClient(self.name, root, self.settings, headers=headers, secrets=secrets)
         return self._root
 
-    def _tokenize(self, text: str, *, probe: bool = False) -> list[int]:
+    def _tokenize(self, text: str) -> list[int]:
         found = self._tokens.get(text)
         if found is None:
-            body = {"content": text, "add_special": True}
-            # the probe is one short try: a dead server then costs one chat request's deadline, not two
-            bounds: dict[str, Any] = {"timeout_s": PROBE_TIMEOUT_S, "retries": False} if probe else {}
-            data = self._root_client().request("POST", "/tokenize", body, **bounds).data
+            data = self._root_client().post("/tokenize", {"content": text, "add_special": True}).data
             found = self._tokens[text] = token_ids(data.get("tokens"), "openai: the server's /tokenize tokens")
         return found
 
     @property
     def can_score(self) -> bool:
-        """Whether the server tokenises (llama.cpp's server does; OpenAI and most others do not)."""
+        """Whether the server tokenises (llama.cpp's server does; OpenAI and most others do not).
+
+        Asked once, in one short try (a dead server then costs one chat request's deadline, not two). A
+        server that answers it has no `/tokenize` (404, 405, 501, or no token ids) does not score; one that
+        fails (another 5xx, no connection) raises `ModelError`: a server failure ends the run as one,
+        instead of turning a scoring run into a generating one.
+        """
         if self._scores is None:
             if _is_official(self.base_url):
                 self._scores = False
             else:
+                body = {"content": "probe", "add_special": True}
                 try:
-                    self._tokenize("probe", probe=True)
-                    self._scores = True
-                except ModelError:
+                    reply = self._root_client().request(
+                        "POST", "/tokenize", body, timeout_s=PROBE_TIMEOUT_S, retries=False
+                    )
+                except HttpStatusError as err:
+                    if err.status >= 500 and err.status != 501:
+                        raise
                     self._scores = False
+                else:
+                    tokens = reply.data.get("tokens")
+                    self._scores = isinstance(tokens, list) and bool(tokens)
         return self._scores
 
     def score(self, request: ScoreRequest) -> ScoreResult:

@@ -123,17 +123,20 @@ def planner_options(planner: str, given: dict[str, Any]) -> tuple[DriveOptions, 
     return cls.Options.model_validate({**values, "planner": planner}), ignored
 
 
-def check_option_value(key: str, value: Any, planner: str) -> None:
+def check_option_value(key: str, value: Any, planner: str) -> Any:
     """Validate one option with a planner that takes it (`planner` first); a key none takes is refused.
 
-    Raises `BadInputError` for an unknown key and pydantic's `ValidationError` for a bad value.
+    Returns the value as the options model holds it (`"08"` → 8), so two spellings of one value compare
+    equal; an input alias that is no field returns the value as given. Raises `BadInputError` for an
+    unknown key and pydantic's `ValidationError` for a bad value.
     """
     taker = planner_taking(key, first=planner)
     if taker is None:
         takes = ", ".join(option_names(planner))
         raise BadInputError(f"option {key!r}: no planner takes it; planner '{planner}' takes: {takes}")
     model = planner_class(taker).Options
-    model.model_validate({"planner": taker, key: option_value(model, key, value)})
+    validated = model.model_validate({"planner": taker, key: option_value(model, key, value)})
+    return getattr(validated, key) if key in model.model_fields else value
 
 
 def planner_taking(key: str, first: str | None = None) -> str | None:

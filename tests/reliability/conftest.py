@@ -37,6 +37,7 @@ CATEGORIES = {
     "test_hostile_replies": "hostile replies",
     "test_serve_bounds": "serve bounds",
     "test_hostile_plugins": "hostile plugins",
+    "test_honest_accounting": "honest accounting",
 }
 
 
