@@ -84,7 +84,7 @@ class HttpOptions(BaseModel):
 
     timeout_s: float = Field(default=60.0, gt=0)  # [s] read/write timeout of one attempt
     # [s] one request whole: every attempt, its connect and every wait between them. None: DEADLINE_S, or
-    # one attempt's timeout when that is longer (a slow model given more time per answer keeps it)
+    # a `timeout_s` the user set when that is longer (a slow model given more time per answer keeps it)
     deadline_s: float | None = Field(default=None, gt=0)
     connect_timeout_s: float = Field(default=5.0, gt=0)  # [s]
     max_retries: int = Field(default=4, ge=0)  # attempts = max_retries + 1
@@ -318,7 +318,8 @@ class JsonHttpClient:
         attempts = self.options.max_retries + 1 if retries else 1
         per_attempt = timeout_s or self.options.timeout_s  # [s]
         t0 = time.perf_counter()
-        deadline = t0 + (self.options.deadline_s or max(DEADLINE_S, per_attempt))
+        asked = per_attempt if timeout_s or "timeout_s" in self.options.model_fields_set else 0.0  # [s]
+        deadline = t0 + (self.options.deadline_s or max(DEADLINE_S, asked))
         failure = "no attempt made"
         status: int | None = None  # the last error status the server answered with, if it answered
         reason = ""

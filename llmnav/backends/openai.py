@@ -169,8 +169,12 @@ class OpenAIBackend(HttpBackend):
         """The shared probes, then whether the server scores continuations."""
         checks = super().check_server()
         if checks and checks[0].ok:
-            # Not a failure when absent: planners then generate (`--decide auto`).
-            ok = self.can_score
+            # Not a failure when absent: planners then generate (`--decide auto`). A failing one is.
+            try:
+                ok = self.can_score
+            except ModelError as err:
+                checks.append(Check("scores continuations", False, f"/tokenize failed: {short_reason(err)}"))
+                return checks
             detail = "tokenises: option texts can be scored" if ok else "no /tokenize: planners generate instead"
             checks.append(Check("scores continuations", True if ok else None, detail))
         return checks

@@ -146,14 +146,19 @@ def test_retries_share_one_deadline(kind: str, silent_port: int, drip_port: int,
 
 
 def test_the_deadline_defaults_to_sixty_seconds_and_a_longer_timeout(monkeypatch: Any, silent_port: int) -> None:
-    """Without `deadline_s`, a request gets DEADLINE_S (or one attempt's longer timeout): measured with the
-    constant made small, against a server that never answers."""
+    """Without `deadline_s`, a request gets DEADLINE_S (or a longer `timeout_s` the user set, not a backend's
+    default of 90 s): measured with the constant made small, against a server that never answers."""
     import llmnav.backends.http as http
+    from llmnav.backends.openai import OpenAIOptions
     from llmnav.errors import ModelError
 
     monkeypatch.setattr(http, "DEADLINE_S", 2.0)
-    for timeout_s, expected in ((1.0, 2.0), (3.0, 3.0)):
-        options = http.HttpOptions(timeout_s=timeout_s, max_retries=20, backoff_base_s=0.1)
+    cases = [(http.HttpOptions(timeout_s=1.0, max_retries=20, backoff_base_s=0.1), 2.0),
+             (http.HttpOptions(timeout_s=3.0, max_retries=20, backoff_base_s=0.1), 3.0),
+             (OpenAIOptions(max_retries=20, backoff_base_s=0.1), 2.0)]  # fmt: skip
+    assert OpenAIOptions().timeout_s > 60  # its own default: one long answer, not a long wait for a dead server
+    for options, expected in cases:
+        timeout_s = options.timeout_s
         client = http.JsonHttpClient("test", f"http://127.0.0.1:{silent_port}", options)
         t0 = time.perf_counter()
         with pytest.raises(ModelError):
