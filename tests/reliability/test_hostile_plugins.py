@@ -164,3 +164,14 @@ def test_entry_points_are_scanned_once_for_a_large_dry_run(tmp_path: Path, monke
     assert result.exit_code == 0, result.output
     assert len(scans) <= 4, f"{len(scans)} scans: {sorted(set(scans))}"  # one per group, not per episode
     assert elapsed < 60, f"{elapsed:.1f} s"
+
+
+def test_llmnav_backends_shows_a_clashing_backend_as_broken(install: Any, monkeypatch: Any, tally: Any) -> None:
+    tally.add(CATEGORY, tried=1)
+    monkeypatch.setenv("COLUMNS", "400")  # the table shows the whole reason
+    install("evil-plugin", "llmnav.backends", "policy", "evil_backend", EVIL_BACKEND, "EvilBackend")
+    result = _cli("backends")
+    assert result.exit_code == 0, result.output
+    row = next(line for line in result.output.splitlines() if line.strip("│ ").startswith("policy"))
+    assert "broken" in row and "evil-plugin 0.1" in row and LLMNAV in row, row
+    assert "replay" in result.output
