@@ -138,7 +138,7 @@ def build_config(
         # which distribution supplied the code that ran: a plugin is named, never taken for a built-in
         "sources": {
             "planner": planner_source(spec.options.planner),
-            "backend": backend_source(backend.spec) if backend is not None else None,
+            "backend": backend_source(backend) if backend is not None else None,
         },
         "information": information,
         "answers": answers_information(backend),

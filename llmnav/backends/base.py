@@ -166,9 +166,19 @@ def registered_backends() -> list[str]:
     return sorted(plugins.registrations(BACKEND_GROUP))
 
 
-def backend_source(spec: str) -> str:
-    """The distribution and version that supply the backend `spec` names ("llmnav 0.1.0"), for the run log."""
-    return plugins.find(BACKEND_GROUP, "backend", parse_spec(spec)[0]).source
+def backend_source(backend: Backend) -> str:
+    """The distribution and version that supplied `backend`'s class ("llmnav 0.1.0"), for the run log.
+
+    A backend built by hand from a class no entry point names (tests, notebooks) says so, with the class.
+    """
+    name = parse_spec(backend.spec)[0]
+    try:
+        registered = plugins.load(BACKEND_GROUP, "backend", name, _not_a_backend)
+    except BadInputError:
+        registered = None
+    if registered is type(backend):
+        return plugins.find(BACKEND_GROUP, "backend", name).source
+    return f"not registered ({type(backend).__module__}.{type(backend).__qualname__})"
 
 
 def parse_spec(spec: str) -> tuple[str, str | None]:
