@@ -214,7 +214,6 @@ def grid_from_mapping(data: dict[str, Any], source: str) -> GridSpec:
         for planner in grid.planners():  # the fixed options one planner takes
             episode_options(planner, grid.options, {}, grid.seed)
         _check_fixed_options(grid)
-        _check_distinct(grid)
     except ValidationError as err:
         raise BadInputError(f"{source}: {_validation_message(err)}") from None
     return grid
@@ -232,20 +231,12 @@ def _check_fixed_options(grid: GridSpec) -> None:
         )
 
 
-def _check_distinct(grid: GridSpec) -> None:
+def _refuse_repeats(what: str, given: list[Any], meant: list[Any]) -> None:
     """Refuse a task or a factor value given twice, however written (`T6,t6`; `0.3,0.30`; `8,08,8.0`).
 
-    Run twice, one condition would get two episodes with the same key and seeds (two workers once
-    collided on one folder).
+    `meant` is what each given value means (a task's id, an option's validated value). Run twice, one
+    condition would get two episodes with the same key and seeds (two workers once collided on one folder).
     """
-    if isinstance(grid.tasks, list):
-        _refuse_repeats("--tasks", grid.tasks, [task.strip().lower() for task in grid.tasks])
-    planner = grid.planners()[0]
-    for key, values in grid.option_factors().items():
-        _refuse_repeats(key, values, [repr(check_option_value(key, value, planner)) for value in values])
-
-
-def _refuse_repeats(what: str, given: list[Any], meant: list[str]) -> None:
     seen: dict[str, Any] = {}
     for value, canonical in zip(given, meant, strict=True):
         if canonical in seen:
@@ -438,6 +429,7 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
                 ) from None
     if not tasks:
         raise BadInputError(f"scenario {scenario.name} has no tasks to ablate")
+    _refuse_repeats("--tasks", list(grid.tasks) if grid.tasks != "all" else tasks, tasks)
     pose_counts: dict[str, int] = {}
     for task_id in tasks:
         available = len(scenario.start_poses(scenario.task(task_id)))
@@ -449,11 +441,11 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
         pose_counts[task_id] = len(poses)
     check_size(grid, pose_counts, max_episodes)
     for key, values in grid.option_factors().items():  # every value, also where a planner ignores it
-        for value in values:
-            try:
-                check_option_value(key, value, grid.planners()[0])
-            except ValidationError as err:
-                raise BadInputError(f"grid value: {_validation_message(err)}") from None
+        try:
+            meant = [repr(check_option_value(key, value, grid.planners()[0])) for value in values]
+        except ValidationError as err:
+            raise BadInputError(f"grid value: {_validation_message(err)}") from None
+        _refuse_repeats(key, values, meant)
     for backend_spec in dict.fromkeys(grid.backend or [DEFAULT_BACKEND]):
         check_backend(backend_spec)
     factors = grid.factors()
