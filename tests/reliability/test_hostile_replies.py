@@ -210,3 +210,29 @@ def test_a_policy_recording_keeps_its_positive_scores(tmp_path: Path) -> None:
     rec = recording(tmp_path, {"text": "", "scores": [[2.0, 1], [0.0, 1]], "latency_s": 0.0}, "policy:keyword")
     scores = ReplayBackend(str(rec)).score(ScoreRequest("Go to the", (" box", " fire"))).scores
     assert [s.logprob for s in scores] == [2.0, 0.0] and not any(math.isnan(s.logprob) for s in scores)
+
+
+@pytest.mark.slow
+@pytest.mark.reliability
+def test_the_fsm_assist_survives_a_list_usage_and_counts_each_failure(tmp_path: Path, server: Any, tally: Any) -> None:
+    """`--planner fsm -o assist=llm --realtime` against `"usage": [1, 2]`: the assist thread died on the
+    AttributeError and the run was tabled as assisted with 0 suggestions. Now every answer is a counted,
+    logged failure (about 140 s: the maze at real time)."""
+    tally.add(CATEGORY, tried=1)
+    server.default = lambda seen: (
+        server.reply(404, {"error": "no /tokenize"}) if seen.path.endswith("/tokenize")
+        else server.reply(200, chat_body("openai", "{}", usage=[1, 2]))
+    )  # fmt: skip
+    out = tmp_path / "run"
+    result = CliRunner().invoke(
+        app, ["drive", "--planner", "fsm", "-o", "assist=llm", "--realtime", "--backend", f"openai:m@{server.url}/v1",
+              "--scenario", "maze_arena", "--task-id", "M1", "--out", str(out), "--quiet"]
+    )  # fmt: skip
+    crashed = result.exception is not None and not isinstance(result.exception, SystemExit)
+    tally.add(CATEGORY, crashes=int(crashed))
+    assert not crashed and result.exit_code in (0, 1), result.output
+    calls = [json.loads(line) for line in (out / "run.jsonl").read_text().splitlines()]
+    errors = [c.get("error") for c in calls if c["type"] == "llm_call"]
+    assert errors and all("usage is a list" in (e or "") for e in errors), errors[:3]
+    metrics = json.loads((out / "summary.json").read_text())["planner_metrics"]
+    assert metrics["suggestions"] == metrics["rejected"]["error"] == len(errors) > 0
