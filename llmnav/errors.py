@@ -5,6 +5,7 @@ The CLI turns any `LlmnavError` into a one-line message and an exit code; anythi
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable
 from typing import Any
@@ -44,6 +45,8 @@ class ImagesRejectedError(BadInputError):
 
 class ModelError(LlmnavError):
     """A backend call failed after its last retry (HTTP status, timeout, garbage body)."""
+
+    exit_code = 4  # the backend or its server failed, as a run aborted by one exits (never 2: not bad input)
 
 
 class RunFolderError(LlmnavError):
@@ -101,14 +104,47 @@ def redact_userinfo(text: str) -> str:
     return _USERINFO.sub("***@", text)
 
 
-def redact_secrets(text: str, secrets: Iterable[str]) -> str:
-    """Text with each secret (a key a client holds, URL credentials) and any URL's userinfo as `***`.
+MIN_SECRET_CHARS = 4  # shorter "secrets" are not redacted: one letter would blank out the text
 
-    Longest secrets first, so a secret containing another is not left half shown; secrets shorter than
-    4 characters are ignored, as in the run log (one letter would blank out the text).
+
+def secret_forms(secret: str) -> set[str]:
+    """Every form in which llmnav sends `secret`, or a server or a writer may show it again.
+
+    As written; URL-encoded (path, query and form styles, as a URL or a query string carries it); base64 in
+    the standard and URL-safe alphabets, padded or not (HTTP Basic auth sends `user:password` so);
+    JSON-escaped (a run-log line) and HTML-escaped (a page).
     """
-    for secret in sorted({s for s in secrets if len(s) >= 4}, key=len, reverse=True):
-        text = text.replace(secret, "***")
+    import base64
+    import html
+    import json
+    from urllib.parse import quote, quote_plus
+
+    raw = secret.encode("utf-8", errors="surrogatepass")
+    encoded = [base64.b64encode(raw).decode(), base64.urlsafe_b64encode(raw).decode()]
+    forms = {secret, quote(secret, safe=""), quote(secret), quote_plus(secret), html.escape(secret)}
+    forms |= {*encoded, *(e.rstrip("=") for e in encoded)}
+    forms |= {json.dumps(secret)[1:-1], json.dumps(secret, ensure_ascii=False)[1:-1]}
+    return forms
+
+
+@functools.lru_cache(maxsize=64)
+def _expanded(secrets: frozenset[str]) -> tuple[str, ...]:
+    forms = {form for secret in secrets for form in secret_forms(secret)}
+    return tuple(sorted((f for f in forms if len(f) >= MIN_SECRET_CHARS), key=len, reverse=True))
+
+
+def expand_secrets(secrets: Iterable[str]) -> tuple[str, ...]:
+    """The secrets (of at least MIN_SECRET_CHARS) in all their `secret_forms`, longest first.
+
+    Longest first, so a secret containing another is not left half shown.
+    """
+    return _expanded(frozenset(s for s in secrets if len(s) >= MIN_SECRET_CHARS))
+
+
+def redact_secrets(text: str, secrets: Iterable[str]) -> str:
+    """Text with each secret (a key, URL credentials) in any of its `secret_forms`, and URL userinfo, as `***`."""
+    for form in expand_secrets(secrets):
+        text = text.replace(form, "***")
     return redact_userinfo(text)
 
 

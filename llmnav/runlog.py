@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from llmnav.chat import Image
-from llmnav.errors import BadInputError, FolderLockedError, RunFolderError
+from llmnav.errors import BadInputError, FolderLockedError, RunFolderError, expand_secrets
 from llmnav.geometry import logged_pose
 from llmnav.locking import LOCK_FILE, FolderLock, locked_by
 from llmnav.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, read_text, write_bytes, write_text
@@ -138,6 +138,7 @@ class RunLog:
 
     def __init__(self, run_dir: Path, config: dict[str, Any], *, secrets: Iterable[str] = ()) -> None:
         self.run_dir = Path(run_dir)
+        self._given: tuple[str, ...] = ()
         self._secrets: tuple[str, ...] = ()
         self.redact(secrets)  # before the first line: the configuration names the backend
         holder = locked_by(self.run_dir)
@@ -190,7 +191,8 @@ class RunLog:
 
     def redact(self, secrets: Iterable[str]) -> None:
         """Replace these strings (a backend's key, URL credentials) by `***` in every line written from now."""
-        self._secrets = tuple(sorted({s for s in (*self._secrets, *secrets) if len(s) >= 4}, key=len, reverse=True))
+        self._given = (*self._given, *secrets)
+        self._secrets = expand_secrets(self._given)  # every form it may take, longest first
 
     def _write(self, record: dict[str, Any]) -> str:
         """Append the record as one line; returns the line (capped, secrets redacted)."""

@@ -128,7 +128,8 @@ def build_config(
 ) -> dict[str, Any]:
     """The run's first log line: enough to reproduce the episode and to group it in tables."""
     import llmnav
-    from llmnav.backends.base import request_modality
+    from llmnav.backends.base import backend_source, request_modality
+    from llmnav.planners.base import planner_source
 
     camera = (spec.options.image_width, spec.options.image_height) if "image" in spec.options.sensing else None
     return {
@@ -145,6 +146,11 @@ def build_config(
         "start_pose_index": spec.start_pose,
         "start_pose": start.as_list(),
         "planner": spec.options.planner,
+        # which distribution supplied the code that ran: a plugin is named, never taken for a built-in
+        "sources": {
+            "planner": planner_source(spec.options.planner),
+            "backend": backend_source(backend) if backend is not None else None,
+        },
         "information": information,
         "answers": answers_information(backend),
         "backend": redact_userinfo(backend.spec) if backend is not None else None,

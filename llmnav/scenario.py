@@ -24,6 +24,17 @@ from llmnav.resources import resource_dir
 RGBA = tuple[float, float, float, float]
 Vec2 = tuple[float, float]
 
+# What a scenario may hold. The largest bundled world is 20 m x 30 m with 50 shapes; the limits leave
+# room for far bigger ones and keep every grid, plot and prompt built from a scenario in memory and time:
+# a 100 m side is 2,000 cells of the 5 cm planning grid, where ±1e6 m asked for 1.42 PiB.
+MAX_WORLD_SIDE_M = 100.0  # [m] each side of `bounds`
+MAX_COORDINATE_M = 1000.0  # [m] |x| and |y| of `bounds` (float precision of poses stays sub-millimetre)
+MAX_SHAPES = 500  # walls + obstacles + labelled objects (each is a body, a collision shape and a plot patch)
+MAX_TASKS = 200  # tasks in one file
+MAX_TEXT_CHARS = 2000  # [characters] a task's text or paraphrase (a prompt carries it at every step)
+MAX_NAME_CHARS = 100  # [characters] an object's label or alias (scored as a continuation, token by token)
+Name = Annotated[str, Field(min_length=1, max_length=MAX_NAME_CHARS)]
+
 
 class _Strict(BaseModel):
     # NaN and infinity are refused at load: a size of .nan passed `scenarios show` and crashed the grid
@@ -106,9 +117,9 @@ class Obstacle(Shape):
 class LabelledObject(Shape):
     """An object that tasks and detections name."""
 
-    id: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]+$")]
-    label: str
-    aliases: list[str] = []
+    id: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]+$", max_length=MAX_NAME_CHARS)]
+    label: Name
+    aliases: list[Name] = []
     # Where a robot should stand to "reach" it, when that differs from the centre (a room plate on a wall).
     goal: Vec2 | None = None
     sign: Literal["left", "right", "stop"] | None = None  # traffic-sign class for the FSM detector
@@ -156,13 +167,13 @@ class Task(_Strict):
     or "free" (typed by a user). Files leave `wording` out; `llmnav.tasks` sets it.
     """
 
-    id: str
-    text: str
+    id: Annotated[str, Field(max_length=MAX_NAME_CHARS)]
+    text: Annotated[str, Field(max_length=MAX_TEXT_CHARS)]
     kind: Literal["target", "explore", "rotate"] = "target"
     difficulty: Literal["easy", "medium", "hard"] = "medium"
     targets: list[Target] = []
     start_poses: list[StartPose] = []
-    paraphrases: list[Annotated[str, Field(min_length=1)]] = []
+    paraphrases: list[Annotated[str, Field(min_length=1, max_length=MAX_TEXT_CHARS)]] = []
     wording: Annotated[str, Field(pattern=r"^(bundled|free|paraphrase:[1-9][0-9]*)$")] = "bundled"
 
     @model_validator(mode="after")
@@ -310,10 +321,24 @@ class WaypointRules(_Strict):
 
 
 class Bounds(_Strict):
-    """The world's axis-aligned extent [m]."""
+    """The world's axis-aligned extent [m].
+
+    Each side positive and at most MAX_WORLD_SIDE_M, every coordinate within ±MAX_COORDINATE_M.
+    """
 
     x: Vec2
     y: Vec2
+
+    @model_validator(mode="after")
+    def _extent(self) -> Bounds:
+        for axis, (low, high) in (("x", self.x), ("y", self.y)):
+            if max(abs(low), abs(high)) > MAX_COORDINATE_M:
+                raise ValueError(f"{axis} {[low, high]} reaches beyond ±{MAX_COORDINATE_M:g} m")
+            if not low < high:
+                raise ValueError(f"{axis} {[low, high]} is empty: the first value must be the smaller")
+            if high - low > MAX_WORLD_SIDE_M:
+                raise ValueError(f"{axis} spans {high - low:g} m, more than the {MAX_WORLD_SIDE_M:g} m a world may")
+        return self
 
     def contains(self, x: float, y: float) -> bool:
         """Whether a point lies inside."""
@@ -321,7 +346,12 @@ class Bounds(_Strict):
 
 
 class Scenario(_Strict):
-    """A complete scenario: the world, labelled objects, tasks and defaults."""
+    """A complete scenario: the world, labelled objects, tasks and defaults.
+
+    Limits (the module's constants): bounds of at most MAX_WORLD_SIDE_M a side within ±MAX_COORDINATE_M,
+    at most MAX_SHAPES walls, obstacles and objects together, MAX_TASKS tasks, MAX_TEXT_CHARS a task text
+    and MAX_NAME_CHARS a label or alias.
+    """
 
     name: str
     description: str = ""
@@ -335,10 +365,17 @@ class Scenario(_Strict):
     corridors: list[Corridor] = []
     # Whether planners are handed the map (llmnav.knowledge); None: "map" where corridors are listed.
     default_information: Literal["map", "sensed"] | None = None
-    tasks: list[Task] = []
+    tasks: Annotated[list[Task], Field(max_length=MAX_TASKS)] = []
     default_start: StartPose = StartPose(x=0.0, y=0.0)
     sensors: SensorConfig = SensorConfig()
     waypoint_rules: WaypointRules = WaypointRules()
+
+    @model_validator(mode="after")
+    def _shape_count(self) -> Scenario:
+        count = len(self.walls) + len(self.obstacles) + len(self.objects)
+        if count > MAX_SHAPES:
+            raise ValueError(f"{count} walls, obstacles and objects: at most {MAX_SHAPES}")
+        return self
 
     @field_validator("objects")
     @classmethod

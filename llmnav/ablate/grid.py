@@ -24,8 +24,8 @@ from llmnav.planners.base import (
     option_names,
     option_value,
     planner_class,
-    planner_names,
     planner_taking,
+    usable_planner_names,
 )
 
 if TYPE_CHECKING:
@@ -49,7 +49,7 @@ def _factor_values(values: list[Any] | None) -> list[Any] | None:
 def factor_order() -> list[str]:
     """Option factors in a stable order: each registered planner's declared `grid_factors`, by name."""
     order: list[str] = []
-    for name in planner_names():
+    for name in usable_planner_names():
         order += [f for f in planner_class(name).grid_factors if f not in order]
     return order
 
@@ -231,6 +231,19 @@ def _check_fixed_options(grid: GridSpec) -> None:
         )
 
 
+def _refuse_repeats(what: str, given: list[Any], meant: list[Any]) -> None:
+    """Refuse a task or a factor value given twice, however written (`T6,t6`; `0.3,0.30`; `8,08,8.0`).
+
+    `meant` is what each given value means (a task's id, an option's validated value). Run twice, one
+    condition would get two episodes with the same key and seeds (two workers once collided on one folder).
+    """
+    seen: dict[str, Any] = {}
+    for value, canonical in zip(given, meant, strict=True):
+        if canonical in seen:
+            raise BadInputError(f"{what}: {seen[canonical]!s} and {value!s} are the same value; give it once")
+        seen[canonical] = value
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
     """YAML's safe loader, refusing a key given twice in one mapping (YAML would keep the last silently)."""
 
@@ -366,13 +379,10 @@ def _prompt_hashes_cached(options_json: str) -> tuple[tuple[str, str], ...]:
 
 def check_backend(spec: str) -> None:
     """Refuse a backend spec naming no installed backend (what the real run would refuse, before any work)."""
-    from llmnav.backends.base import _entry_points, parse_spec
-    from llmnav.errors import BackendSpecError
+    from llmnav.backends.base import backend_class
 
-    name, _ = parse_spec(spec)
-    points = _entry_points()
-    if name not in points:
-        raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {', '.join(sorted(points))})")
+    cls, arg = backend_class(spec)  # unknown, clashing or broken: a one-line BackendSpecError
+    cls.check_arg(arg)  # and an argument no run could use (`openai:m@http://`)
 
 
 MAX_EPISODES = 20_000  # a grid larger than this is a typo more often than a plan (`--max-episodes` raises it)
@@ -419,6 +429,7 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
                 ) from None
     if not tasks:
         raise BadInputError(f"scenario {scenario.name} has no tasks to ablate")
+    _refuse_repeats("--tasks", list(grid.tasks) if grid.tasks != "all" else tasks, tasks)
     pose_counts: dict[str, int] = {}
     for task_id in tasks:
         available = len(scenario.start_poses(scenario.task(task_id)))
@@ -430,11 +441,11 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
         pose_counts[task_id] = len(poses)
     check_size(grid, pose_counts, max_episodes)
     for key, values in grid.option_factors().items():  # every value, also where a planner ignores it
-        for value in values:
-            try:
-                check_option_value(key, value, grid.planners()[0])
-            except ValidationError as err:
-                raise BadInputError(f"grid value: {_validation_message(err)}") from None
+        try:
+            meant = [repr(check_option_value(key, value, grid.planners()[0])) for value in values]
+        except ValidationError as err:
+            raise BadInputError(f"grid value: {_validation_message(err)}") from None
+        _refuse_repeats(key, values, meant)
     for backend_spec in dict.fromkeys(grid.backend or [DEFAULT_BACKEND]):
         check_backend(backend_spec)
     factors = grid.factors()

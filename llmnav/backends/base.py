@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from importlib.metadata import entry_points
 from typing import Any, ClassVar
 
+from llmnav import plugins
 from llmnav.chat import (
     AnswerKey,
     ChatRequest,
@@ -23,7 +23,7 @@ from llmnav.chat import (
     ScoreRequest,
     ScoreResult,
 )
-from llmnav.errors import BackendSpecError, ModelError
+from llmnav.errors import BackendSpecError, BadInputError, ModelError
 
 __all__ = [
     "AnswerKey",
@@ -111,6 +111,11 @@ class Backend(ABC):
         return BackendStatus(True, "")
 
     @classmethod
+    def check_arg(cls, arg: str | None) -> None:
+        """Raise `BackendSpecError` now for an argument no run could use (a sweep checks before any folder)."""
+        return  # most backends check their argument when built
+
+    @classmethod
     def check(cls, arg: str | None = None) -> list[Check]:
         """What `llmnav backends --check` reports for this spec (HTTP backends probe their server)."""
         status = cls.status(arg)
@@ -140,22 +145,40 @@ def request_modality(backend: Backend, camera: tuple[int, int] | None) -> dict[s
     return {"modality": "multimodal" if multimodal else "text", "attachments": attachments}
 
 
-def _entry_points() -> dict[str, Any]:
-    return {ep.name: ep for ep in entry_points(group="llmnav.backends")}
+BACKEND_GROUP = "llmnav.backends"
+
+
+def _not_a_backend(target: Any) -> str | None:
+    return None if isinstance(target, type) and issubclass(target, Backend) else "is not a llmnav Backend subclass"
 
 
 def registry() -> dict[str, type[Backend]]:
-    """Every backend under the `llmnav.backends` entry-point group that imports; broken ones are left out.
+    """Every backend under the `llmnav.backends` entry-point group that loads; broken ones are left out.
 
     `llmnav backends` loads them one by one to show the broken ones with their reason.
     """
-    found: dict[str, type[Backend]] = {}
-    for name, ep in _entry_points().items():
-        try:
-            found[name] = ep.load()
-        except Exception:  # noqa: BLE001 - a broken third-party plugin must not hide the others
-            continue
-    return found
+    names = plugins.usable(BACKEND_GROUP, "backend", _not_a_backend)
+    return {name: plugins.load(BACKEND_GROUP, "backend", name, _not_a_backend) for name in names}
+
+
+def registered_backends() -> list[str]:
+    """Every name registered under `llmnav.backends` (broken ones too), sorted."""
+    return sorted(plugins.registrations(BACKEND_GROUP))
+
+
+def backend_source(backend: Backend) -> str:
+    """The distribution and version that supplied `backend`'s class ("llmnav 0.1.0"), for the run log.
+
+    A backend built by hand from a class no entry point names (tests, notebooks) says so, with the class.
+    """
+    name = parse_spec(backend.spec)[0]
+    try:
+        registered = plugins.load(BACKEND_GROUP, "backend", name, _not_a_backend)
+    except BadInputError:
+        registered = None
+    if registered is type(backend):
+        return plugins.find(BACKEND_GROUP, "backend", name).source
+    return f"not registered ({type(backend).__module__}.{type(backend).__qualname__})"
 
 
 def parse_spec(spec: str) -> tuple[str, str | None]:
@@ -167,14 +190,13 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
 def backend_class(spec: str) -> tuple[type[Backend], str | None]:
     """The class a spec string names and the spec's argument (only that backend's module is imported)."""
     name, arg = parse_spec(spec)
-    points = _entry_points()
-    if name not in points:
-        known = ", ".join(sorted(points))
-        raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {known})")
+    known = registered_backends()
+    if name not in known:
+        raise BackendSpecError(f"unknown backend '{name}' in '{spec}' (known: {', '.join(known)})")
     try:
-        cls: type[Backend] = points[name].load()
-    except Exception as err:  # noqa: BLE001
-        raise BackendSpecError(f"backend '{name}' failed to load: {type(err).__name__}: {err}") from None
+        cls: type[Backend] = plugins.load(BACKEND_GROUP, "backend", name, _not_a_backend)
+    except BadInputError as err:
+        raise BackendSpecError(str(err)) from None
     return cls, arg
 
 

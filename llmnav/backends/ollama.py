@@ -22,6 +22,7 @@ from llmnav.backends.http import (
     probe,
     short_reason,
 )
+from llmnav.backends.reply import duration, text_or_none, token_count
 from llmnav.errors import ModelError
 
 DEFAULT_HOST = "http://127.0.0.1:11434"
@@ -116,16 +117,18 @@ class OllamaBackend(HttpBackend):
         content = message.get("content") if isinstance(message, dict) else None
         if not isinstance(content, str):
             raise ModelError(f"ollama: reply has no message.content (keys: {', '.join(sorted(data))[:80]})")
-        meta: dict[str, Any] = {**post.meta(), "done_reason": data.get("done_reason")}
+        done = text_or_none(data.get("done_reason"), "ollama: reply's done_reason")
+        meta: dict[str, Any] = {**post.meta(), "done_reason": done}
         for key in ("total_duration", "load_duration", "prompt_eval_duration", "eval_duration"):
-            if isinstance(data.get(key), (int, float)):
-                meta[f"{key}_s"] = round(data[key] * NS, 4)
+            nanoseconds = duration(data.get(key), f"ollama: reply's {key}")
+            if nanoseconds is not None:
+                meta[f"{key}_s"] = round(nanoseconds * NS, 4)
         return ChatResult(
             text=content,
             latency_s=reply.elapsed_s,
-            model=str(data.get("model") or self.arg),
-            prompt_tokens=_int_or_none(data.get("prompt_eval_count")),
-            completion_tokens=_int_or_none(data.get("eval_count")),
+            model=text_or_none(data.get("model"), "ollama: reply's model") or str(self.arg),
+            prompt_tokens=token_count(data.get("prompt_eval_count"), "ollama: reply's prompt_eval_count"),
+            completion_tokens=token_count(data.get("eval_count"), "ollama: reply's eval_count"),
             meta=meta,
         )
 
@@ -143,7 +146,3 @@ class OllamaBackend(HttpBackend):
         if model_listed(model, names):
             return BackendStatus(True, f"server at {host}, model {model} present")
         return BackendStatus(False, f"server at {host}, but model {model} is not pulled (ollama pull {model})")
-
-
-def _int_or_none(value: object) -> int | None:
-    return value if isinstance(value, int) and not isinstance(value, bool) else None

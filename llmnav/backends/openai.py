@@ -31,17 +31,20 @@ from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_r
 from llmnav.backends.http import (
     HttpBackend,
     HttpOptions,
+    HttpStatusError,
     JsonHttpClient,
     bearer,
     normalise_url,
     probe,
     short_reason,
 )
-from llmnav.errors import BackendSpecError, MissingKeyError, ModelError
+from llmnav.backends.reply import obj, seq, text_or_none, token_ids, usage_counts
+from llmnav.errors import BackendSpecError, MissingKeyError, ModelError, one_line
 
 DEFAULT_BASE_URL = "https://api.openai.com/v1"
 DEFAULT_MODEL = "gpt-4o-mini"
 KEY_VARIABLE = "OPENAI_API_KEY"
+PROBE_TIMEOUT_S = 10.0  # [s] asking /tokenize whether the server scores (it answers in milliseconds)
 
 
 class OpenAIOptions(HttpOptions):
@@ -98,6 +101,13 @@ class OpenAIBackend(HttpBackend):
         self._root: JsonHttpClient | None = None
         self._tokens: dict[str, list[int]] = {}
 
+    @classmethod
+    def check_arg(cls, arg: str | None) -> None:
+        """The spec's `@URL`, when given, must name a server (a host, a usable scheme and port)."""
+        _, spec_base = split_arg(arg)
+        if spec_base is not None:
+            normalise_url(spec_base)
+
     def _root_client(self) -> JsonHttpClient:
         """A client for the server's root, where llama.cpp keeps `/tokenize` (the base URL ends in /v1)."""
         if self._root is None:
@@ -110,24 +120,34 @@ class OpenAIBackend(HttpBackend):
         found = self._tokens.get(text)
         if found is None:
             data = self._root_client().post("/tokenize", {"content": text, "add_special": True}).data
-            tokens = data.get("tokens")
-            if not isinstance(tokens, list) or not all(isinstance(t, int) and not isinstance(t, bool) for t in tokens):
-                raise ModelError("openai: the server's /tokenize did not answer with token ids")
-            found = self._tokens[text] = tokens
+            found = self._tokens[text] = token_ids(data.get("tokens"), "openai: the server's /tokenize tokens")
         return found
 
     @property
     def can_score(self) -> bool:
-        """Whether the server tokenises (llama.cpp's server does; OpenAI and most others do not)."""
+        """Whether the server tokenises (llama.cpp's server does; OpenAI and most others do not).
+
+        Asked once, in one short try (a dead server then costs one chat request's deadline, not two). A
+        server that answers it has no `/tokenize` (404, 405, 501, or no token ids) does not score; one that
+        fails (another 5xx, no connection) raises `ModelError`: a server failure ends the run as one,
+        instead of turning a scoring run into a generating one.
+        """
         if self._scores is None:
             if _is_official(self.base_url):
                 self._scores = False
             else:
+                body = {"content": "probe", "add_special": True}
                 try:
-                    self._tokenize("probe")
-                    self._scores = True
-                except ModelError:
+                    reply = self._root_client().request(
+                        "POST", "/tokenize", body, timeout_s=PROBE_TIMEOUT_S, retries=False
+                    )
+                except HttpStatusError as err:
+                    if err.status >= 500 and err.status != 501:
+                        raise
                     self._scores = False
+                else:
+                    tokens = reply.data.get("tokens")
+                    self._scores = isinstance(tokens, list) and bool(tokens)
         return self._scores
 
     def score(self, request: ScoreRequest) -> ScoreResult:
@@ -149,8 +169,12 @@ class OpenAIBackend(HttpBackend):
         """The shared probes, then whether the server scores continuations."""
         checks = super().check_server()
         if checks and checks[0].ok:
-            # Not a failure when absent: planners then generate (`--decide auto`).
-            ok = self.can_score
+            # Not a failure when absent: planners then generate (`--decide auto`). A failing one is.
+            try:
+                ok = self.can_score
+            except ModelError as err:
+                checks.append(Check("scores continuations", False, f"/tokenize failed: {short_reason(err)}"))
+                return checks
             detail = "tokenises: option texts can be scored" if ok else "no /tokenize: planners generate instead"
             checks.append(Check("scores continuations", True if ok else None, detail))
         return checks
@@ -221,23 +245,27 @@ class OpenAIBackend(HttpBackend):
         """One chat-completions call."""
         post = self.post_chat(request)
         reply, data = post.reply, post.reply.data
-        choices = data.get("choices")
-        first = choices[0] if isinstance(choices, list) and choices and isinstance(choices[0], dict) else None
-        message = first.get("message") if first else None
+        choices = seq(data.get("choices"), "openai: reply's choices")
+        first = obj(choices[0], "openai: reply's choices[0]") if choices else {}
+        message = first.get("message")
         if not isinstance(message, dict):
             raise ModelError("openai: reply has no choices[0].message")
-        content = message.get("content")
-        if not isinstance(content, str):
-            refusal = message.get("refusal")
-            raise ModelError(f"openai: model refused: {refusal}" if refusal else "openai: reply has no content")
-        usage = data.get("usage") or {}
+        content = text_or_none(message.get("content"), "openai: reply's choices[0].message.content")
+        if content is None:
+            refusal = text_or_none(message.get("refusal"), "openai: reply's choices[0].message.refusal")
+            why = f"model refused: {one_line(refusal, 200)}" if refusal else "reply has no content"
+            raise ModelError(f"openai: {why}")
+        prompt_tokens, completion_tokens = usage_counts(
+            data.get("usage"), "openai: reply's usage", "prompt_tokens", "completion_tokens"
+        )
+        finish = text_or_none(first.get("finish_reason"), "openai: reply's choices[0].finish_reason")
         return ChatResult(
             text=content,
             latency_s=reply.elapsed_s,
-            model=str(data.get("model") or self.model),
-            prompt_tokens=usage.get("prompt_tokens"),
-            completion_tokens=usage.get("completion_tokens"),
-            meta={**post.meta(), "finish_reason": first.get("finish_reason") if first else None},
+            model=text_or_none(data.get("model"), "openai: reply's model") or self.model,
+            prompt_tokens=prompt_tokens,
+            completion_tokens=completion_tokens,
+            meta={**post.meta(), "finish_reason": finish},
         )
 
     @classmethod

@@ -28,6 +28,7 @@ from llmnav.backends.base import (
     ScoreResult,
 )
 from llmnav.backends.http import parse_options
+from llmnav.backends.reply import continuation_score, duration, seq, token_count
 from llmnav.errors import BackendSpecError, BadInputError, ModelError, ReplayDivergenceError
 from llmnav.runlog import RUN_FILE, dumps
 
@@ -132,13 +133,17 @@ def load_recording(file: Path) -> Recording:
         if not isinstance(event, dict) or "type" not in event:
             raise BadInputError(f"replay: {file}: line {number}: not a run-log event")
         if event["type"] == "llm_call":
-            calls.append(_check_call(event, file, number, len(calls) + 1))
+            # a heuristic policy's scores may be positive; a model's are log-probabilities
+            by_model = not str(config.get("backend") or "").startswith("policy")
+            calls.append(_check_call(event, file, number, len(calls) + 1, by_model))
         elif event["type"] == "config" and not config:
             config = event
     return Recording(file, config, calls)
 
 
-def _check_call(event: dict[str, Any], file: Path, line: int, number: int) -> RecordedCall:
+def _check_call(event: dict[str, Any], file: Path, line: int, number: int, by_model: bool = True) -> RecordedCall:
+    """One `llm_call` event as a RecordedCall; its reply's counts and scores read as a server's would be."""
+
     def bad(problem: str) -> BadInputError:
         return BadInputError(f"replay: {file}: line {line}: llm_call {problem}")
 
@@ -151,9 +156,16 @@ def _check_call(event: dict[str, Any], file: Path, line: int, number: int) -> Re
     if reply is not None:
         if not isinstance(reply, dict) or not isinstance(reply.get("text"), str):
             raise bad("reply has no text")
-        latency = reply.get("latency_s", 0.0)
-        if not isinstance(latency, (int, float)) or isinstance(latency, bool):
-            raise bad("reply latency_s is not a number")
+        try:
+            duration(reply.get("latency_s"), "reply latency_s")
+            for key in ("prompt_tokens", "completion_tokens"):
+                token_count(reply.get(key), f"reply {key}")
+            for index, pair in enumerate(seq(reply.get("scores"), "reply scores")):
+                if not isinstance(pair, list) or len(pair) != 2:
+                    raise ModelError(f"reply score {index + 1} is not a [log-probability, tokens] pair")
+                continuation_score(pair[0], pair[1], f"reply score {index + 1}", probability=by_model)
+        except ModelError as err:
+            raise bad(str(err)) from None
     elif not isinstance(error, str):
         raise bad("error is not a string")
     purpose = event.get("purpose")

@@ -14,6 +14,7 @@ if TYPE_CHECKING:
     from llmnav.ablate import Ablation, ManifestEntry
 
 _LIST = "comma-separated"
+EXIT_EPISODE_ERRORS = 1  # the sweep ran, but some episodes ended in an error (the manifest lists them)
 
 
 @cli_errors
@@ -180,6 +181,9 @@ def ablate(
     if len(ablations) > 1:
         _print_suite(ablations)
     _note_inapplicable(spec)  # after the work: a failure stays one error line
+    errors = ablation.counts()[2]
+    if errors:  # a sweep with failed episodes is not a clean result, whatever the tables show
+        raise typer.Exit(EXIT_EPISODE_ERRORS)
 
 
 def _print_suite(ablations: list[Ablation]) -> None:

@@ -32,11 +32,18 @@ def _first_line(err: BaseException) -> str:
 
 
 def collect_rows() -> list[BackendRow]:
-    """Load each entry point on its own, so one broken backend shows as broken instead of hiding the rest."""
-    from importlib.metadata import entry_points
+    """Load each entry point on its own, so one broken backend shows as broken instead of hiding the rest.
+
+    A name two distributions register is shown as broken too, naming both (neither is used).
+    """
+    from llmnav import plugins
 
     rows: list[BackendRow] = []
-    for ep in sorted(entry_points(group=GROUP), key=lambda e: e.name):
+    for name, registered in sorted(plugins.registrations(GROUP).items()):
+        if len(registered) > 1:
+            rows.append(BackendRow(name, "", name, None, plugins.clash_message("backend", name, registered)))
+            continue
+        ep = registered[0].entry_point
         try:
             cls = ep.load()
         except Exception as err:  # noqa: BLE001 - any import failure is reported, not raised

@@ -235,5 +235,7 @@ def parse_option_pairs(pairs: list[str] | None) -> dict[str, str]:
             raise BadInputError(f"-o {pair!r}: expected KEY=VALUE, e.g. -o max_iterations=10")
         if key == "planner":
             raise BadInputError("-o planner: give the planner with --planner")
+        if key in given:  # one would silently win: refused, as a YAML key given twice is
+            raise BadInputError(f"-o {key} is given twice ({given[key]!r} and {value.strip()!r}); give it once")
         given[key] = value.strip()
     return given

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from llmnav.commands.common import cli_errors, console, esc, print_data
-from llmnav.errors import BadInputError
+from llmnav.errors import BadInputError, one_line
 
 
 def _default(value: Any) -> str:
@@ -49,14 +49,20 @@ def planners(
     name: Annotated[str | None, typer.Argument(help="Show this planner's options (default: list all).")] = None,
     output_format: Annotated[str, typer.Option("--format", help="table | json")] = "table",
 ) -> None:
-    """List the registered planners, or one planner's options (what `drive -o KEY=VALUE` may set)."""
-    from llmnav.planners.base import planner_names
+    """List the registered planners, or one planner's options (what `drive -o KEY=VALUE` may set).
+
+    A planner plugin that cannot be used (it fails to import, is not a Planner, or shares its name with
+    another distribution's) is listed as broken with its reason; the others are listed as usual.
+    """
+    from llmnav.planners.base import broken_planners, usable_planner_names
 
     if output_format not in ("table", "json"):
         raise BadInputError(f"--format {output_format!r}: expected table or json")
-    described = [describe(n) for n in ([name] if name else planner_names())]
+    described = [describe(n) for n in ([name] if name else usable_planner_names())]
+    broken = broken_planners() if name is None else {}
     if output_format == "json":
-        print_data(json.dumps(described if name is None else described[0]))
+        rows = described + [{"planner": n, "broken": reason} for n, reason in broken.items()]
+        print_data(json.dumps(rows if name is None else described[0]))
         return
     if name is None:
         table = Table(title="Registered planners (llmnav.planners entry points)")
@@ -66,6 +72,8 @@ def planners(
             own = ", ".join(o["key"] for o in d["options"] if o["own"]) or "-"
             oracle = "yes" if d["oracle_answers"] else "no"
             table.add_row(esc(d["planner"]), ", ".join(d["information"]), esc(own), oracle)
+        for planner, reason in broken.items():
+            table.add_row(esc(planner), "[red]broken[/]", esc(one_line(reason, 200)), "-")
         console.print(table)
         return
     d = described[0]

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol
 
+from llmnav import plugins
 from llmnav.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
 from llmnav.planners.options import (
@@ -41,7 +42,6 @@ from llmnav.planners.options import (
     DriveOptions,
     Information,
     OptionsT,
-    _registered_points,
     decides_by_scores,
     option_value,
     planner_names,
@@ -68,6 +68,7 @@ __all__ = [
     "StepInfo",
     "View",
     "as_planner_options",
+    "broken_planners",
     "check_option_value",
     "decides_by_scores",
     "drive_options",
@@ -78,7 +79,9 @@ __all__ = [
     "planner_class",
     "planner_names",
     "planner_options",
+    "planner_source",
     "planner_taking",
+    "usable_planner_names",
 ]
 
 if TYPE_CHECKING:
@@ -121,22 +124,25 @@ def planner_options(planner: str, given: dict[str, Any]) -> tuple[DriveOptions, 
     return cls.Options.model_validate({**values, "planner": planner}), ignored
 
 
-def check_option_value(key: str, value: Any, planner: str) -> None:
+def check_option_value(key: str, value: Any, planner: str) -> Any:
     """Validate one option with a planner that takes it (`planner` first); a key none takes is refused.
 
-    Raises `BadInputError` for an unknown key and pydantic's `ValidationError` for a bad value.
+    Returns the value as the options model holds it (`"08"` → 8), so two spellings of one value compare
+    equal; an input alias that is no field returns the value as given. Raises `BadInputError` for an
+    unknown key and pydantic's `ValidationError` for a bad value.
     """
     taker = planner_taking(key, first=planner)
     if taker is None:
         takes = ", ".join(option_names(planner))
         raise BadInputError(f"option {key!r}: no planner takes it; planner '{planner}' takes: {takes}")
     model = planner_class(taker).Options
-    model.model_validate({"planner": taker, key: option_value(model, key, value)})
+    validated = model.model_validate({"planner": taker, key: option_value(model, key, value)})
+    return getattr(validated, key) if key in model.model_fields else value
 
 
 def planner_taking(key: str, first: str | None = None) -> str | None:
     """A registered planner that takes option `key` (`first` when it does), or None when none does."""
-    for name in [first, *planner_names()] if first else planner_names():
+    for name in [first, *usable_planner_names()] if first else usable_planner_names():
         if key in planner_class(name).Options.input_keys():
             return name
     return None
@@ -320,18 +326,35 @@ class Planner(ABC, Generic[OptionsT]):
         return sorted(name for name in given if name not in applies)
 
 
+def _not_a_planner(target: Any) -> str | None:
+    return None if isinstance(target, type) and issubclass(target, Planner) else "is not a llmnav Planner subclass"
+
+
 def planner_class(name: str) -> type[Planner[Any]]:
-    """The planner class registered as `name` (only its module is imported)."""
-    points = _registered_points()
-    if name not in points:
-        raise BadInputError(f"unknown planner '{name}' (registered: {', '.join(sorted(points))})")
-    try:
-        cls = points[name].load()
-    except Exception as err:  # noqa: BLE001 - a broken third-party plugin: one line, not a traceback
-        raise BadInputError(f"planner '{name}' failed to load: {type(err).__name__}: {err}") from None
-    if not (isinstance(cls, type) and issubclass(cls, Planner)):
-        raise BadInputError(f"planner '{name}' is not a llmnav Planner subclass")
+    """The planner class registered as `name` (only its module is imported; see `llmnav.plugins`).
+
+    BadInputError when no distribution registers it, two do, or it does not load as a Planner subclass.
+    """
+    cls: type[Planner[Any]] = plugins.load(PLANNER_GROUP, "planner", name, _not_a_planner)
     return cls
+
+
+def usable_planner_names() -> list[str]:
+    """The registered planners that load, sorted: what loops over every planner use.
+
+    A broken plugin is left out of them, and troubles only a command that names it.
+    """
+    return plugins.usable(PLANNER_GROUP, "planner", _not_a_planner)
+
+
+def broken_planners() -> dict[str, str]:
+    """Each registered planner that cannot be used, with its one-line problem (`llmnav planners` lists them)."""
+    return plugins.broken(PLANNER_GROUP, "planner", _not_a_planner)
+
+
+def planner_source(name: str) -> str:
+    """The distribution and version that supply planner `name` ("llmnav 0.1.0"), for the run log."""
+    return plugins.find(PLANNER_GROUP, "planner", name).source
 
 
 def inapplicable_options(planner: str, given: set[str]) -> list[str]:

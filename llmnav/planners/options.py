@@ -8,11 +8,11 @@ this module is below every planner and names none.
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from llmnav import plugins
 from llmnav.errors import BadInputError
 from llmnav.planners import DEFAULT_PLANNER
 
@@ -115,13 +115,12 @@ def option_value(model: type[DriveOptions], name: str, value: Any) -> Any:
     return value
 
 
-def _registered_points() -> dict[str, Any]:
-    return {ep.name: ep for ep in entry_points(group=PLANNER_GROUP)}
-
-
 def planner_names() -> list[str]:
-    """Every planner name registered under the `llmnav.planners` entry-point group, sorted."""
-    return sorted(_registered_points())
+    """Every planner name registered under the `llmnav.planners` entry-point group, sorted.
+
+    Broken ones too: `planners.base.usable_planner_names` leaves those out.
+    """
+    return sorted(plugins.registrations(PLANNER_GROUP))
 
 
 def decides_by_scores(options: ChoiceOptions, backend: Backend | None) -> bool:

@@ -187,7 +187,7 @@ class LlamaServer:
         from llmnav.serve.front import Front
 
         try:
-            self._front = Front(opts.host, port, params.port)
+            self._front = Front(opts.host, port, params.port, api_key=opts.api_key)
         except OSError as err:
             self._server = None
             raise BadInputError(f"cannot listen on {opts.host}:{port}: {err.strerror or err}") from None

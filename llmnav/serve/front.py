@@ -7,6 +7,14 @@ upstream connection is shut, so llama.cpp cancels the generation at its next tok
 stream was cut gets a last SSE `error` event and a properly ended response (a request still waiting for
 its headers gets HTTP 503), then every client connection is closed.
 
+Every request is bounded before it reaches llama.cpp (the limits are `Limits`, stated there):
+- a request whose headers do not arrive whole within `header_s`, a body that does not within `body_s`,
+  and a keep-alive connection idle for `idle_s` are closed;
+- with a key, a request carrying a body is refused (401) on its headers, before a byte of the body is read;
+- a Content-Length that is not one decimal number gets 400, one over `max_body_bytes` 413, a chunked (or
+  otherwise transfer-encoded) body 411: llama.cpp's clients always send a length;
+- connections beyond `max_connections` are closed at once (each holds a thread).
+
 It also answers `GET /v1/models/{id}` (the OpenAI SDK's `models.retrieve`), which llama.cpp lacks, from
 llama.cpp's own model list (with the caller's key, so a missing key is still refused). Every other
 path, header and body is relayed unchanged, streamed chunk by chunk.
@@ -14,12 +22,14 @@ path, header and body is relayed unchanged, streamed chunk by chunk.
 
 from __future__ import annotations
 
+import hmac
 import http.client
 import json
 import re
 import socket
 import sys
 import threading
+from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
@@ -29,7 +39,47 @@ _HOP_BY_HOP = frozenset(
 )
 _RETRIEVE = re.compile(r"^/(?:v1/)?models/(?P<id>[^/?#]+)/?$")
 _CHUNK = 65536
+_LENGTH = re.compile(r"[0-9]{1,18}")  # one decimal Content-Length (18 digits: no overflow, far over any cap)
 STOPPING = "the server is stopping"
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What one client may take of the server."""
+
+    max_body_bytes: int = 32 << 20  # [bytes] a chat request with a few camera frames is a few MB
+    header_s: float = 10.0  # [s] from a request's first byte to the end of its headers
+    body_s: float = 60.0  # [s] to send the whole body, however it trickles
+    idle_s: float = 60.0  # [s] a keep-alive connection may wait for its next request
+    max_connections: int = 256  # open client connections (each holds a thread)
+
+
+class _Watchdog:
+    """Closes a connection whose current phase (headers, body) outlives its deadline.
+
+    A socket timeout bounds each read, not a phase: a client sending a byte a second would never trip it.
+    """
+
+    def __init__(self, connection: socket.socket) -> None:
+        self._connection = connection
+        self._timer: threading.Timer | None = None
+
+    def arm(self, seconds: float) -> None:
+        self.disarm()
+        self._timer = threading.Timer(seconds, self._expire)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def disarm(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def _expire(self) -> None:
+        try:
+            self._connection.shutdown(socket.SHUT_RDWR)  # the handler's read returns at once: it ends
+        except OSError:
+            pass
 
 
 class _Exchange:
@@ -60,7 +110,9 @@ class _Server(ThreadingHTTPServer):
         super().__init__(address, _Handler)
 
     def process_request(self, request: Any, client_address: Any) -> None:
-        self.front._track(request)
+        if not self.front._track(request):  # over the connection cap: no thread for it
+            self.shutdown_request(request)
+            return
         super().process_request(request, client_address)
 
     def handle_error(self, request: Any, client_address: Any) -> None:
@@ -76,8 +128,12 @@ class _Server(ThreadingHTTPServer):
 class Front:
     """Listen on `host:port` and relay to llama.cpp on 127.0.0.1:`upstream_port`."""
 
-    def __init__(self, host: str, port: int, upstream_port: int) -> None:
+    def __init__(
+        self, host: str, port: int, upstream_port: int, api_key: str | None = None, limits: Limits | None = None
+    ) -> None:
         self.upstream_port = upstream_port
+        self.api_key = api_key
+        self.limits = limits or Limits()
         self._lock = threading.Lock()
         self._exchanges: set[_Exchange] = set()
         self._clients: set[socket.socket] = set()
@@ -120,9 +176,13 @@ class Front:
                 pass
 
     # --- bookkeeping (called by the server and the handlers) ----------------------------------------
-    def _track(self, client: socket.socket) -> None:
+    def _track(self, client: socket.socket) -> bool:
+        """Count a new client connection; False when the cap is reached (it is then closed)."""
         with self._lock:
+            if len(self._clients) >= self.limits.max_connections:
+                return False
             self._clients.add(client)
+            return True
 
     def _untrack(self, client: socket.socket) -> None:
         with self._lock:
@@ -149,22 +209,92 @@ class _Handler(BaseHTTPRequestHandler):
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the stdlib's signature
         return  # llama.cpp logs requests itself with --verbose
 
+    def setup(self) -> None:
+        super().setup()
+        self.watchdog = _Watchdog(self.connection)
+
+    def finish(self) -> None:
+        self.watchdog.disarm()
+        super().finish()
+
+    def handle_one_request(self) -> None:
+        """Wait up to `idle_s` for a request, then give its headers `header_s` (the handler disarms it)."""
+        limits = self.server.front.limits
+        self.connection.settimeout(limits.idle_s)
+        try:
+            if not self.rfile.peek(1):  # type: ignore[attr-defined]  # a BufferedReader (rbufsize -1): empty at EOF
+                self.close_connection = True
+                return
+        except OSError:  # idle too long (TimeoutError), or reset
+            self.close_connection = True
+            return
+        self.connection.settimeout(limits.header_s)
+        self.watchdog.arm(limits.header_s)
+        try:
+            super().handle_one_request()
+        except OSError:  # the watchdog cut a phase that ran over, or the client vanished
+            self.close_connection = True
+        finally:
+            self.watchdog.disarm()
+
+    def _body(self) -> bytes | None:
+        """The request's body, read only once its headers pass (key, length); None after an error reply."""
+        self.watchdog.disarm()  # the headers are in
+        front = self.server.front
+        limits = front.limits
+        encoding = self.headers.get("Transfer-Encoding")
+        lengths = self.headers.get_all("Content-Length") or []
+        if front.api_key is not None and (encoding or any(v.strip() not in ("", "0") for v in lengths)):
+            if not self._authorised(front.api_key):
+                self._error(401, "Invalid API Key", "authentication_error")
+                return None
+        if encoding:
+            self._error(411, "send the body with a Content-Length (no Transfer-Encoding)", "invalid_request_error")
+            return None
+        if len({v.strip() for v in lengths}) > 1 or not all(_LENGTH.fullmatch(v.strip()) for v in lengths):
+            self._error(400, "Content-Length is not one decimal number", "invalid_request_error")
+            return None
+        length = int(lengths[0]) if lengths else 0
+        if length > limits.max_body_bytes:
+            self._error(413, f"request body over {limits.max_body_bytes} bytes", "invalid_request_error")
+            return None
+        if not length:
+            return b""
+        self.watchdog.arm(limits.body_s)
+        try:
+            body = self.rfile.read(length)
+        except OSError:
+            body = b""
+        self.watchdog.disarm()
+        if len(body) < length:  # cut by the watchdog or the client: nothing to answer on
+            self.close_connection = True
+            return None
+        return body
+
+    def _authorised(self, key: str) -> bool:
+        """Whether the request carries `key` as a Bearer token (or as llama.cpp's `X-Api-Key`)."""
+        sent = self.headers.get("Authorization", "")
+        token = sent[7:].strip() if sent[:7].lower() == "bearer " else self.headers.get("X-Api-Key", "")
+        return hmac.compare_digest(token.encode("utf-8", "surrogateescape"), key.encode())
+
     def do_GET(self) -> None:  # noqa: N802 - the stdlib's naming
         match = _RETRIEVE.match(self.path)
         if match:
-            self._retrieve(match["id"])
+            if self._body() is not None:  # checked and dropped: the list is asked for without one
+                self._retrieve(match["id"])
         else:
             self._relay()
 
     def _relay(self, path: str | None = None) -> None:
         front = self.server.front
-        length = int(self.headers.get("Content-Length") or 0)
-        body = self.rfile.read(length) if length > 0 else None
+        body = self._body()
+        if body is None:
+            return
         headers = {k: v for k, v in self.headers.items() if k.lower() not in _HOP_BY_HOP | {"content-length"}}
         exchange = front._open()
         try:
             try:
-                exchange.upstream.request(self.command, path or self.path, body=body, headers=headers)
+                exchange.upstream.request(self.command, path or self.path, body=body or None, headers=headers)
                 reply = exchange.upstream.getresponse()
             except (OSError, http.client.HTTPException):
                 cut = exchange.cut
@@ -231,9 +361,9 @@ class _Handler(BaseHTTPRequestHandler):
         finally:
             front._close(exchange)
 
-    def _error(self, status: int, message: str) -> None:
+    def _error(self, status: int, message: str, kind: str = "server_error") -> None:
         self.close_connection = True
-        self._json(status, {"error": {"message": message, "type": "server_error", "code": status}})
+        self._json(status, {"error": {"message": message, "type": kind, "code": status}})
 
     def _json(self, status: int, body: dict[str, Any]) -> None:
         data = json.dumps(body).encode()

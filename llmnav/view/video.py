@@ -224,14 +224,17 @@ def writable_codec(probe_dir: Path) -> str | None:
 
 
 MAX_FPS = 60.0  # frames per second: more is no smoother on any screen, only larger
+# frames per second: slower is a slide show (--seconds-per-step slows the story), and a GIF's frame delay
+# is a 16-bit count of centiseconds, which --fps 0.001 overflowed
+MIN_FPS = 1.0
 MAX_SECONDS_PER_STEP = 60.0  # [s] of video per action
 MAX_FRAMES = 36_000  # one hour at 10 fps; every frame is drawn and encoded
 
 
 def check_timing(fps: float, seconds_per_step: float) -> None:
-    """Refuse --fps and --seconds-per-step outside (0, their maximum] (NaN and infinity included)."""
-    if not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
-        raise BadInputError(f"--fps {fps:g}: give a number above 0 and at most {MAX_FPS:g}")
+    """Refuse --fps outside [MIN_FPS, MAX_FPS], --seconds-per-step outside (0, its maximum], NaN and infinity."""
+    if not (math.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        raise BadInputError(f"--fps {fps:g}: give a number from {MIN_FPS:g} to {MAX_FPS:g}")
     if not (math.isfinite(seconds_per_step) and 0 < seconds_per_step <= MAX_SECONDS_PER_STEP):
         raise BadInputError(
             f"--seconds-per-step {seconds_per_step:g}: give a number above 0 and at most {MAX_SECONDS_PER_STEP:g}"

@@ -30,6 +30,8 @@ def _openai_like(server, *, images: bool, answer: str):
     def reply(seen):
         if seen.method == "GET" and seen.path == "/v1/models":
             return server.reply(200, {"object": "list", "data": [{"id": "local", "aliases": ["smol"]}]})
+        if seen.path == "/tokenize":  # no scoring here: a /tokenize that crashed would be a server failure
+            return server.reply(404, {"error": {"message": "File Not Found"}})
         has_image = any(isinstance(m["content"], list) for m in seen.body["messages"])
         if has_image and not images:
             return server.reply(500, REJECTION)

@@ -50,6 +50,8 @@ def _answer_with_policy(server: Any) -> None:
     policy = PolicyBackend("keyword")
 
     def answer(seen: Any) -> Any:
+        if seen.path == "/tokenize":  # a server that only generates (one whose /tokenize failed would abort)
+            return server.reply(404, {"error": {"message": "File Not Found"}})
         body = seen.body
         messages = []
         for m in body["messages"]:

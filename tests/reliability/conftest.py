@@ -35,6 +35,10 @@ CATEGORIES = {
     "test_hostile_sizes": "hostile sizes",
     "test_servers": "servers",
     "test_stress": "stress: collisions",
+    "test_hostile_replies": "hostile replies",
+    "test_serve_bounds": "serve bounds",
+    "test_hostile_plugins": "hostile plugins",
+    "test_honest_accounting": "honest accounting",
 }
 
 

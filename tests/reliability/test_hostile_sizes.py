@@ -139,7 +139,8 @@ def test_workers_are_capped_at_the_usable_cores(tmp_path: Path, tally, monkeypat
 
 @pytest.mark.parametrize(
     ("flag", "value"),
-    [("--fps", "nan"), ("--fps", "inf"), ("--fps", "100000"), ("--fps", "0"), ("--seconds-per-step", "inf"),
+    [("--fps", "nan"), ("--fps", "inf"), ("--fps", "100000"), ("--fps", "0"), ("--fps", "0.001"), ("--fps", "0.5"),
+     ("--seconds-per-step", "inf"),
      ("--seconds-per-step", "nan"), ("--seconds-per-step", "1e9")],
 )  # fmt: skip
 def test_video_timing_flags_are_bounded(tmp_path: Path, tally, flag: str, value: str) -> None:
@@ -171,3 +172,46 @@ def test_one_wording_written_two_ways_is_a_duplicate(tmp_path: Path, tally) -> N
     with pytest.raises(BadInputError, match="the same value twice"):
         _grid(tmp_path, wording=["paraphrase:1", "paraphrase:01"])
     assert _grid(tmp_path, wording=["bundled", "paraphrase:02"]).wording == ["bundled", "paraphrase:2"]
+
+
+def _hostile_room(tmp_path: Path, change: str) -> Path:
+    """The small test room with one hostile change (written by hand, not by the code under test)."""
+    import yaml
+
+    room = yaml.safe_load((Path(__file__).parents[1] / "runner" / "small_room.yaml").read_text())
+    if change == "bounds ±1e6 m":
+        room["bounds"] = {"x": [-1e6, 1e6], "y": [-1e6, 1e6]}
+    elif change == "bounds 1 km wide":
+        room["bounds"] = {"x": [0.0, 1000.0], "y": [0.0, 6.0]}
+    elif change == "bounds reversed":
+        room["bounds"] = {"x": [8.0, 0.0], "y": [0.0, 6.0]}
+    elif change == "2,000 objects":
+        room["objects"] += [{"id": f"o{i}", "label": "crate", "center": [1.0 + (i % 60) * 0.1, 1.0 + (i // 60) * 0.1],
+                             "size": [0.05, 0.05]} for i in range(2000)]  # fmt: skip
+    elif change == "6 MB task text":
+        room["tasks"][0]["text"] = "go to the red box " * 350_000
+    elif change == "20,000-character label":
+        room["objects"][0]["label"] = "red box " * 2500
+    path = tmp_path / "hostile.yaml"
+    path.write_text(yaml.safe_dump(room), encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize(
+    "change",
+    ["bounds ±1e6 m", "bounds 1 km wide", "bounds reversed", "2,000 objects", "6 MB task text",
+     "20,000-character label"],  # fmt: skip
+)
+def test_a_world_too_large_is_refused_at_validation(tmp_path: Path, tally, change: str) -> None:
+    """±1e6 m bounds passed validation, then `drive --planner oracle` asked numpy for 1.42 PiB; 2,000 objects
+    kept `drive` plotting past 240 s; a 6 MB task text kept `scenarios show` busy past 120 s."""
+    tally.add(CATEGORY, tried=1)
+    path = _hostile_room(tmp_path, change)
+    t0 = time.perf_counter()
+    code, text = _cli("scenarios", "show", str(path))
+    assert code == 2 and len(set(text.strip().splitlines())) == 1 and "hostile.yaml" in text, text  # out + err
+    code, text = _cli("drive", "--planner", "oracle", "--scenario", str(path), "--task-id", "T1",
+                      "--out", str(tmp_path / "run"))  # fmt: skip
+    assert code == 2 and "hostile.yaml" in text, text
+    assert not (tmp_path / "run").exists()
+    assert time.perf_counter() - t0 < 60

@@ -5,10 +5,13 @@ images, plot), in the CLI's output, in a backend's error or exception chain, or 
 
 from __future__ import annotations
 
+import base64
+import json
 import logging
 import traceback
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import pytest
 from typer.testing import CliRunner
@@ -215,3 +218,64 @@ def test_the_terminal_view_shows_no_echoed_key(
     hit = [w for w in (PASSWORD, *fragments()) if w in result.output]
     tally.add(CATEGORY, leaked=int(bool(hit)))
     assert not hit, result.output
+
+
+def derived_forms(user: str, password: str, key: str) -> dict[str, str]:
+    """What llmnav sends for these credentials, each form written out by hand (the test's own oracle)."""
+    return {
+        "key": key,
+        "bearer": f"Bearer {key}",
+        "password": password,
+        "basic": base64.b64encode(f"{user}:{password}".encode()).decode(),
+        "key url-encoded": quote(key, safe=""),
+        "password url-encoded": quote(password, safe=""),
+    }
+
+
+def test_derived_forms_of_a_secret_are_never_shown_or_logged(
+    tmp_path: Path, fault_server: Any, fault_kit: Any, monkeypatch: Any, tally: Any
+) -> None:
+    """A server that echoes the Authorization header it got (Bearer key, Basic base64 of URL credentials) and
+    the key URL-encoded, in its model list and in the model's answer: `--check`, run.jsonl and view.html
+    show none of them."""
+    key = "sk-KEY/VALUE+123=abc"  # characters that change under URL encoding
+    user, password = "alice", "PASSW0RDX/+=z"
+    forms = derived_forms(user, password, key)
+    monkeypatch.setenv("OPENAI_API_KEY", key)
+    monkeypatch.delenv("OPENAI_BASE_URL", raising=False)
+
+    def echoing(seen: Any) -> Any:
+        """Echo the Authorization header, and its credential URL-encoded (Basic: the password decoded)."""
+        sent = seen.headers.get("authorization", "")
+        scheme, _, credential = sent.partition(" ")
+        if scheme == "Basic":
+            credential = base64.b64decode(credential).decode().partition(":")[2]
+        said = f"{sent} | {quote(credential, safe='')}"
+        if seen.path.endswith("/models"):
+            return fault_kit["Fault"]("ok", 200, {"data": [{"id": "m"}, {"id": f"hostile, key={said}"}]})
+        text = COMPLETE.replace('"reasoning": "r"', f'"reasoning": {json.dumps(said)}')
+        return fault_kit["Fault"]("ok", 200, good_body("openai", text))
+
+    fault_server.default = echoing
+    host = fault_server.url.removeprefix("http://")
+    texts: dict[str, bytes] = {}
+    for who, spec in (("bearer", f"openai:m@{fault_server.url}/v1"),
+                      ("basic", f"openai:m@http://{user}:{quote(password, safe='')}@{host}/v1")):  # fmt: skip
+        check = CliRunner().invoke(app, ["backends", "--check", spec])
+        texts[f"{who} --check"] = check.output.encode()
+        out = tmp_path / who
+        result = CliRunner().invoke(
+            app, ["drive", "--planner", "stepwise", "--backend", spec, "--scenario", SMALL_ROOM, "--task-id", "T1",
+                  "--sensing", "lidar", "--out", str(out), "--json", "--view"]
+        )  # fmt: skip
+        assert result.exit_code in (0, 1), result.output
+        texts[f"{who} drive output"] = result.output.encode()
+        texts.update({f"{who} {f.name}": f.read_bytes() for f in out.rglob("*") if f.is_file()})
+    seen = " ".join(s.headers.get("authorization", "") for s in fault_server.seen)
+    assert forms["bearer"] in seen and f"Basic {forms['basic']}" in seen  # both forms did go out
+    assert {"bearer run.jsonl", "basic run.jsonl", "basic view.html"} <= set(texts)
+    found = {where: hits for where, text in texts.items()
+             if (hits := [name for name, form in forms.items() if form.encode() in text])}  # fmt: skip
+    tally.add(CATEGORY, tried=len(texts), leaked=len(found))
+    assert not found, found
+    assert b"***" in texts["basic run.jsonl"] and b"***" in texts["bearer --check"]

@@ -120,3 +120,49 @@ def test_serve_host_messages_are_true(tally: Any, monkeypatch: Any) -> None:
         result = CliRunner().invoke(app, ["serve", *args, "--port", "0"])
         assert result.exit_code == 2 and "Traceback" not in result.output, (args, result.output)
         assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+
+
+@pytest.mark.parametrize("kind", ["silent", "drip", "refused"])
+def test_retries_share_one_deadline(kind: str, silent_port: int, drip_port: int, closed_port_url: str,
+                                    tally: Any) -> None:  # fmt: skip
+    """Five tries of 90 s each at a dead server took 930 s: now every attempt and wait fits one deadline."""
+    from llmnav.backends.http import DEADLINE_S, HttpOptions, JsonHttpClient
+    from llmnav.errors import ModelError
+
+    tally.add(CATEGORY, tried=1)
+    assert HttpOptions().deadline_s is None and DEADLINE_S <= 60  # the default: 60 s a request, all included
+    url = {"silent": f"http://127.0.0.1:{silent_port}", "drip": f"http://127.0.0.1:{drip_port}",
+           "refused": closed_port_url}[kind]  # fmt: skip
+    options = HttpOptions(timeout_s=1.5, connect_timeout_s=1.0, max_retries=20, backoff_base_s=0.3, deadline_s=3.0)
+    client = JsonHttpClient("test", url, options)
+    t0 = time.perf_counter()
+    with pytest.raises(ModelError) as caught:
+        client.post("/v1/chat/completions", {"messages": []})
+    elapsed = time.perf_counter() - t0
+    client.close()
+    tally.note(CATEGORY, f"a {kind} server with a 3 s deadline [s]", round(elapsed, 1))
+    assert elapsed < 3.0 + 1.0, f"{elapsed:.1f} s: {caught.value}"
+    assert "attempt" in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_the_deadline_defaults_to_sixty_seconds_and_a_longer_timeout(monkeypatch: Any, silent_port: int) -> None:
+    """Without `deadline_s`, a request gets DEADLINE_S (or a longer `timeout_s` the user set, not a backend's
+    default of 90 s): measured with the constant made small, against a server that never answers."""
+    import llmnav.backends.http as http
+    from llmnav.backends.openai import OpenAIOptions
+    from llmnav.errors import ModelError
+
+    monkeypatch.setattr(http, "DEADLINE_S", 2.0)
+    cases = [(http.HttpOptions(timeout_s=1.0, max_retries=20, backoff_base_s=0.1), 2.0),
+             (http.HttpOptions(timeout_s=3.0, max_retries=20, backoff_base_s=0.1), 3.0),
+             (OpenAIOptions(max_retries=20, backoff_base_s=0.1), 2.0)]  # fmt: skip
+    assert OpenAIOptions().timeout_s > 60  # its own default: one long answer, not a long wait for a dead server
+    for options, expected in cases:
+        timeout_s = options.timeout_s
+        client = http.JsonHttpClient("test", f"http://127.0.0.1:{silent_port}", options)
+        t0 = time.perf_counter()
+        with pytest.raises(ModelError):
+            client.post("/x", {})
+        elapsed = time.perf_counter() - t0
+        client.close()
+        assert expected - 0.5 < elapsed < expected + 1.0, (timeout_s, elapsed)
