@@ -23,11 +23,12 @@ then reads about 90–120 new prompt tokens (docs/fast-decisions.md).
 
 What the planner knows follows the episode's information mode (llmnav.knowledge):
 - `map` (corridor worlds): the published map's walls and objects; landmarks are its labelled objects.
-- `sensed` (the default without a published map): pose from odometry; obstacles only from its own LiDAR
-  map, unknown space blocked and inflated as the frontier baseline treats it; landmarks are positions
-  estimated from detections (range and bearing, placed with the odometry pose) and averaged as they are
-  seen again; arrival is judged from those estimates. It never reads the scenario's objects, walls or
-  goal points, nor the true pose.
+- `sensed` (the default without a published map): pose from odometry, corrected by matching each LiDAR
+  scan to its own LiDAR map (`-o localize=true`, the default; `llmnav.nav.localize`), which integrates
+  the scans at the corrected poses; obstacles only from that map, unknown space blocked and inflated as
+  the frontier baseline treats it; landmarks are positions estimated from detections (range and bearing,
+  placed with the believed pose) and averaged as they are seen again; arrival is judged from those
+  estimates. It never reads the scenario's objects, walls or goal points, nor the true pose.
 - `oracle`: the true grid and goal points (how the planner worked before the modes existed).
 
 The menu order (`--menu-order`): `distance` (default) is neutral: landmarks and frontiers by distance
@@ -63,7 +64,7 @@ from llmnav.planners.base import (
     decides_by_scores,
 )
 from llmnav.planners.hybrid.execute import Executor, with_seen_obstacles
-from llmnav.planners.hybrid.memory import look, remember, start_memory
+from llmnav.planners.hybrid.memory import Memory, look, remember, start_memory
 from llmnav.planners.hybrid.menu import MenuInputs, build_menu
 from llmnav.planners.hybrid.options import HybridOptions
 from llmnav.planners.hybrid.prompt import ask_choice, scored_choice, sends_image
@@ -154,14 +155,22 @@ class HybridPlanner(Planner):
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
-        from llmnav.observe import observe
-        from llmnav.planners.hybrid.scoring import ScoredChooser
-
-        world, scenario = ctx.world, ctx.scenario
         maps = _Maps(ctx, self.cfg)
         memory = start_memory(ctx)
         executor = Executor(ctx, self.cfg, maps.lidar_map, memory)
         # (The runner logs the start pose and every trajectory sample; nothing to hook here.)
+        outcome = self._decide_and_execute(ctx, maps, memory, executor)
+        executor.report_pose()  # where the planner believes the episode ended (the summary's pose error)
+        return outcome
+
+    def _decide_and_execute(
+        self, ctx: EpisodeContext, maps: _Maps, memory: Memory, executor: Executor
+    ) -> EpisodeOutcome:
+        """The decide-execute loop of `run`."""
+        from llmnav.observe import observe
+        from llmnav.planners.hybrid.scoring import ScoredChooser
+
+        world, scenario = ctx.world, ctx.scenario
         json_errors = vetoes = 0
         mode = self.decision_mode(ctx)
         ctx.event("planner", decide=mode, requested=ctx.options.decide)
@@ -174,9 +183,7 @@ class HybridPlanner(Planner):
         for step in range(1, ctx.options.max_iterations + 1):
             ctx.log.sim_time = world.sim_time
             obs = observe(world, ctx.options, ctx.log, step, image_needed=frames)
-            pose = obs.odom if ctx.information == "sensed" else obs.pose
-            maps.lidar_map.integrate(pose, obs.scan)
-            maps.lidar_map.mark_hits(pose, world.low_lidar.scan())
+            pose = executor.sense(obs.scan)
             remember(ctx, memory, pose, obs.detections)
             if "detections" not in ctx.options.sensing:
                 # The menu is built from what the detector sees, whether or not the model is shown it.
