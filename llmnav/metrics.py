@@ -45,6 +45,7 @@ CONDITION_KEYS: tuple[str, ...] = (
     "history",
     "self_check",
     "assist",
+    "localize",  # hybrid, sensed: scan matching on or off
 )
 
 

@@ -115,7 +115,7 @@ class HybridPlanner(Planner):
     Options = HybridOptions
     # from a published map, from its sensors, or (as before the information model) the true grid
     information_modes: ClassVar[tuple[Information, ...]] = ("sensed", "map", "oracle")
-    grid_factors = ("decide", "menu_order", "sensing", "lidar_sectors")
+    grid_factors = ("decide", "menu_order", "sensing", "lidar_sectors", "localize")
     declares = Declarations(asks_model_every_decision=True)
     options = MODEL_OPTIONS | {
         "sensing",
