@@ -10,15 +10,16 @@ re-estimates the correction (map ← odometry) from one scan.
    (new space, a box that appeared) is an outlier and pulls on nothing.
 2. Correlative search (E. Olson, "Real-time correlative scan matching", ICRA 2009): every pose of a small
    lattice of (dx, dy, dyaw) around the odometry prediction (every second scan point) is scored by how
-   near the points land to occupied cells; the best one seeds step 3. It covers the drift a turn in place
-   or a leg adds, which plain ICP from the prediction does not (measured: docs/localization.md).
+   near the points land to occupied cells; the best one seeds step 3. The lattice spans what odometry may
+   have drifted since the last accepted match (±0.2 m and ±6° at least, wider after long turns and
+   drives), which plain ICP from the prediction does not cover (measured: docs/localization.md).
 3. Gauss-Newton on the bilinearly interpolated distance field (A. Fitzgibbon, "Robust registration of 2D
    and 3D point sets", 2003: ICP without correspondences; the bilinear map gradient as in S. Kohlbrecher
    et al., "A flexible and scalable SLAM system with full 3D motion estimation", 2011), damped so that a
    direction the scan does not constrain (a bare corridor) stays at the prediction.
 4. A match is rejected, and the odometry prediction kept, when the scan has too few returns, the map too
-   few occupied cells, too few points end near the map after matching, or the match jumps farther from
-   the prediction than odometry could have drifted.
+   few occupied cells, too few points end near the map after matching, or the match lies beyond the
+   lattice's reach (plus a little for step 3).
 
 The localizer reads only the scan, the odometry and the map; ground truth never. Cost: about 2-3 ms of
 CPU per 360-ray scan in the 20 m x 16 m factory (docs/localization.md).
@@ -44,10 +45,17 @@ class LocalizerConfig:
     """Numbers of the scan matcher."""
 
     field_reach_m: float = 0.3  # [m] distance field cut-off: scan points farther from the map are outliers
-    search_xy_m: float = 0.2  # [m] half-width of the correlative lattice in x and y
+    search_xy_m: float = 0.2  # [m] half-width of the correlative lattice in x and y, at least
     search_xy_step_cells: int = 2  # its spacing [cells of the map]: Gauss-Newton refines between them
-    search_yaw_rad: float = math.radians(6.0)  # [rad] half-width in heading
+    search_yaw_rad: float = math.radians(6.0)  # [rad] half-width in heading, at least
     search_yaw_step_rad: float = math.radians(2.0)  # [rad] its spacing
+    # The lattice widens with the odometry since the last accepted match (what it may have drifted by: a few
+    # per cent of track-width error on every turn, unequal wheels curving a straight run), up to a cap.
+    xy_drift_per_m: float = 0.05  # [m/m] of distance driven
+    yaw_drift_per_rad: float = 0.10  # [rad/rad] of turn
+    yaw_drift_per_m: float = 0.02  # [rad/m] of distance driven
+    search_xy_max_m: float = 0.3  # [m]
+    search_yaw_max_rad: float = math.radians(20.0)  # [rad]
     lattice_stride: int = 2  # every n-th point scores the lattice (Gauss-Newton then uses all)
     hit_m: float = 0.10  # [m] a point this near an occupied cell counts as matched
     iterations: int = 8  # Gauss-Newton steps
@@ -55,8 +63,9 @@ class LocalizerConfig:
     min_points: int = 30  # returns a scan needs to be matched
     min_map_cells: int = 50  # occupied cells the map needs before anything is matched to it
     min_matched: float = 0.5  # share of the scan's points that must end within `hit_m` of the map
-    max_jump_m: float = 0.3  # [m] a match farther than this from the prediction is not believed
-    max_jump_rad: float = math.radians(8.0)  # [rad] ... nor one turned more than this
+    # A match farther from the prediction than the lattice reaches plus this is not believed
+    jump_slack_m: float = 0.1  # [m]
+    jump_slack_rad: float = math.radians(2.0)  # [rad]
 
 
 @dataclass(frozen=True)
@@ -89,6 +98,9 @@ class Localizer:
         self.cfg = config or LocalizerConfig()
         self.correction = Pose2D(0.0, 0.0, 0.0)  # map ← odometry; the identity until a scan corrects it
         self._field: _DistanceField | None = None
+        self._last_odom: Pose2D | None = None  # odometry at the previous update
+        self._moved_m = 0.0  # [m] odometry distance since the last accepted match
+        self._turned_rad = 0.0  # [rad] odometry turn since the last accepted match
 
     def pose(self, odom: Pose2D) -> Pose2D:
         """The believed pose for an odometry pose: correction ∘ odom."""
@@ -102,6 +114,13 @@ class Localizer:
         """
         cfg = self.cfg
         predicted = self.pose(odom)
+        if self._last_odom is not None:
+            self._moved_m += self._last_odom.distance_to(odom.x, odom.y)
+            self._turned_rad += abs(wrap_angle(odom.yaw - self._last_odom.yaw))
+        self._last_odom = odom
+        xy_m = min(cfg.search_xy_max_m, cfg.search_xy_m + cfg.xy_drift_per_m * self._moved_m)  # [m]
+        yaw_rad = cfg.search_yaw_rad + cfg.yaw_drift_per_rad * self._turned_rad + cfg.yaw_drift_per_m * self._moved_m
+        yaw_rad = min(cfg.search_yaw_max_rad, yaw_rad)  # [rad]
         angles = np.asarray(scan.angles, dtype=float)
         ranges = np.asarray(scan.ranges, dtype=float)
         hit = np.isfinite(ranges) & (ranges < scan.range_max)
@@ -116,16 +135,17 @@ class Localizer:
             self._field = _DistanceField.of(grid_map, cfg.field_reach_m)
         field = self._field
         field.refresh(occupied)
-        seed = _correlative(field, points[:: cfg.lattice_stride], predicted, cfg)
+        seed = _correlative(field, points[:: cfg.lattice_stride], predicted, (xy_m, yaw_rad), cfg)
         refined = _gauss_newton(field, points, seed, cfg)
         matched = float(np.mean(field.at(_transform(points, refined)) <= cfg.hit_m))
         jump = math.hypot(refined.x - predicted.x, refined.y - predicted.y)
         turned = abs(wrap_angle(refined.yaw - predicted.yaw))
         if matched < cfg.min_matched:
             return Match(predicted, False, matched, count, f"{matched:.0%} of the points on the map")
-        if jump > cfg.max_jump_m or turned > cfg.max_jump_rad:
+        if jump > xy_m + cfg.jump_slack_m or turned > yaw_rad + cfg.jump_slack_rad:
             return Match(predicted, False, matched, count, f"a jump of {jump:.2f} m, {math.degrees(turned):.1f} deg")
         self.correction = compose(refined, inverse(odom))
+        self._moved_m = self._turned_rad = 0.0
         return Match(refined, True, matched, count, "matched")
 
 
@@ -210,17 +230,21 @@ class _DistanceField:
         return value, grad_x, grad_y
 
 
-def _correlative(field: _DistanceField, points: np.ndarray, predicted: Pose2D, cfg: LocalizerConfig) -> Pose2D:
+def _correlative(
+    field: _DistanceField, points: np.ndarray, predicted: Pose2D, window: tuple[float, float], cfg: LocalizerConfig
+) -> Pose2D:
     """The lattice pose around `predicted` under which the most scan points land near the map.
+
+    `window` is the lattice's half-width: in x and y [m], in heading [rad].
 
     Shifts are whole cells, so each heading's points are rounded to cells once and every shift is an
     integer offset into the field. Each point scores 1 - d / reach (d its field value), so near misses
     count a little; among equal scores the candidate nearest the prediction wins.
     """
     res = field.resolution
-    n_yaw = round(cfg.search_yaw_rad / cfg.search_yaw_step_rad)
+    n_yaw = round(window[1] / cfg.search_yaw_step_rad)
     step = cfg.search_xy_step_cells
-    n_xy = round(cfg.search_xy_m / res / step) * step  # [cells]
+    n_xy = round(window[0] / res / step) * step  # [cells]
     yaw_steps = np.arange(-n_yaw, n_yaw + 1) * cfg.search_yaw_step_rad  # [rad]
     shifts = np.arange(-n_xy, n_xy + 1, step)  # [cells]
     yaws = predicted.yaw + yaw_steps
