@@ -24,6 +24,7 @@ MODULES = [
     "calibrate",
     "information",
     "rl",
+    "localize",
 ]
 # The 200-episode sweep (several minutes) runs in full only when named: `python -m bench protocol`.
 NAMED_ONLY = ["protocol"]

@@ -53,6 +53,7 @@ CONDITION_KEYS: tuple[str, ...] = (
     "history",
     "self_check",
     "assist",
+    "localize",  # hybrid, sensed: scan matching on or off
 )
 
 
@@ -471,12 +472,33 @@ def summarize_run(
         "rotation_total_rad": round(rotation, 4),
         "collisions": collisions,
         "collided_with": collided_with,
+        "pose_error_m": pose_error(events),
         "sim_time_s": _rounded(_last_time(events, "t_sim")),
         "wall_time_s": _rounded(_last_time(events, "t_wall")),
         "planner_metrics": planner_metrics,
     }
     summary["failure_cause"] = failure_cause(summary, actions[-1] if actions else None)
     return summary
+
+
+def pose_error(events: Sequence[dict[str, Any]]) -> dict[str, float] | None:
+    """How far [m] the planner's believed pose was from the truth: {"final": ..., "max": ...}, or None.
+
+    Each `localize` event (the planner's estimate) is compared with the last true `pose` sample logged
+    before it; "final" is the last such comparison. For scoring only: the planner never sees it.
+    """
+    truth: list[float] | None = None
+    errors: list[float] = []
+    for event in events:
+        if event.get("type") == "pose":
+            truth = logged_pose(event.get("pose")) or truth
+        elif event.get("type") == "localize" and truth is not None:
+            belief = logged_pose(event.get("pose"))
+            if belief is not None:
+                errors.append(math.hypot(belief[0] - truth[0], belief[1] - truth[1]))
+    if not errors:
+        return None
+    return {"final": round(errors[-1], 4), "max": round(max(errors), 4)}
 
 
 def new_prompt_tokens_median(calls: Sequence[dict[str, Any]]) -> float | None:

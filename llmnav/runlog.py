@@ -19,6 +19,9 @@ Event vocabulary (field `type`; every event also has `t_wall` [s since start] an
                  `stopped_reason`; `vetoed` and `veto` for a motion the layer refused; `distance_m`,
                  `rotated_deg`, `duration_s` where measured (one form: `llmnav.guard.legs.Action`).
 - `pose`         a trajectory sample: `pose` [x, y, yaw]. Path length and final pose come from these.
+- `localize`     the pose a planner believes (sensed information): `pose` [x, y, yaw], and for a scan
+                 matched to its map `accepted`, `matched` (share of points on the map), `points`, `reason`.
+                 The summary's `pose_error_m` scores it against the `pose` sample before it.
 - `planner`      planner-specific records (waypoint plans and verdicts, FSM tick statistics, suggestions).
 - `end`          `outcome` (completed | failed | aborted), `reason`.
 

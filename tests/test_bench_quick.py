@@ -70,6 +70,11 @@ ROWS: dict[str, list[str]] = {
         rf"\s+sensed\s+{NUMBER} s/episode\s+{NUMBER} s/decision",
         rf"\s+sensed / oracle = {NUMBER} per episode",
     ],
+    "localize": [
+        r"localize: \d+ scans matched in 1 factory episodes",
+        rf"\s+CPU per scan \[ms\]\s+median {NUMBER}\s+p95 {NUMBER}\s+max {NUMBER}",
+        rf"\s+pose error at the end \[m\]\s+median {NUMBER}\s+max {NUMBER}",
+    ],
     "rl": [rf"\s+{name}\s+\d+\s+\d+\s+\d+\s+\d+$" for name in ("Factory-v0", "Corridor-v0", "Maze-v0")],
     "protocol": [
         rf"\s+wall time of the sweep\s+{NUMBER} min",

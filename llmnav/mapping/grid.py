@@ -329,7 +329,9 @@ class LidarMap:
                 bound = np.minimum(free_len[np.clip(upper - 1, 0, n - 1)], free_len[np.clip(upper, 0, n - 1)])
             free = inside & (distance <= bound)
             window[rows[free], cols[free]] = self.FREE
-            self.state[geometry.world_to_cell(pose.x, pose.y)] = self.FREE  # the robot stands on free floor
+            here = geometry.world_to_cell(pose.x, pose.y)
+            if geometry.contains(here):  # the robot stands on free floor (a pose off the map frees nothing)
+                self.state[here] = self.FREE
 
         self._occupy(pose, angles[hit], ranges[hit])
         self.scans += 1

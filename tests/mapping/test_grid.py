@@ -141,6 +141,17 @@ def test_lidar_map_max_range_rays_clear_space() -> None:
     assert not lidar_map.occupied.any()
 
 
+def test_a_scan_from_a_pose_just_off_the_map_frees_what_it_saw_on_the_map() -> None:
+    # Drifting odometry can put the believed pose outside the bounds: the scan is still mapped, no crash.
+    geometry = GridGeometry(0.0, 0.0, 0.05, 100, 100)
+    lidar_map = LidarMap(geometry)
+    angles = np.radians(np.linspace(-5.0, 5.0, 11))
+    lidar_map.integrate(Pose2D(-0.2, 2.5, 0.0), FakeScan(angles, np.full(11, np.inf), 2.0))
+    lidar_map.integrate(Pose2D(5.2, 2.5, math.pi), FakeScan(angles, np.full(11, np.inf), 2.0))
+    assert lidar_map.free[geometry.world_to_cell(1.0, 2.5)] and lidar_map.free[geometry.world_to_cell(4.0, 2.5)]
+    assert lidar_map.unknown[geometry.world_to_cell(2.5, 2.5)]  # beyond both fans
+
+
 def test_lidar_map_does_not_free_space_behind_an_edge() -> None:
     geometry = GridGeometry(0.0, 0.0, 0.05, 100, 100)
     lidar_map = LidarMap(geometry)

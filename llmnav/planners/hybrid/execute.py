@@ -18,14 +18,16 @@ from typing import TYPE_CHECKING, Any
 from llmnav.geometry import Point, Pose2D
 from llmnav.guard.legs import Action, drive_leg
 from llmnav.mapping.astar import densify
-from llmnav.planners.hybrid.memory import Memory, believed_pose, look
+from llmnav.planners.hybrid.memory import Memory, believed_pose, in_odometry_frame, look
 
 if TYPE_CHECKING:
     from llmnav.mapping.grid import LidarMap, OccupancyGrid
+    from llmnav.nav.localize import Match
     from llmnav.planners.base import EpisodeContext
     from llmnav.planners.hybrid.menu import Option
     from llmnav.planners.hybrid.planner import HybridConfig
     from llmnav.sim.motion import MotionResult
+    from llmnav.sim.sensors import LidarScan
 
 
 @dataclass(frozen=True)
@@ -51,7 +53,7 @@ class Executor:
         if option.kind == "scan":
             return self._scan(option, step)
         assert option.goal is not None
-        before = believed_pose(self.ctx)
+        before = self._believed()
         plans = (plan_legs(grid, before, option.goal, self.cfg.leg_max_m) for grid in grids)
         legs = next((plan for plan in plans if plan is not None), None)
         if legs is None:
@@ -73,14 +75,46 @@ class Executor:
                 return Executed("stopped exploring: new objects in view")
         return self._arrive(option, before, step)
 
+    def sense(self, scan: LidarScan) -> Pose2D:
+        """Localize on `scan` (sensed), then map it and the low scanner's returns at the pose believed then.
+
+        Sensed, each scan reports the believed pose as a `localize` event (with the match when a localizer
+        runs), which the summary's `pose_error_m` scores against the true pose.
+        """
+        ctx, memory = self.ctx, self.memory
+        if ctx.information == "sensed":
+            match = None
+            if memory.localizer is not None:
+                match = memory.localizer.update(ctx.world.robot.odom(), scan, self.lidar_map)
+            self.report_pose(match)
+        pose = self._believed()
+        self.lidar_map.integrate(pose, scan)
+        self.lidar_map.mark_hits(pose, ctx.world.low_lidar.scan())
+        return pose
+
+    def report_pose(self, match: Match | None = None) -> None:
+        """Log the believed pose as a `localize` event (sensed only), with what the match concluded."""
+        if self.ctx.information != "sensed":
+            return
+        fields: dict[str, Any] = {"pose": self._believed().as_list()}
+        if match is not None:
+            fields |= {"accepted": match.accepted, "matched": round(match.matched, 3), "points": match.points}
+            fields |= {"reason": match.reason}
+        self.ctx.event("localize", **fields)
+
+    def _believed(self) -> Pose2D:
+        return believed_pose(self.ctx, self.memory)
+
     # --- the steps ----------------------------------------------------------------------------------
     def _scan(self, option: Option, step: int) -> Executed:
-        """Four quarter turns, looking after each."""
+        """Four quarter turns, looking after each (and localizing, where a localizer runs)."""
         world = self.ctx.world
-        before = believed_pose(self.ctx)
+        before = self._believed()
         new = False
         for _ in range(4):
             result = world.motion.rotate(math.pi / 2)
+            if self.memory.localizer is not None:  # a turn in place drifts most: correct it quarter by quarter
+                self.sense(world.lidar.scan())
             new |= bool(look(self.ctx, self.memory))
             if result.collided:
                 break
@@ -92,29 +126,28 @@ class Executor:
     def _leg(self, x: float, y: float, step: int) -> MotionResult:
         """Turn toward the leg (the LiDAR then sees it), map the scan it is checked on, drive it."""
         world = self.ctx.world
-        turn = believed_pose(self.ctx).bearing_to(x, y)
+        turn = self._believed().bearing_to(x, y)
         if abs(turn) > self.cfg.turn_first_rad:
             world.motion.rotate(turn)
         # What the leg is checked on goes into the map, so a plan after a refusal routes around it.
-        pose = believed_pose(self.ctx)
-        self.lidar_map.integrate(pose, world.lidar.scan())
-        self.lidar_map.mark_hits(pose, world.low_lidar.scan())
-        result = drive_leg(world, x, y, step=step, obstacle_stop_m=self.cfg.obstacle_stop_m)
+        self.sense(world.lidar.scan())
+        # The leg's end in the frame go_to drives in (the believed frame, once the localizer corrects it).
+        goal_x, goal_y = in_odometry_frame(self.ctx, self.memory, x, y)
+        result = drive_leg(world, goal_x, goal_y, step=step, obstacle_stop_m=self.cfg.obstacle_stop_m)
         if result.stopped_reason == "monitor":  # what stopped it goes into the map too
-            self.lidar_map.mark_hits(believed_pose(self.ctx), world.low_lidar.scan())
-            self.lidar_map.integrate(believed_pose(self.ctx), world.lidar.scan())
+            self.sense(world.lidar.scan())
         return result
 
     def _arrive(self, option: Option, before: Pose2D, step: int) -> Executed:
         """Face what the option went to, note the visit, say how close the robot got."""
         memory = self.memory
         if option.face is not None:
-            self.ctx.world.motion.rotate(believed_pose(self.ctx).bearing_to(*option.face))
+            self.ctx.world.motion.rotate(self._believed().bearing_to(*option.face))
         if option.landmark_id is not None:
             memory.visited.add(option.landmark_id)
         if option.kind == "frontier" and option.goal is not None:
             memory.explored.append(option.goal)
-        after = believed_pose(self.ctx)
+        after = self._believed()
         self._log(step, option, before, None)
         if option.goal is not None and after.distance_to(*option.goal) > self.cfg.arrived_m:
             return Executed(f"stopped {after.distance_to(*option.goal):.1f} m short ({option.goal_name})")
@@ -127,7 +160,7 @@ class Executor:
         the object): it counts as arrival. Elsewhere the next plan avoids what the LiDAR saw; a landmark
         refused twice from the same spot is dropped from the menu, since the detour did not help.
         """
-        memory, here = self.memory, believed_pose(self.ctx)
+        memory, here = self.memory, self._believed()
         landmark = option.landmark_id
         near = option.face is not None and here.distance_to(*option.face) <= self.cfg.stop_within_m
         if landmark is not None and near:
@@ -153,7 +186,7 @@ class Executor:
         parameters: float | None = None,
     ) -> None:
         """The option as one `action` event: from where it started to where the planner believes it ended."""
-        after = believed_pose(self.ctx)
+        after = self._believed()
         travelled = round(before.distance_to(after.x, after.y), 3)
         Action(
             step,

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 from llmnav.geometry import Point, Pose2D
 
 if TYPE_CHECKING:
+    from llmnav.nav.localize import Localizer
     from llmnav.planners.base import EpisodeContext
     from llmnav.sim.sensors import Detection
 
@@ -36,6 +37,8 @@ class Memory:
     refused: dict[str, Point] = field(default_factory=dict)  # id -> [m] where a trip was refused
     unreachable: set[str] = field(default_factory=set)  # refused twice from the same spot, far from it
     last_result: str = "nothing yet"
+    # sensed: corrects odometry by matching scans to the LiDAR map (None: odometry is believed as it is)
+    localizer: Localizer | None = None
 
     def label(self, object_id: str) -> str:
         """The landmark's name (its id when none is known)."""
@@ -51,7 +54,9 @@ def start_memory(ctx: EpisodeContext) -> Memory:
     from llmnav.tasks import named_objects
 
     if ctx.information == "sensed":
-        return Memory()
+        from llmnav.nav.localize import Localizer
+
+        return Memory(localizer=Localizer() if ctx.options.localize else None)
     scenario = ctx.scenario
     wanted = {o.id for o in named_objects(scenario, ctx.task.text)} if relevance_order(ctx) else set()
     memory = Memory(wanted=wanted, labels={o.id: o.label for o in scenario.objects})
@@ -65,9 +70,26 @@ def relevance_order(ctx: EpisodeContext) -> bool:
     return ctx.options.menu_order == "relevance"
 
 
-def believed_pose(ctx: EpisodeContext) -> Pose2D:
-    """Where the planner believes the robot is: odometry when sensed, else the true pose."""
-    return ctx.world.robot.odom() if ctx.information == "sensed" else ctx.world.robot.pose()
+def believed_pose(ctx: EpisodeContext, memory: Memory) -> Pose2D:
+    """Where the planner believes the robot is.
+
+    Sensed: odometry, corrected by the localizer when there is one (map frame); else the true pose.
+    """
+    if ctx.information != "sensed":
+        return ctx.world.robot.pose()
+    odom = ctx.world.robot.odom()
+    return memory.localizer.pose(odom) if memory.localizer is not None else odom
+
+
+def in_odometry_frame(ctx: EpisodeContext, memory: Memory, x: float, y: float) -> tuple[float, float]:
+    """A point [m] of the believed (map) frame in the odometry frame the motion layer drives in.
+
+    Without a localizer the two frames are one and the point is returned as it is.
+    """
+    if ctx.information != "sensed" or memory.localizer is None:
+        return x, y
+    odom = ctx.world.robot.odom()
+    return memory.localizer.pose(odom).carry(x, y, odom)
 
 
 def remember(ctx: EpisodeContext, memory: Memory, pose: Pose2D, detections: list[Detection]) -> set[str]:
@@ -94,4 +116,4 @@ def remember(ctx: EpisodeContext, memory: Memory, pose: Pose2D, detections: list
 
 def look(ctx: EpisodeContext, memory: Memory) -> set[str]:
     """Run the detector; the landmarks the planner did not know that came into view."""
-    return remember(ctx, memory, believed_pose(ctx), ctx.world.detector.detect())
+    return remember(ctx, memory, believed_pose(ctx, memory), ctx.world.detector.detect())

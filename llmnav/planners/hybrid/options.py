@@ -22,3 +22,10 @@ class HybridOptions(ChoiceOptions):
             "(for the run viewer; 35-85 ms of CPU a decision)"
         ),
     )
+    localize: bool = Field(
+        default=True,
+        description=(
+            "sensed information: correct the odometry pose by matching each LiDAR scan to the map built so "
+            "far (llmnav.nav.localize); false believes odometry alone"
+        ),
+    )

@@ -23,11 +23,12 @@ then reads about 90–120 new prompt tokens (docs/fast-decisions.md).
 
 What the planner knows follows the episode's information mode (llmnav.knowledge):
 - `map` (corridor worlds): the published map's walls and objects; landmarks are its labelled objects.
-- `sensed` (the default without a published map): pose from odometry; obstacles only from its own LiDAR
-  map, unknown space blocked and inflated as the frontier baseline treats it; landmarks are positions
-  estimated from detections (range and bearing, placed with the odometry pose) and averaged as they are
-  seen again; arrival is judged from those estimates. It never reads the scenario's objects, walls or
-  goal points, nor the true pose.
+- `sensed` (the default without a published map): pose from odometry, corrected by matching each LiDAR
+  scan to its own LiDAR map (`-o localize=true`, the default; `llmnav.nav.localize`), which integrates
+  the scans at the corrected poses; obstacles only from that map, unknown space blocked and inflated as
+  the frontier baseline treats it; landmarks are positions estimated from detections (range and bearing,
+  placed with the believed pose) and averaged as they are seen again; arrival is judged from those
+  estimates. It never reads the scenario's objects, walls or goal points, nor the true pose.
 - `oracle`: the true grid and goal points (how the planner worked before the modes existed).
 
 The menu order (`--menu-order`): `distance` (default) is neutral: landmarks and frontiers by distance
@@ -118,7 +119,7 @@ class HybridPlanner(Planner):
     Options = HybridOptions
     # from a published map, from its sensors, or (as before the information model) the true grid
     information_modes: ClassVar[tuple[Information, ...]] = ("sensed", "map", "oracle")
-    grid_factors = ("decide", "menu_order", "sensing", "lidar_sectors")
+    grid_factors = ("decide", "menu_order", "sensing", "lidar_sectors", "localize")
     declares = Declarations(asks_model_every_decision=True)
     options = MODEL_OPTIONS | {
         "sensing",
@@ -158,14 +159,22 @@ class HybridPlanner(Planner):
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
-        from llmnav.observe import observe
-        from llmnav.planners.hybrid.scoring import ScoredChooser
-
-        world, scenario = ctx.world, ctx.scenario
         maps = _Maps(ctx, self.cfg)
         memory = start_memory(ctx)
         executor = Executor(ctx, self.cfg, maps.lidar_map, memory)
         # (The runner logs the start pose and every trajectory sample; nothing to hook here.)
+        outcome = self._decide_and_execute(ctx, maps, memory, executor)
+        executor.report_pose()  # where the planner believes the episode ended (the summary's pose error)
+        return outcome
+
+    def _decide_and_execute(
+        self, ctx: EpisodeContext, maps: _Maps, memory: Memory, executor: Executor
+    ) -> EpisodeOutcome:
+        """The decide-execute loop of `run`."""
+        from llmnav.observe import observe
+        from llmnav.planners.hybrid.scoring import ScoredChooser
+
+        world, scenario = ctx.world, ctx.scenario
         json_errors = vetoes = 0
         mode = self.decision_mode(ctx)
         ctx.event("planner", decide=mode, requested=ctx.options.decide)
@@ -181,9 +190,7 @@ class HybridPlanner(Planner):
         for step in range(1, ctx.options.max_iterations + 1):
             ctx.log.sim_time = world.sim_time
             obs = observe(world, ctx.options, ctx.log, step, image_needed=frames)
-            pose = obs.odom if ctx.information == "sensed" else obs.pose
-            maps.lidar_map.integrate(pose, obs.scan)
-            maps.lidar_map.mark_hits(pose, world.low_lidar.scan())
+            pose = executor.sense(obs.scan)
             remember(ctx, memory, pose, obs.detections)
             if "detections" not in ctx.options.sensing:
                 # The menu is built from what the detector sees, whether or not the model is shown it.
@@ -219,7 +226,7 @@ class HybridPlanner(Planner):
             if option.kind == "complete":
                 Action(step, "COMPLETE", 0, pose, pose, option=option.text).log(ctx.log)
                 return EpisodeOutcome("completed", "the model chose to finish", step, dict(done))
-            before = believed_pose(ctx)
+            before = believed_pose(ctx, memory)
             executed = executor.run(grids, option, step)
             if not executed.vetoes:  # a refused leg put what blocked it on the map: the same choice detours
                 _drop_if_stuck(ctx, memory, option, before, executed.result, step)
@@ -243,7 +250,7 @@ def _drop_if_stuck(ctx: EpisodeContext, memory: Memory, option: Option, before: 
     """
     if option.kind not in ("landmark", "frontier") or option.goal is None:
         return
-    after = believed_pose(ctx)
+    after = believed_pose(ctx, memory)
     if after.distance_to(before.x, before.y) >= STUCK_M:
         return
     if option.landmark_id is not None:
