@@ -29,7 +29,10 @@ Vec2 = tuple[float, float]
 # a 100 m side is 2,000 cells of the 5 cm planning grid, where ±1e6 m asked for 1.42 PiB.
 MAX_WORLD_SIDE_M = 100.0  # [m] each side of `bounds`
 MAX_COORDINATE_M = 1000.0  # [m] |x| and |y| of `bounds` (float precision of poses stays sub-millimetre)
-MAX_SHAPES = 500  # walls + obstacles + labelled objects (each is a body, a collision shape and a plot patch)
+# walls + obstacles: each a static body (cheap in maximal coordinates: 1,200 boxes of an imported nav2 map
+# step in 0.15 ms) and a plot patch
+MAX_SHAPES = 5000
+MAX_OBJECTS = 500  # labelled objects: each also a label in plots, menus and the detector's bookkeeping
 MAX_TASKS = 200  # tasks in one file
 MAX_TEXT_CHARS = 2000  # [characters] a task's text or paraphrase (a prompt carries it at every step)
 MAX_NAME_CHARS = 100  # [characters] an object's label or alias (scored as a continuation, token by token)
@@ -349,7 +352,7 @@ class Scenario(_Strict):
     """A complete scenario: the world, labelled objects, tasks and defaults.
 
     Limits (the module's constants): bounds of at most MAX_WORLD_SIDE_M a side within ±MAX_COORDINATE_M,
-    at most MAX_SHAPES walls, obstacles and objects together, MAX_TASKS tasks, MAX_TEXT_CHARS a task text
+    at most MAX_SHAPES walls and obstacles together and MAX_OBJECTS labelled objects, MAX_TASKS tasks, MAX_TEXT_CHARS a task text
     and MAX_NAME_CHARS a label or alias.
     """
 
@@ -372,9 +375,11 @@ class Scenario(_Strict):
 
     @model_validator(mode="after")
     def _shape_count(self) -> Scenario:
-        count = len(self.walls) + len(self.obstacles) + len(self.objects)
+        count = len(self.walls) + len(self.obstacles)
         if count > MAX_SHAPES:
-            raise ValueError(f"{count} walls, obstacles and objects: at most {MAX_SHAPES}")
+            raise ValueError(f"{count} walls and obstacles: at most {MAX_SHAPES}")
+        if len(self.objects) > MAX_OBJECTS:
+            raise ValueError(f"{len(self.objects)} labelled objects: at most {MAX_OBJECTS}")
         return self
 
     @field_validator("objects")
