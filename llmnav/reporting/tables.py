@@ -49,13 +49,15 @@ def print_tables(console: Console, tables: Sequence[Table]) -> None:
         for table in tables:
             console.print(to_rich(table))
         return
-    previous = console.width  # print(width=...) is capped at the console's width: widen it for a moment
-    console.width = max(previous, PIPE_WIDTH)
+    # print(width=...) is capped at the console's width: widen it for a moment. Restore the setting itself
+    # (None: follow COLUMNS and the terminal), not the width it gave then, which would pin it for good.
+    previous = console._width
+    console.width = max(console.width, PIPE_WIDTH)
     try:
         for table in tables:
             console.print(to_rich(table))
     finally:
-        console.width = previous
+        console._width = previous
 
 
 def _md_cell(text: str) -> str:
