@@ -187,6 +187,7 @@ def test_the_oracle_baseline_ends_inside_the_success_radius_in_the_factory(
     tmp_path: Path, task: str, pose: int, seed: int
 ) -> None:
     from llmnav.planners.base import drive_options
+    from llmnav.runlog import read_run
     from llmnav.runner import EpisodeSpec, run_episode
 
     spec = EpisodeSpec(
@@ -200,3 +201,26 @@ def test_the_oracle_baseline_ends_inside_the_success_radius_in_the_factory(
     summary = run_episode(spec)
     assert summary["outcome"] == "completed" and summary["success"] is True
     assert summary["distance_m"] <= 2.5
+
+
+def test_the_oracle_gets_around_a_box_that_appears_on_its_path_after_the_leg_was_planned(tmp_path: Path) -> None:
+    # Factory T1 from pose 1: the oracle's second leg runs past (0.2, -9.2); a box appears there at 4 s,
+    # after the path was planned. Before, the first refusal ended the episode ("motion vetoed").
+    from llmnav.planners.base import drive_options
+    from llmnav.runlog import read_run
+    from llmnav.runner import EpisodeSpec, run_episode
+
+    spec = EpisodeSpec(
+        scenario="factory",
+        task_id="T1",
+        options=drive_options(planner="oracle", appearing=((0.2, -9.2, 4.0),)),
+        backend="policy:first",
+        out_dir=tmp_path / "appearing",
+    )
+    summary = run_episode(spec)
+    record = read_run(tmp_path / "appearing")
+    refused = [g for g in record.of_type("guard") if g.get("outcome") == "veto"]
+    marks = [e for e in record.of_type("planner") if e.get("kind") == "refusal_mark"]
+    assert refused and marks, "the box no longer lands on the path: the test exercises nothing"
+    assert math.dist(marks[0]["point"], (0.2, -9.2)) < 0.6  # what blocked the leg is the box
+    assert summary["success"] and summary["collisions"] == 0, summary.get("reason")
