@@ -187,7 +187,6 @@ def test_the_oracle_baseline_ends_inside_the_success_radius_in_the_factory(
     tmp_path: Path, task: str, pose: int, seed: int
 ) -> None:
     from llmnav.planners.base import drive_options
-    from llmnav.runlog import read_run
     from llmnav.runner import EpisodeSpec, run_episode
 
     spec = EpisodeSpec(
