@@ -98,10 +98,9 @@ class Action:
 def _into(frame: Pose2D, seen_from: Pose2D, point: tuple[float, float]) -> tuple[float, float]:
     """A point [m] given in `seen_from`'s robot frame, in `frame`'s robot frame."""
     wx, wy = seen_from.point_at(math.atan2(point[1], point[0]), math.hypot(*point))
-    return (
-        round(frame.distance_to(wx, wy) * math.cos(frame.bearing_to(wx, wy)), 3),
-        round(frame.distance_to(wx, wy) * math.sin(frame.bearing_to(wx, wy)), 3),
-    )
+    dx, dy = wx - frame.x, wy - frame.y
+    c, s = math.cos(frame.yaw), math.sin(frame.yaw)
+    return (round(c * dx + s * dy, 3), round(-s * dx + c * dy, 3))
 
 
 class TimedSink(Protocol):
