@@ -352,8 +352,8 @@ class Scenario(_Strict):
     """A complete scenario: the world, labelled objects, tasks and defaults.
 
     Limits (the module's constants): bounds of at most MAX_WORLD_SIDE_M a side within ±MAX_COORDINATE_M,
-    at most MAX_SHAPES walls and obstacles together and MAX_OBJECTS labelled objects, MAX_TASKS tasks, MAX_TEXT_CHARS a task text
-    and MAX_NAME_CHARS a label or alias.
+    at most MAX_SHAPES walls and obstacles together and MAX_OBJECTS labelled objects, MAX_TASKS tasks,
+    MAX_TEXT_CHARS a task text and MAX_NAME_CHARS a label or alias.
     """
 
     name: str
