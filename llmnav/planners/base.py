@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol
 from llmnav import plugins
 from llmnav.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
+from llmnav.observe import call_model, call_scorer
 from llmnav.planners.options import (
     COMMON_OPTIONS,
     DEFAULT_PLANNER,
@@ -219,14 +220,10 @@ class EpisodeContext(Generic[OptionsT]):
 
     def chat(self, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
         """Send `request` to the backend, logged as an `llm_call` event (see `llmnav.observe.call_model`)."""
-        from llmnav.observe import call_model
-
         return call_model(self, request, purpose, step)
 
     def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
         """Score continuations with the backend, logged as an `llm_call` event (`llmnav.observe.call_scorer`)."""
-        from llmnav.observe import call_scorer
-
         return call_scorer(self, request, step)
 
     def event(self, kind: str, **fields: Any) -> None:
