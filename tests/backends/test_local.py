@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 from pydantic import BaseModel
 
+from llmnav.backends import llamacpp
 from llmnav.backends import local as local_mod
 from llmnav.backends.base import ChatRequest, Image, Message, get_backend
 from llmnav.backends.local import LocalBackend, default_model_path
@@ -309,7 +310,7 @@ def test_free_text_is_capped_and_field_order_kept(backend: LocalBackend) -> None
     )
     result = backend.chat(request)
     answer = json.loads(result.text)  # complete JSON: the cap ended the string before max_tokens did
-    assert len(answer["story"]) <= local_mod.TEXT_CAP_CHARS
+    assert len(answer["story"]) <= llamacpp.TEXT_CAP_CHARS
     assert result.text.startswith('{"story":')  # written in the schema's order, not sorted
 
 
