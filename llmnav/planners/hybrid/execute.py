@@ -24,8 +24,8 @@ if TYPE_CHECKING:
     from llmnav.mapping.grid import LidarMap, OccupancyGrid
     from llmnav.nav.localize import Match
     from llmnav.planners.base import EpisodeContext
+    from llmnav.planners.hybrid.config import HybridConfig
     from llmnav.planners.hybrid.menu import Option
-    from llmnav.planners.hybrid.planner import HybridConfig
     from llmnav.sim.motion import MotionResult
     from llmnav.sim.sensors import LidarScan
 
