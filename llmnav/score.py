@@ -21,6 +21,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.backends.base import answerer
 from llmnav.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
 from llmnav.errors import BadInputError
 from llmnav.failures import FAILURE_CAUSES
@@ -39,7 +40,6 @@ if TYPE_CHECKING:
 
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
-ORACLE_BACKEND = "policy:oracle"  # answers computed from the ground truth: a ceiling, neither model nor null policy
 ORACLE_MARK = " (oracle answers)"
 
 
@@ -259,8 +259,7 @@ def varying_keys(runs: Sequence[Run]) -> list[str]:
 
 def is_oracle(run: Run) -> bool:
     """Whether oracle answers (`policy:oracle`, computed from the ground truth) drove this run."""
-    backend = str(run.summary.get("backend") or "")
-    return backend == ORACLE_BACKEND or backend.startswith(f"{ORACLE_BACKEND}:")
+    return answerer(str(run.summary.get("backend") or "")) == "oracle"
 
 
 def condition_label(run: Run, keys: Sequence[str]) -> str:
