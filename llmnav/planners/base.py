@@ -277,6 +277,8 @@ class Planner(ABC, Generic[OptionsT]):
     options: ClassVar[frozenset[str]] = frozenset()  # the shared DriveOptions fields it reads, beyond COMMON_OPTIONS
     # What it can run with (llmnav.knowledge); the first is its default where no map is published.
     information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
+    # A baseline that plans on the true map in every information mode: `sensed` then senses only its pose
+    knows_map: ClassVar[bool] = False
     grid_factors: ClassVar[tuple[str, ...]] = ()  # option keys worth varying in an ablation (its own first)
     # its score tables, decision noun and view sections (llmnav.declarations): read above it, never by name
     declares: ClassVar[Declarations] = NOTHING_DECLARED

@@ -98,8 +98,7 @@ class Executor:
             return
         fields: dict[str, Any] = {"pose": self._believed().as_list()}
         if match is not None:
-            fields |= {"accepted": match.accepted, "matched": round(match.matched, 3), "points": match.points}
-            fields |= {"reason": match.reason}
+            fields |= match.fields()
         self.ctx.event("localize", **fields)
 
     def _believed(self) -> Pose2D:
