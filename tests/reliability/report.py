@@ -26,6 +26,7 @@ ORDER = [
     "hostile replies",
     "hostile plugins",
     "honest accounting",
+    "scoring scripts",
     "bad input",
     "secrets",
     "fsm deadline",
