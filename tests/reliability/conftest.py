@@ -40,6 +40,7 @@ CATEGORIES = {
     "test_hostile_plugins": "hostile plugins",
     "test_honest_accounting": "honest accounting",
     "test_scripts": "scoring scripts",
+    "test_raw_access": "raw access",
 }
 
 

@@ -25,6 +25,7 @@ ORDER = [
     "serve bounds",
     "hostile replies",
     "hostile plugins",
+    "raw access",
     "honest accounting",
     "scoring scripts",
     "bad input",
