@@ -41,6 +41,7 @@ CATEGORIES = {
     "test_honest_accounting": "honest accounting",
     "test_scripts": "scoring scripts",
     "test_raw_access": "raw access",
+    "test_crashed_runs": "crashed runs",
 }
 
 

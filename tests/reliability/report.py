@@ -27,6 +27,7 @@ ORDER = [
     "hostile plugins",
     "raw access",
     "honest accounting",
+    "crashed runs",
     "scoring scripts",
     "bad input",
     "secrets",
