@@ -29,7 +29,7 @@ from llmnav.metrics import (
     CONDITION_KEYS,
     RESCORED_KEYS,
     SUCCESS_RADIUS_M,
-    aborted_by_infrastructure,
+    aborted_without_result,
     summarize_run,
 )
 from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, read_run
@@ -66,7 +66,7 @@ class Run:
         """
         found = dict(self.summary.get("condition") or {})
         options = self.config.get("options")
-        for key, value in (options.items() if isinstance(options, dict) else ()):
+        for key, value in options.items() if isinstance(options, dict) else ():
             if key not in found:
                 found[key] = "+".join(map(str, value)) if isinstance(value, list) else value
         return found
@@ -204,7 +204,7 @@ def load_run(run_dir: Path, success_radius_m: float | None = None) -> Run:
             if scenario is None and summary.get("task_kind") == "target":
                 problems.append(f"{why}; no SPL or Soft-SPL")
     # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
-    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_by_infrastructure(summary):
+    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_without_result(summary):
         problems.append("no score: the task's targets could not be resolved")
     return Run(Path(run_dir), summary, record.config, problems)
 
@@ -236,9 +236,9 @@ def read_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> t
 
 
 def split_aborted(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
-    """(the model's results, the runs aborted by a backend or server failure): the latter never enter a mean."""
-    results = [r for r in runs if not aborted_by_infrastructure(r.summary)]
-    return results, [r for r in runs if aborted_by_infrastructure(r.summary)]
+    """(the model's results, the runs aborted by a server failure or a crash): the latter never enter a mean."""
+    results = [r for r in runs if not aborted_without_result(r.summary)]
+    return results, [r for r in runs if aborted_without_result(r.summary)]
 
 
 # --- grouping -----------------------------------------------------------------------------------
@@ -695,7 +695,7 @@ def collided_runs(runs: Sequence[Run]) -> list[str]:
 
 
 def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Per task and condition: the runs a backend or server failure ended, kept out of every mean above."""
+    """Per task and condition: the runs a backend or server failure or a crash ended, kept out of every mean."""
     if not aborted:
         return None
     rows, records = [], []
@@ -706,11 +706,11 @@ def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
         records.append({"task": task, "condition": label, **condition_fields(group[0], keys), "n": len(group),
                         "reasons": reasons})  # fmt: skip
     return Table(
-        "Runs aborted by a backend or server failure (not in the means above)",
+        "Runs aborted by a backend or server failure or a crash (not in the means above)",
         ["Task", "Condition", "N", "Reason"],
         rows,
         records,
-        note="No answer came from the model's server: these runs say nothing about the model.",
+        note="No answer came from the model's server, or llmnav crashed: these runs say nothing about the model.",
         name="aborted",
     )
 

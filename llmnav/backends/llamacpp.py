@@ -12,8 +12,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from llmnav.backends.base import ChatRequest, ChatResult, ContinuationScore, Message, ScoreRequest, ScoreResult
-from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request
+from llmnav.backends.base import ChatRequest, ChatResult, Message, ScoreRequest, ScoreResult
+from llmnav.backends.forced import normalised, score_continuation
 from llmnav.backends.reply import duration, obj, seq, text_or_none, token_count, token_ids, usage_counts
 from llmnav.errors import ModelError, ModelUnavailableError, one_line
 
@@ -168,18 +168,18 @@ class LlamaCppEngine:
         prefix stays in the prompt cache: a continuation costs its own few decoding steps.
         """
         started = time.perf_counter()
-        prefix = self.tokenize(request.prefix)
-        scores: list[ContinuationScore] = []
-        for text in request.continuations:
-            tail = continuation_tokens(prefix, self.tokenize(request.prefix + text), text)
-            try:
-                reply = self._completions(forced_request(prefix, tail))
-            except ValueError as err:
-                raise ModelError(f"local model rejected a scoring request: {one_line(str(err))}") from None
-            scores.append(ContinuationScore(forced_logprob(reply, tail, text), len(tail)))
+        scores = tuple(
+            score_continuation(request.prefix, text, self.tokenize, self._forced) for text in request.continuations
+        )
         latency = time.perf_counter() - started
-        meta = {"engine": "xllamacpp", "mode": "score", "prefix_tokens": len(prefix)}
-        return ScoreResult(tuple(scores), latency, self.model_name, meta)
+        meta = {"engine": "xllamacpp", "mode": "score", "prefix_tokens": len(self.tokenize(normalised(request.prefix)))}
+        return ScoreResult(scores, latency, self.model_name, meta)
+
+    def _forced(self, body: dict[str, Any]) -> dict[str, Any]:
+        try:
+            return self._completions(body)
+        except ValueError as err:
+            raise ModelError(f"local model rejected a scoring request: {one_line(str(err))}") from None
 
     def check_schema(self, schema: dict[str, Any]) -> None:
         """Raise `ModelError` unless llama.cpp constrains answers to `schema` (see the module docstring).
