@@ -149,7 +149,10 @@ def test_load_template_returns_template() -> None:
     assert template.substitute(target_name="window", max_waypoints=3).count("window") == 1
 
 
-@pytest.mark.parametrize("spelling", ["self_check", "self_check_variant", "full-noconstraints", "Full", "waypoints_system"])
+SPELLINGS = ["self_check", "self_check_variant", "full-noconstraints", "Full", "waypoints_system"]
+
+
+@pytest.mark.parametrize("spelling", SPELLINGS)
 def test_stepwise_prompt_has_one_name_per_variant(spelling: str) -> None:
     """Another spelling of a variant is refused with the names, at the CLI: one line, exit 2, no run folder."""
     from typer.testing import CliRunner
