@@ -13,8 +13,11 @@ from llmnav.prompting import stepwise_variants
 class StepwiseOptions(DriveOptions):
     """What `-o KEY=VALUE` (or the named flags) may set for the stepwise planner."""
 
-    prompt: str = Field(default="full", description="prompt variant: full, short, full_noconstraints, "
-                        "short_noconstraints, no_lidar_guidelines or self-check")
+    prompt: str = Field(
+        default="full",
+        description="prompt variant: full, short, full_noconstraints, short_noconstraints, no_lidar_guidelines "
+        "or self-check",
+    )
     history: Literal["all", "0", "1", "2"] = Field(
         default="all", description="[exchanges] previous exchanges re-sent with each step"
     )
