@@ -89,8 +89,9 @@ def plan(
 
 def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
     """`policy:oracle`: the waypoint planner's answer key, from the true map and the start pose (nothing moves)."""
-    from llmnav.planners.base import GroundTruth, drive_options
+    from llmnav.planners.base import GroundTruth
     from llmnav.planners.waypoints import WaypointPlanner
+    from llmnav.planners.waypoints.options import WaypointOptions
     from llmnav.runner import oracle_backend
 
     oracle = oracle_backend(model)
@@ -98,7 +99,7 @@ def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
         return
     start = resolved.start.pose()
     truth = GroundTruth(resolved.scenario, resolved.task, lambda: start, lambda: 0.0)
-    oracle.attach_answer_key(WaypointPlanner().oracle_answers(truth, drive_options("waypoints")))
+    oracle.attach_answer_key(WaypointPlanner().oracle_answers(truth, WaypointOptions(planner="waypoints")))
 
 
 def _print_plan(result: PlanResult, scenario: str, plot: Path | None) -> None:
