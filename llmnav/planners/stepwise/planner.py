@@ -103,7 +103,7 @@ class StepwisePlanner(Planner[StepwiseOptions]):
 
 
 def _self_check_on(options: StepwiseOptions) -> bool:
-    return options.self_check or options.prompt in ("self-check", "self_check")
+    return options.self_check or options.prompt == "self-check"
 
 
 def history_window(exchanges: list[tuple[Message, Message]], history: str) -> list[Message]:
