@@ -23,10 +23,11 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
    see: explore the frontier worth the most first (its length discounted by the drive to it), at most
    max(`explore_budget`, the world's area / `explore_area_m2`) times in an episode. Exploring
    ends early when something new comes into view, and the decision is made again.
-5. With nothing left to explore, a target whose PMI reaches `min_pmi` (the task makes it e times
-   likelier) is taken; below that, look around where the robot has not yet, else the episode ends
-   `not_found`: a place the scores reject is never driven to or finished at, and neither is anything
-   when nothing was seen at all.
+5. Once the budget is spent (or nothing is left to explore), a target whose PMI reaches `min_pmi` (the
+   task makes it e times likelier) is taken. Below that there is nothing to take: explore on while
+   frontiers remain (the budget only bounds the search before an unsure target is taken), then look
+   around where the robot has not yet, else the episode ends `not_found`: a place the scores reject is
+   never driven to or finished at, and neither is anything when nothing was seen at all.
 6. At the target: an unsure one gets one more look around from there (a better match may come into
    view), then Finish. Otherwise go to the target.
 
@@ -172,6 +173,11 @@ class ScoredChooser:
             self.explored += 1
             return self._frontier(by_kind, intent, scores, f"{name} {scores[name]:+.1f} is unsure")
         if scores[name] < self.cfg.min_pmi:
+            # The budget bounds exploring before an unsure target is taken; with no known place worth
+            # taking there is nothing to take yet, so the search goes on while anything is left to explore.
+            if by_kind.get("frontier"):
+                self.explored += 1
+                return self._frontier(by_kind, intent, scores, f"no known place fits ({name} {scores[name]:+.1f})")
             if scan is not None:
                 why = f"no known place fits ({name} {scores[name]:+.1f}): look around"
                 return Decision(scan.number, why, intent, scores)
