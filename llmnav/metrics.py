@@ -54,6 +54,7 @@ CONDITION_KEYS: tuple[str, ...] = (
     "self_check",
     "assist",
     "localize",  # hybrid, sensed: scan matching on or off
+    "explore",  # hybrid: nearest, utility or scored frontiers (as run: "utility (cannot score)" says a fallback)
 )
 
 
@@ -217,6 +218,16 @@ def condition_of(config: dict[str, Any]) -> dict[str, Any]:
             value = "+".join(str(v) for v in value)
         condition[key] = value
     return condition
+
+
+def _as_run(planner_metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """Condition values the planner reports as it ran them, where they differ from the requested option.
+
+    The hybrid explores by utility when `-o explore=scored` meets a backend that cannot score: the
+    condition says "utility (cannot score)", so such a run is never grouped with scored ones.
+    """
+    explore = planner_metrics.get("explore")
+    return {"explore": explore} if isinstance(explore, str) else {}
 
 
 def _mean(values: Sequence[float]) -> float | None:
@@ -469,7 +480,7 @@ def summarize_run(
         "backend": config.get("backend"),
         "start_pose_index": config.get("start_pose_index"),
         "seed": config.get("seed"),
-        "condition": condition_of(config),
+        "condition": condition_of(config) | _as_run(planner_metrics),
         "iterations": iterations,
         "latency_s_mean": _rounded(_mean(latencies)),
         "llm_calls": len(record.of_type("llm_call")),

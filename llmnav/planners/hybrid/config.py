@@ -19,6 +19,9 @@ class HybridConfig:
     # is an easier choice; farther landmarks come back into the menu as the robot moves.
     max_landmarks: int = 4
     max_frontiers: int = 2  # frontiers offered, the most useful first (`menu.frontier_utility`)
+    max_frontiers_scored: int = 6  # scored decisions read no prompt: more frontiers, each weighed by its description
+    describe_radius_m: float = 3.0  # [m] landmarks this close to a frontier describe it (about a room's half-width)
+    describe_max: int = 3  # landmark names in a description (the nearest)
     min_hop_m: float = 1.0  # [m] a frontier nearer than this shows next to nothing new: not offered
     frontier_decay_per_m: float = 0.2  # [1/m] how fast a frontier's worth falls with the drive to it
     frontier_min_cells: int = 12  # smaller frontier clusters are noise

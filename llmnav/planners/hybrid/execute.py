@@ -146,6 +146,9 @@ class Executor:
             memory.visited.add(option.landmark_id)
         if option.kind == "frontier" and option.goal is not None:
             memory.explored.append(option.goal)
+            # The map grew: a landmark that had no path before may have one now (seen through a doorway
+            # whose floor was still unknown).
+            memory.unreachable.clear()
         after = self._believed()
         self._log(step, option, before, None)
         if option.goal is not None and after.distance_to(*option.goal) > self.cfg.arrived_m:

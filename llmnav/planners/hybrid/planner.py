@@ -124,6 +124,17 @@ class HybridPlanner(Planner):
         """`score` or `generate`: what `--decide` means with this episode's backend."""
         return "score" if decides_by_scores(ctx.options, ctx.backend) else "generate"
 
+    def explore_mode(self, ctx: EpisodeContext) -> str:
+        """How this episode explores: `-o explore`, except that scored frontiers need scored decisions.
+
+        A backend that cannot score (or `--decide generate`) explores by utility; the run's summary and
+        condition say so ("utility (cannot score)"), so it is never taken for a scored run.
+        """
+        requested = ctx.options.explore
+        if requested == "scored" and self.decision_mode(ctx) != "score":
+            return "utility (cannot score)"
+        return requested
+
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
         maps = _Maps(ctx, self.cfg)
@@ -144,12 +155,17 @@ class HybridPlanner(Planner):
         world, scenario = ctx.world, ctx.scenario
         json_errors = vetoes = 0
         mode = self.decision_mode(ctx)
-        ctx.event("planner", decide=mode, requested=ctx.options.decide)
         bounds = scenario.bounds  # the extent the explorer may know: a bigger world gets more looks
         area = (bounds.x[1] - bounds.x[0]) * (bounds.y[1] - bounds.y[0])  # [m^2]
         mapped = bool(scenario.corridors)
-        chooser = ScoredChooser(ctx, ctx.task.text, mapped=mapped, area_m2=area) if mode == "score" else None
-        done = {"json_errors": 0, "vetoes": 0, "decide": mode}
+        explore = self.explore_mode(ctx)
+        ctx.event("planner", decide=mode, requested=ctx.options.decide, explore=explore)
+        chooser = (
+            ScoredChooser(ctx, ctx.task.text, mapped=mapped, area_m2=area, explore=ctx.options.explore)
+            if mode == "score"
+            else None
+        )
+        done = {"json_errors": 0, "vetoes": 0, "decide": mode, "explore": explore}
         # Render the camera image only for a request that carries it (scored decisions send none),
         # unless the user keeps every frame for the viewer.
         frames = (mode == "generate" and sends_image(ctx)) or ctx.options.frames == "always"

@@ -89,9 +89,10 @@ def scored_choice(
         Candidate(
             o.number,
             o.kind,
-            (o.name,) if o.kind == "landmark" and o.name else o.at,
+            (o.name,) if o.kind == "landmark" and o.name else (o.near if o.kind == "frontier" else o.at),
             o.distance_m,
             o.utility,
+            o.goal if o.kind == "frontier" else None,
         )
         for o in options
     ]
