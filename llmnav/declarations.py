@@ -43,6 +43,7 @@ class Column:
     source: Source = "metrics"
     path: str = ""  # where the value is read; "" = `key`
     per: str = ""  # share: the metric (in `source`) whose pooled total is the denominator
+    bounds: tuple[float | None, float | None] = (None, None)  # the metric's range: its 95 % interval stays inside
 
     @property
     def where(self) -> tuple[str, ...]:
