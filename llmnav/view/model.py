@@ -267,9 +267,16 @@ def one_line_reasoning(value: Any) -> str:
 
 def describe_action(action: dict[str, Any]) -> str:
     """`FRONT 1.5`, `GOTO 2.3 (Go to room 101)`, `WAYPOINT [1.0, 2.0]`, plus what stopped it."""
-    command = str(action.get("command", "?"))
+    command = action.get("command")
     params = action.get("parameters")
-    text = command if params in (None, 0, 0.0) and command == "COMPLETE" else f"{command} {params}"
+    if command is None and isinstance(action.get("action"), str):
+        text = action["action"]  # a Gymnasium episode logs the action as one phrase: `BACK 4.55 m`, `COMPLETE`
+    elif command is None:
+        text = "?"
+    elif params is None or (params in (0, 0.0) and command == "COMPLETE"):
+        text = str(command)
+    else:
+        text = f"{command} {params}"
     if action.get("option"):
         text += f" ({action['option']})"
     if action.get("vetoed"):
@@ -413,6 +420,17 @@ def _suggestion_steps(record: RunRecord) -> list[StepView]:
     return steps
 
 
+def _reading_ahead(record: RunRecord) -> bool:
+    """Whether the log numbers each reading one step before the action taken on it.
+
+    A Gymnasium episode (`llmnav.gym.RunLog`) logs the reading of `reset` as step 0 and action k with the
+    reading that follows it; llmnav's planners log the reading and the action of a decision under one step.
+    """
+    observed = [e["step"] for e in record.of_type("observation") if isinstance(e.get("step"), int)]
+    acted = [e["step"] for e in record.of_type("action") if isinstance(e.get("step"), int)]
+    return bool(observed and acted) and min(observed) == min(acted) - 1
+
+
 def _place_by_time(steps: list[StepView], record: RunRecord) -> None:
     """Give decisions without poses the trajectory sample logged last before them (by sim time)."""
     import bisect
@@ -433,6 +451,8 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
     """Decisions by logged step value, in the order they first appear, labelled `noun` and the value."""
     by_step: dict[Any, StepView] = {}
     previous: list[MessageView] = []
+    ahead = _reading_ahead(record)
+    acted = {e.get("step") for e in record.of_type("action")}
     for event in record.events:
         kind = event.get("type")
         if kind not in ("observation", "llm_call", "guard", "action", "planner", "decision") or "step" not in event:
@@ -440,6 +460,10 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
         key = event.get("step")
         if key is None or isinstance(key, (dict, list)):
             continue
+        if ahead and kind == "observation" and isinstance(key, int):
+            key += 1  # the reading the next action was chosen from belongs to that action's decision
+            if key not in acted:
+                continue  # the reading after the last action: the end pose, no decision of its own
         step = by_step.get(key)
         if step is None:
             step = by_step[key] = StepView(len(by_step), f"{noun} {key}", key, t_sim=event.get("t_sim"))
