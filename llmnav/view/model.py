@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.declarations import Declarations, declarations_of
 from llmnav.geometry import logged_pose
+from llmnav.relevance import CONTENT_FREE_TASK
 from llmnav.runlog import IMAGES_DIR, RunRecord, read_run
 
 if TYPE_CHECKING:
@@ -85,6 +86,9 @@ class CallView:
     latency_s: float | None
     tokens: dict[str, Any]  # prompt_tokens, completion_tokens and whatever other *_tokens the backend logged
     t_wall: float | None = None
+    # A scoring call writes no reply: the log-probability [nats] and token count of each continuation.
+    scores: list[tuple[str, float, int]] = field(default_factory=list)
+    content_free: bool = False  # its prompt holds the content-free task (the PMI's baseline), not the user's
 
 
 @dataclass
@@ -364,6 +368,7 @@ def _call_view(event: dict[str, Any], previous: list[MessageView]) -> CallView:
                 if key.endswith("tokens") and value is not None:
                     tokens.setdefault(key, value)
     latency = reply.get("latency_s") if reply else None
+    scores = _scores(event.get("request"), reply)
     return CallView(
         purpose=str(event.get("purpose") or "call"),
         new_messages=new,
@@ -374,7 +379,28 @@ def _call_view(event: dict[str, Any], previous: list[MessageView]) -> CallView:
         latency_s=float(latency) if isinstance(latency, (int, float)) else None,
         tokens=tokens,
         t_wall=event.get("t_wall"),
+        scores=scores,
+        content_free=bool(scores) and any(CONTENT_FREE_LINE in m.text for m in messages),
     )
+
+
+CONTENT_FREE_LINE = f"Task: {CONTENT_FREE_TASK}\n"  # how a scoring prompt names the content-free task
+
+
+def _scores(request: Any, reply: dict[str, Any] | None) -> list[tuple[str, float, int]]:
+    """(continuation, log-probability [nats], tokens) of a scoring call; [] for a call that wrote a reply."""
+    logged = reply.get("scores") if reply else None
+    texts = request.get("continuations") if isinstance(request, dict) else None
+    if not isinstance(logged, list) or not isinstance(texts, list) or len(texts) != len(logged):
+        return []
+    out = []
+    for text, item in zip(texts, logged, strict=True):
+        value = item if isinstance(item, list) and len(item) == 2 else [None, None]
+        logprob, count = _number(value[0]), _number(value[1])
+        if logprob is None:
+            return []
+        out.append((str(text), logprob, int(count or 0)))
+    return out
 
 
 def _planner_note(event: dict[str, Any]) -> str:

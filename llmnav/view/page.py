@@ -60,6 +60,9 @@ def environment() -> Environment:
     env.filters["num"] = _num
     env.filters["pose"] = _pose
     env.filters["joined"] = _joined
+    from llmnav.relevance import CONTENT_FREE_TASK
+
+    env.globals["content_free_task"] = CONTENT_FREE_TASK
     return env
 
 
