@@ -191,6 +191,24 @@ class RunView:
         return self.record.config
 
     @property
+    def targets(self) -> list[tuple[float, float]]:
+        """The task's target points [m] (none for a task without targets or a scenario that did not load)."""
+        if self.scenario is None or self.task is None or not self.task.targets:
+            return []
+        try:
+            return [(float(p[0]), float(p[1])) for p in self.scenario.target_points(self.task)]
+        except KeyError:  # a target object the scenario does not have
+            return []
+
+    @property
+    def success_radius_m(self) -> float:
+        """[m] The radius success was judged at (the summary's, else the default)."""
+        from llmnav.metrics import SUCCESS_RADIUS_M
+
+        value = _number(self.summary.get("success_radius_m"))
+        return value if value is not None and value > 0 else SUCCESS_RADIUS_M
+
+    @property
     def header(self) -> dict[str, Any]:
         """The page header's fields (absent ones are None)."""
         config, summary = self.config, self.summary

@@ -228,7 +228,9 @@ def run_context(view: RunView) -> dict[str, Any]:
         from llmnav.mapping.targets import with_added_obstacles
 
         scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
-    base = draw_base_map(scenario, *page_size(scenario), trajectory=view.trajectory)
+    base = draw_base_map(
+        scenario, *page_size(scenario), trajectory=view.trajectory, targets=view.targets, radius_m=view.success_radius_m
+    )
     trajectory = view.trajectory
     images = {h: data_uri(p, view.run_dir) for h, p in view.image_files.items()}
     metre = base.metre_px

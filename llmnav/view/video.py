@@ -187,7 +187,14 @@ def _frames(view: RunView, fps: float, seconds_per_step: float, render_camera: b
     from llmnav.view.basemap import draw_base_map
 
     base = draw_base_map(
-        view.scenario, PANEL_W, PANEL_H, oracle=view.oracle, trajectory=view.trajectory, faint_paths=True
+        view.scenario,
+        PANEL_W,
+        PANEL_H,
+        oracle=view.oracle,
+        trajectory=view.trajectory,
+        faint_paths=True,
+        targets=view.targets,
+        radius_m=view.success_radius_m,
     )
     per_action = max(1, round(fps * seconds_per_step))
     segments = _segments(view)
