@@ -32,9 +32,10 @@ from llmnav.metrics import (
     aborted_without_result,
     summarize_run,
 )
-from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, read_run
+from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, RunRecord, read_run
 from llmnav.scenario import SEQUENCE_JOIN
-from llmnav.stats import Comparison, compare, describe
+from llmnav.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
+from llmnav.tasks import ADHOC_ID
 
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
@@ -57,8 +58,25 @@ class Run:
 
     @property
     def task(self) -> str:
-        """Task id, else its text."""
-        return str(self.summary.get("task_id") or self.summary.get("task_text") or "?")
+        """Task id; a free-text task (typed, no scenario's id) by its text, so two of them are never pooled."""
+        task_id = self.summary.get("task_id")
+        text = self.summary.get("task_text")
+        if text and (not task_id or task_id == ADHOC_ID or self.wording == "free"):
+            return str(text)
+        return str(task_id or text or "?")
+
+    def task_record(self, scenario: Scenario) -> Task:
+        """The run's task: the scenario's of its id, else the one its configuration line records (free text)."""
+        from llmnav.scenario import Task
+
+        task_id = str(self.summary.get("task_id") or "")
+        if task_id and task_id != ADHOC_ID and self.wording != "free":
+            return scenario.task(task_id)
+        logged = self.config.get("task")
+        if not isinstance(logged, dict):
+            raise BadInputError("the config line records no task")
+        fields = {k: logged[k] for k in ("id", "text", "kind", "difficulty", "targets") if k in logged}
+        return Task.model_validate(fields)
 
     @property
     def condition(self) -> dict[str, Any]:
@@ -187,7 +205,12 @@ def load_run(run_dir: Path, success_radius_m: float | None = None) -> Run:
     the log at this radius (`--success-radius`). A summary written before some of these keys existed gets
     them computed from its log the same way (`llmnav.metrics.summarize_run`).
     """
-    record = read_run(run_dir)
+    return run_from_record(read_run(run_dir), success_radius_m)
+
+
+def run_from_record(record: RunRecord, success_radius_m: float | None = None) -> Run:
+    """`load_run` of a log already read (the per-run table also sums the log's token counts)."""
+    run_dir = record.run_dir
     summary = record.summary
     problems = []
     if summary is None or "outcome" not in summary:
@@ -324,10 +347,17 @@ def _median(values: Sequence[float]) -> str:
     return f"{statistics.median(values):.0f}" if values else MISSING
 
 
-def _stats_record(values: Sequence[float]) -> dict[str, Any] | None:
+# Metric ranges [low, high] (None: unbounded): a confidence interval is cut to them, never impossible values.
+UNIT_RANGE: tuple[float | None, float | None] = (0.0, 1.0)  # score, SPL, Soft-SPL
+NON_NEGATIVE: tuple[float | None, float | None] = (0.0, None)  # counts, lengths, times, ratios of lengths
+
+
+def _stats_record(
+    values: Sequence[float], bounds: tuple[float | None, float | None] = NON_NEGATIVE
+) -> dict[str, Any] | None:
     if not values:
         return None
-    d = describe(values)
+    d = describe(values, bounds=bounds)
     clean = [None if not math.isfinite(x) else x for x in (d.mean, d.sd, d.ci_low, d.ci_high)]
     return {"n": d.n, "mean": clean[0], "sd": clean[1], "ci95": [clean[2], clean[3]]}
 
@@ -386,9 +416,10 @@ def episodes_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 "n": len(group),
                 "successes": successes,
                 "success_rate": successes / len(group),
+                "success_rate_ci95": list(wilson_interval(successes, len(group))),
                 "oracle_successes": sum(reached) if reached else None,
                 "oracle_success_n": len(reached),
-                "score": None if no_target else _stats_record(scores),
+                "score": None if no_target else _stats_record(scores, UNIT_RANGE),
                 **common_fields,
                 **{name: _stats_record(vals) for name, vals in fields.items()},
             }
@@ -421,8 +452,8 @@ def common_columns(group: Sequence[Run]) -> tuple[list[str], dict[str, Any]]:
     fields = {
         "collisions": sum(counts) if counts else None,
         "runs_collided": sum(1 for c in counts if c > 0) if counts else None,
-        "spl": _stats_record(spl),
-        "soft_spl": _stats_record(soft),
+        "spl": _stats_record(spl, UNIT_RANGE),
+        "soft_spl": _stats_record(soft, UNIT_RANGE),
     }
     return cells, fields
 
@@ -477,6 +508,8 @@ def task_of_run(scenario: Scenario, run: Run) -> Task:
     try:
         return scenario.task(run.task)
     except KeyError:
+        if run.summary.get("task_id") != SEQUENCE_ID and isinstance(run.config.get("task"), dict):
+            return run.task_record(scenario)  # free text: the task as `drive` resolved it, targets included
         text = run.summary.get("task_text")
         if not isinstance(text, str) or not text:
             raise
@@ -620,11 +653,11 @@ def _declared_row(spec: ScoreTable, group: Sequence[Run]) -> tuple[list[str], di
         elif column.aggregate == "median":
             values = _column_values(group, column)
             cells.append(f"{statistics.median(values):.{column.digits}f}" if values else MISSING)
-            medians[column.key] = _stats_record(values)
+            medians[column.key] = _stats_record(values, column.bounds)
         else:
             values = _column_values(group, column)
             cells.append(FAILED if _all_left_out(group, column) else _mean_sd(values, column.digits))
-            means[column.key] = _stats_record(values)
+            means[column.key] = _stats_record(values, column.bounds)
     return cells, counts | means | shares | medians
 
 
@@ -766,7 +799,7 @@ def select_table(tables: Sequence[Table], name: str) -> Table:
     for table in tables:
         if table.name == name:
             return table
-    there = ", ".join(t.name for t in tables) or "none"
+    there = ", ".join(["runs", *(t.name for t in tables)])  # `runs` (a row per run) is always there
     raise BadInputError(f"--table {name}: no such table for these runs (tables: {there})")
 
 
@@ -776,6 +809,11 @@ def problems(runs: Sequence[Run]) -> list[str]:
 
 
 # --- comparisons --------------------------------------------------------------------------------
+
+# The range of each compared metric (its interval is cut to it); success is a rate: Wilson's interval.
+COMPARE_BOUNDS: dict[str, tuple[float | None, float | None]] = {
+    "score": UNIT_RANGE, "success": UNIT_RANGE, "spl": UNIT_RANGE, "soft_spl": UNIT_RANGE, "wgsr": (0.0, 100.0),
+}  # fmt: skip
 
 # What `--compare` tests: name → how to read it from a run.
 COMPARE_METRICS: dict[str, Callable[[Run], Any]] = {
@@ -844,7 +882,10 @@ def compare_groups(runs: Sequence[Run], first: str, second: str) -> tuple[Table,
     for name, get in COMPARE_METRICS.items():
         a, b = _values(group_a, get), _values(group_b, get)
         if len(a) >= 2 and len(b) >= 2:
-            results.append(GroupComparison(name, compare(a, b)))
+            c = compare(a, b)
+            bounds = COMPARE_BOUNDS.get(name, NON_NEGATIVE)
+            ranged = [_ranged(d, name == "success", bounds) for d in (c.a, c.b)]
+            results.append(GroupComparison(name, Comparison(ranged[0], ranged[1], c.welch, c.hedges_g)))
     columns = ["Metric", f"{first} mean ± SD [95% CI]", f"{second} mean ± SD [95% CI]", "t", "df", "p", "g"]
     rows, records = [], []
     for item in results:
@@ -878,6 +919,15 @@ def compare_groups(runs: Sequence[Run], first: str, second: str) -> tuple[Table,
         )
     note = "Welch's t (two-sided p), Hedges' g with small-sample correction; positive = first group larger"
     return Table(f"Comparison: {first} vs {second}", columns, rows, records, note, name="comparison"), results
+
+
+def _ranged(d: Describe, rate: bool, bounds: tuple[float | None, float | None]) -> Describe:
+    """`d` with an interval inside the metric's range: Wilson's for a rate of 0/1 outcomes, else the t interval cut."""
+    if rate:
+        low, high = wilson_interval(round(d.mean * d.n), d.n, d.confidence)
+    else:
+        low, high = clip_interval(d.ci_low, d.ci_high, bounds)
+    return Describe(d.n, d.mean, d.sd, low, high, d.confidence)
 
 
 def _nan_none(value: float) -> float | None:
