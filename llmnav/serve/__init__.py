@@ -22,7 +22,7 @@ import socket
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -50,7 +50,7 @@ class ServeOptions(BaseModel):
     threads: int | None = Field(default=None, ge=1)  # None = the usable cores but one
     api_key: str | None = None
     name: str = Field(default=DEFAULT_ALIAS, min_length=1)  # the model's name in /v1/models and replies
-    aliases: tuple[str, ...] = ()  # more names requests may give; any other name gets 404
+    aliases: tuple[Annotated[str, Field(min_length=1)], ...] = ()  # more names requests may give; others: 404
     verbose: bool = False  # let llama.cpp log every request and timing to stderr
 
 
