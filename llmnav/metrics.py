@@ -247,6 +247,21 @@ def _added_obstacles(config: dict[str, Any]) -> list[Point]:
 # --- the summary -------------------------------------------------------------------------------
 
 
+def crashed(reason: object) -> bool:
+    """Whether an end reason says llmnav itself crashed or was interrupted (the runner's "crash: ..." reasons)."""
+    return isinstance(reason, str) and (reason.startswith("crash:") or reason == "interrupted")
+
+
+def aborted_without_result(summary: dict[str, Any]) -> bool:
+    """Whether a run ended with nothing to score: its backend or server failed, or llmnav crashed under it.
+
+    Such runs carry no score, are in no mean and are tabled apart with their cause (`llmnav score`).
+    """
+    return aborted_by_infrastructure(summary) or (
+        summary.get("outcome") == "aborted" and crashed(summary.get("reason"))
+    )
+
+
 def aborted_by_infrastructure(summary: dict[str, Any]) -> bool:
     """Whether a run ended because the backend or its server failed (no answer came): not the model's result.
 
@@ -434,8 +449,8 @@ def summarize_run(
     else:  # a target task whose targets cannot be resolved: nothing to score against
         score, success = None, False
 
-    if result == "aborted" and planner_metrics.get("failure") == "backend":
-        # the server failed, not the model: nothing of the model's to score
+    if result == "aborted" and (planner_metrics.get("failure") == "backend" or crashed(reason)):
+        # the server failed, or llmnav crashed, not the model: nothing of the model's to score
         score, success = None, False
         reach = {**NO_REACH, "success_radius_m": success_radius_m}
 

@@ -15,16 +15,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from llmnav.chat import ChatRequest, ChatResult, Image, Message, ScoreRequest, ScoreResult
 from llmnav.errors import LlmnavError, one_line
 
 if TYPE_CHECKING:
+    from llmnav.backends.base import Backend
     from llmnav.geometry import Pose2D
     from llmnav.guard.view import PlannerWorld
     from llmnav.perception import LidarSummary
-    from llmnav.planners.base import DriveOptions, EpisodeContext
+    from llmnav.planners.options import DriveOptions
     from llmnav.runlog import RunLog
     from llmnav.sim.sensors import Detection, LidarScan
 
@@ -172,7 +173,26 @@ def _detection_log(det: Detection) -> dict[str, Any]:
     }
 
 
-def call_model(ctx: EpisodeContext, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
+class ModelLine(Protocol):
+    """What a model call needs of an episode (`llmnav.planners.base.EpisodeContext` is one)."""
+
+    @property
+    def backend(self) -> Backend | None:
+        """The model the episode asks, if any."""
+        ...
+
+    @property
+    def log(self) -> RunLog:
+        """Where the call is logged."""
+        ...
+
+    @property
+    def options(self) -> DriveOptions:
+        """The planner's options (its name, and whether the simulation runs beside the call)."""
+        ...
+
+
+def call_model(ctx: ModelLine, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
     """Send a request through `ctx.backend`, logging an `llm_call` event with the reply or the error.
 
     A backend failure (ModelError, ReplayDivergenceError, ...) is logged with its one-line message and
@@ -218,7 +238,7 @@ def llm_call_fields(
     }
 
 
-def call_scorer(ctx: EpisodeContext, request: ScoreRequest, step: int | None) -> ScoreResult:
+def call_scorer(ctx: ModelLine, request: ScoreRequest, step: int | None) -> ScoreResult:
     """Score continuations through `ctx.backend`, logged as an `llm_call` event with purpose `score`.
 
     Failures are logged and re-raised like `call_model`'s; a reply with a different number of scores

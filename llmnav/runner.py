@@ -328,7 +328,7 @@ def _run_logged(
         recorder.sample(world.sim_time)
     from llmnav.guard.view import PlannerWorld
 
-    known = scenario_view(scenario, information)
+    known = scenario_view(scenario, information, knows_map=planner.knows_map)
     ctx = EpisodeContext(known, task, PlannerWorld(world, log), backend, log, spec.options, view, information)
     _attach_answer_key(planner, world, scenario, task, backend, spec.options)
     crash: BaseException | None = None

@@ -21,6 +21,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.backends.base import answerer
 from llmnav.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
 from llmnav.errors import BadInputError
 from llmnav.failures import FAILURE_CAUSES
@@ -28,19 +29,21 @@ from llmnav.metrics import (
     CONDITION_KEYS,
     RESCORED_KEYS,
     SUCCESS_RADIUS_M,
-    aborted_by_infrastructure,
+    aborted_without_result,
     summarize_run,
 )
 from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, read_run
+from llmnav.scenario import SEQUENCE_JOIN
 from llmnav.stats import Comparison, compare, describe
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Scenario
+    from llmnav.geometry import Pose2D
+    from llmnav.scenario import Scenario, Task
 
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
-ORACLE_BACKEND = "policy:oracle"  # answers computed from the ground truth: a ceiling, neither model nor null policy
 ORACLE_MARK = " (oracle answers)"
+FAILED = "failed"  # a failed plan's cell: the waypoint source leaves failed plans out of its averages
 
 
 @dataclass
@@ -66,7 +69,7 @@ class Run:
         """
         found = dict(self.summary.get("condition") or {})
         options = self.config.get("options")
-        for key, value in (options.items() if isinstance(options, dict) else ()):
+        for key, value in options.items() if isinstance(options, dict) else ():
             if key not in found:
                 found[key] = "+".join(map(str, value)) if isinstance(value, list) else value
         return found
@@ -204,7 +207,7 @@ def load_run(run_dir: Path, success_radius_m: float | None = None) -> Run:
             if scenario is None and summary.get("task_kind") == "target":
                 problems.append(f"{why}; no SPL or Soft-SPL")
     # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
-    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_by_infrastructure(summary):
+    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_without_result(summary):
         problems.append("no score: the task's targets could not be resolved")
     return Run(Path(run_dir), summary, record.config, problems)
 
@@ -236,9 +239,9 @@ def read_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> t
 
 
 def split_aborted(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
-    """(the model's results, the runs aborted by a backend or server failure): the latter never enter a mean."""
-    results = [r for r in runs if not aborted_by_infrastructure(r.summary)]
-    return results, [r for r in runs if aborted_by_infrastructure(r.summary)]
+    """(the model's results, the runs aborted by a server failure or a crash): the latter never enter a mean."""
+    results = [r for r in runs if not aborted_without_result(r.summary)]
+    return results, [r for r in runs if aborted_without_result(r.summary)]
 
 
 # --- grouping -----------------------------------------------------------------------------------
@@ -259,8 +262,7 @@ def varying_keys(runs: Sequence[Run]) -> list[str]:
 
 def is_oracle(run: Run) -> bool:
     """Whether oracle answers (`policy:oracle`, computed from the ground truth) drove this run."""
-    backend = str(run.summary.get("backend") or "")
-    return backend == ORACLE_BACKEND or backend.startswith(f"{ORACLE_BACKEND}:")
+    return answerer(str(run.summary.get("backend") or "")) == "oracle"
 
 
 def condition_label(run: Run, keys: Sequence[str]) -> str:
@@ -439,7 +441,6 @@ def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
     """Oracle shortest-path length per (task, start pose); None where unavailable (noted on the run)."""
     from llmnav.errors import one_line
     from llmnav.geometry import Pose2D
-    from llmnav.mapping.targets import oracle_length
 
     lengths: dict[tuple[str, Any], float | None] = {}
     for run in runs:
@@ -456,14 +457,51 @@ def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
             run.problem("no oracle path length: the config line has no start_pose")
             continue
         try:
-            task = scenario.task(run.task)
-            lengths[key] = _num(oracle_length(scenario, task, Pose2D.from_list(start)))
+            lengths[key] = _num(sequence_oracle_length(scenario, task_of_run(scenario, run), Pose2D.from_list(start)))
         except Exception as err:  # noqa: BLE001 — shown as "—" in the table and reported, never fatal
             run.problem(f"no oracle path length: {type(err).__name__}: {one_line(err)}")
             continue
         if lengths[key] is None and run.summary.get("task_kind") == "target":  # others have no target: N.A.
             run.problem("no oracle path length: the oracle found no path from this start pose")
     return lengths
+
+
+def task_of_run(scenario: Scenario, run: Run) -> Task:
+    """The task a run drove: the scenario's (a route too) by id, else its logged text resolved again.
+
+    A sequence of `--task` commands (id `SEQ`) and free text (id `adhoc`) are no scenario task: their text
+    is (`llmnav.tasks`), so they are resolved from it as `drive` did.
+    """
+    from llmnav.tasks import SEQUENCE_ID, sequence_task, task_from_text
+
+    try:
+        return scenario.task(run.task)
+    except KeyError:
+        text = run.summary.get("task_text")
+        if not isinstance(text, str) or not text:
+            raise
+    legs = text.split(SEQUENCE_JOIN) if run.task == SEQUENCE_ID else [text]
+    tasks = [task_from_text(scenario, leg) for leg in legs]
+    return tasks[0] if len(tasks) == 1 else sequence_task(scenario, tasks)
+
+
+def sequence_oracle_length(scenario: Scenario, task: Task, start: Pose2D) -> float | None:
+    """The oracle's path length [m]; for a route or sequence, summed over its legs (None if a leg has no path).
+
+    Each leg starts where the oracle's previous one ended, as the robot's did where the last leg ended.
+    """
+    from llmnav.geometry import Pose2D
+    from llmnav.mapping.targets import oracle_path
+    from llmnav.tasks import sequence_legs
+
+    total, here = 0.0, start
+    for leg in sequence_legs(scenario, task):
+        path = oracle_path(scenario, leg, here)
+        if path is None:
+            return None
+        total += path.length_m
+        here = Pose2D(path.approach[0], path.approach[1], 0.0)
+    return total
 
 
 def reference_paths(declared: Mapping[str, Declarations] | None = None) -> dict[str, ReferencePath]:
@@ -547,7 +585,14 @@ def _reader(source: str, where: Sequence[str]) -> Callable[[Run], Any]:
 
 
 def _column_values(group: Sequence[Run], column: Column) -> list[float]:
+    if column.unless:
+        group = [r for r in group if not _read(r, "metrics", column.unless.split("."))]
     return _values(group, _reader(column.source, column.where))
+
+
+def _all_left_out(group: Sequence[Run], column: Column) -> bool:
+    """Whether the column's `unless` leaves out every run of the group (shown as FAILED, not as missing)."""
+    return bool(column.unless) and all(_read(r, "metrics", column.unless.split(".")) for r in group)
 
 
 def _declared_row(spec: ScoreTable, group: Sequence[Run]) -> tuple[list[str], dict[str, Any]]:
@@ -578,7 +623,7 @@ def _declared_row(spec: ScoreTable, group: Sequence[Run]) -> tuple[list[str], di
             medians[column.key] = _stats_record(values)
         else:
             values = _column_values(group, column)
-            cells.append(_mean_sd(values, column.digits))
+            cells.append(FAILED if _all_left_out(group, column) else _mean_sd(values, column.digits))
             means[column.key] = _stats_record(values)
     return cells, counts | means | shares | medians
 
@@ -696,7 +741,7 @@ def collided_runs(runs: Sequence[Run]) -> list[str]:
 
 
 def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Per task and condition: the runs a backend or server failure ended, kept out of every mean above."""
+    """Per task and condition: the runs a backend or server failure or a crash ended, kept out of every mean."""
     if not aborted:
         return None
     rows, records = [], []
@@ -707,11 +752,11 @@ def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
         records.append({"task": task, "condition": label, **condition_fields(group[0], keys), "n": len(group),
                         "reasons": reasons})  # fmt: skip
     return Table(
-        "Runs aborted by a backend or server failure (not in the means above)",
+        "Runs aborted by a backend or server failure or a crash (not in the means above)",
         ["Task", "Condition", "N", "Reason"],
         rows,
         records,
-        note="No answer came from the model's server: these runs say nothing about the model.",
+        note="No answer came from the model's server, or llmnav crashed: these runs say nothing about the model.",
         name="aborted",
     )
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 from llmnav import plugins
 from llmnav.chat import (
@@ -185,6 +185,19 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
     """Split `NAME[:ARG]` into name and argument."""
     name, _, arg = spec.strip().partition(":")
     return name.lower(), (arg or None)
+
+
+Answerer = Literal["model", "policy", "oracle"]
+POLICY_BACKEND = "policy"  # null policies and oracle answers: no model behind them
+ORACLE_POLICY = "oracle"  # the policy that answers from the ground truth: a ceiling, not a floor
+
+
+def answerer(spec: str) -> Answerer:
+    """Who answers under a backend spec: a model, a null policy, or oracle answers (`policy:oracle[:...]`)."""
+    name, arg = parse_spec(spec)
+    if name != POLICY_BACKEND:
+        return "model"
+    return "oracle" if (arg or "").strip().lower().partition(":")[0] == ORACLE_POLICY else "policy"
 
 
 def backend_class(spec: str) -> tuple[type[Backend], str | None]:

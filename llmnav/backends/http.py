@@ -403,9 +403,7 @@ class JsonHttpClient:
                 if time.perf_counter() > deadline:
                     raise httpx.ReadTimeout("reply not complete in time", request=response.request)
                 if size > MAX_REPLY_BYTES:  # a reply is kilobytes; a server sending without end is broken
-                    raise httpx.RemoteProtocolError(
-                        f"reply over {MAX_REPLY_BYTES >> 20} MB", request=response.request
-                    )
+                    raise httpx.RemoteProtocolError(f"reply over {MAX_REPLY_BYTES >> 20} MB", request=response.request)
             response._content = b"".join(chunks)  # what Response.read() would store
         return response
 

@@ -23,11 +23,10 @@ from llmnav.backends.base import (
     ChatRequest,
     ChatResult,
     Check,
-    ContinuationScore,
     ScoreRequest,
     ScoreResult,
 )
-from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request
+from llmnav.backends.forced import normalised, score_continuation
 from llmnav.backends.http import (
     HttpBackend,
     HttpOptions,
@@ -155,15 +154,19 @@ class OpenAIBackend(HttpBackend):
         if not self.can_score:
             where = self.client.redact(self.base_url)
             raise ModelError(f"{self.spec.split('@')[0]} at {where} cannot score continuations")
-        prefix = self._tokenize(request.prefix)
-        scores: list[ContinuationScore] = []
         elapsed = 0.0
-        for text in request.continuations:
-            tail = continuation_tokens(prefix, self._tokenize(request.prefix + text), text)
-            reply = self.client.post("/completions", {"model": self.model, **forced_request(prefix, tail)})
+
+        def complete(body: dict[str, Any]) -> dict[str, Any]:
+            nonlocal elapsed
+            reply = self.client.post("/completions", {"model": self.model, **body})
             elapsed += reply.elapsed_s
-            scores.append(ContinuationScore(forced_logprob(reply.data, tail, text), len(tail)))
-        return ScoreResult(tuple(scores), elapsed, self.model, {"mode": "score", "prefix_tokens": len(prefix)})
+            return reply.data
+
+        scores = tuple(
+            score_continuation(request.prefix, text, self._tokenize, complete) for text in request.continuations
+        )
+        prefix_tokens = len(self._tokenize(normalised(request.prefix)))
+        return ScoreResult(scores, elapsed, self.model, {"mode": "score", "prefix_tokens": prefix_tokens})
 
     def check_server(self) -> list[Check]:
         """The shared probes, then whether the server scores continuations."""

@@ -56,6 +56,7 @@ def plan(
     if not sc.corridors:
         raise BadInputError(f"scenario '{sc.name}' publishes no corridors; waypoint planning needs them")
     model = get_backend(backend)
+    _attach_oracle_answers(model, resolved)
 
     def call(request: ChatRequest, purpose: str) -> ChatResult:
         return model.chat(request)
@@ -84,6 +85,21 @@ def plan(
             _execute(resolved, scenario or sc.name, model, result.waypoints, max_generations, seed, out_dir)
     finally:
         model.close()
+
+
+def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
+    """`policy:oracle`: the waypoint planner's answer key, from the true map and the start pose (nothing moves)."""
+    from llmnav.planners.base import GroundTruth
+    from llmnav.planners.waypoints import WaypointPlanner
+    from llmnav.planners.waypoints.options import WaypointOptions
+    from llmnav.runner import oracle_backend
+
+    oracle = oracle_backend(model)
+    if oracle is None:
+        return
+    start = resolved.start.pose()
+    truth = GroundTruth(resolved.scenario, resolved.task, lambda: start, lambda: 0.0)
+    oracle.attach_answer_key(WaypointPlanner().oracle_answers(truth, WaypointOptions(planner="waypoints")))
 
 
 def _print_plan(result: PlanResult, scenario: str, plot: Path | None) -> None:

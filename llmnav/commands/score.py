@@ -111,7 +111,7 @@ def score(
     if aborted:
         err_console.print(
             f"[yellow]left out of the means:[/] {len(aborted)} run(s) aborted by a backend or server failure "
-            "(table 'aborted' lists them per condition)",
+            "or a crash (table 'aborted' lists them per condition)",
             highlight=False,
             soft_wrap=True,
         )

@@ -26,9 +26,10 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from llmnav.backends.local import DEFAULT_N_CTX, PROMPT_CACHE_RAM, default_model_path, default_threads
+from llmnav.backends.llamacpp import PROMPT_CACHE_RAM, _import_xllamacpp
+from llmnav.backends.local import DEFAULT_N_CTX, default_model_path, default_threads
 from llmnav.backends.local import _gguf_path as gguf_path  # the one check of a model path (exists, GGUF)
-from llmnav.errors import BadInputError, ModelUnavailableError
+from llmnav.errors import BadInputError
 
 LOOPBACK = "127.0.0.1"
 DEFAULT_PORT = 8080
@@ -134,16 +135,6 @@ def check_port(host: str, port: int) -> None:
                 raise BadInputError(f"port {port} on {host} is already in use: choose another with --port") from None
             reason = err.strerror or str(err)
             raise BadInputError(f"cannot listen on {host}:{port}: {reason}") from None
-
-
-def _import_xllamacpp() -> Any:
-    try:
-        import xllamacpp
-    except ImportError:
-        raise ModelUnavailableError(
-            "serving needs the xllamacpp engine: run `make install` or `pip install xllamacpp`"
-        ) from None
-    return xllamacpp
 
 
 class LlamaServer:

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import json
 
-from llmnav.guard.schemas import step_answer
 from llmnav.planners.base import DriveOptions, drive_options
+from llmnav.planners.stepwise.answers import step_answer
 from llmnav.runner import EpisodeSpec, run_episode
 
 ANSWERS = [

@@ -184,3 +184,18 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str], messa
     assert res.exit_code == 2, res.output
     assert len(res.output.strip().splitlines()) == 1 and message in res.output, res.output
     assert "Traceback" not in res.output and not (tmp_path / "p.png").exists()
+
+
+@pytest.mark.parametrize(("scenario", "task", "target"), [("corridor_a", "Go to room 105", "R105"),
+                                                           ("corridor_c", "Go to room 107", "R107")])  # fmt: skip
+def test_plan_with_oracle_answers(tmp_path: Path, scenario: str, task: str, target: str) -> None:
+    """`policy:oracle` answers `plan` from the true map: a valid plan on the first attempt, ending on the target."""
+    from llmnav.scenario import load_scenario
+
+    res = runner.invoke(app, ["plan", "--task", task, "--scenario", scenario, "--backend", "policy:oracle",
+                              "--plot", str(tmp_path / "p.png"), "--json"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    plan = json.loads(res.stdout)
+    assert plan["target"] == target and plan["wgsr"] == 100.0 and len(plan["attempts"]) == 1
+    goal = load_scenario(scenario).object(target).goal_point
+    assert np.allclose(plan["waypoints"][-1], goal, atol=0.05)

@@ -31,7 +31,7 @@ from llmnav.planners.hybrid.memory import Memory, relevance_order
 if TYPE_CHECKING:
     from llmnav.mapping.grid import GridGeometry, LidarMap, OccupancyGrid
     from llmnav.planners.base import EpisodeContext
-    from llmnav.planners.hybrid.planner import HybridConfig
+    from llmnav.planners.hybrid.config import HybridConfig
 
 OptionKind = Literal["landmark", "frontier", "scan", "complete"]
 
