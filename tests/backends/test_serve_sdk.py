@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import subprocess
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Literal
 
 import openai
@@ -169,3 +170,20 @@ def test_embeddings_error_names_no_missing_flag(sdk: openai.OpenAI) -> None:
     message = caught.value.message
     assert "--embeddings" not in message and "`--" not in message
     assert "does not support embeddings" in message and "llmnav serve" in message
+
+
+def test_llmnav_run_naming_a_model_the_server_lacks_is_bad_input(
+    served: tuple[subprocess.Popen[str], str, str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """llmnav's own `openai` backend turns the 404 into one line and exit 2 (a typo in --backend)."""
+    from typer.testing import CliRunner
+
+    from llmnav.cli import app
+
+    _process, url, key = served
+    monkeypatch.setenv("OPENAI_API_KEY", key)
+    args = ["drive", "--planner", "stepwise", "--scenario", "corridor_a", "--task-id", "A1", "--sensing", "lidar"]
+    result = CliRunner().invoke(app, [*args, "--backend", f"openai:gpt-4o@{url}", "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2, result.output
+    assert "does not serve 'gpt-4o'" in result.output and "`local`" in result.output
+    assert "Traceback" not in result.output
