@@ -359,7 +359,8 @@ class _Handler(BaseHTTPRequestHandler):
     def _copy(self, reply: http.client.HTTPResponse, exchange: _Exchange, adapted: Adapted) -> None:
         streamed = reply.getheader("Content-Length") is None and self.command != "HEAD"
         json_reply = "application/json" in (reply.getheader("Content-Type") or "")
-        if not streamed and json_reply and (reply.status >= 400 or adapted.changes_replies):
+        rewrite = reply.status >= 400 or adapted.changes_replies
+        if not streamed and json_reply and rewrite and self.command != "HEAD":
             self._rewrite(reply, exchange, adapted)  # a whole JSON reply, small: read, change, send
             return
         self.send_response(reply.status, reply.reason)
