@@ -74,6 +74,10 @@ _IMAGES_REJECTED = re.compile(
     re.IGNORECASE,
 )
 
+# How servers say the model a request names is not theirs: OpenAI and `llmnav serve` ("The model `x`
+# does not exist"), vLLM ("The model `x` does not exist."), Ollama ("model 'x' not found").
+_MODEL_NOT_FOUND = re.compile(r"model\b.{0,200}\b(?:does not exist|not found)|model_not_found", re.IGNORECASE)
+
 IMAGES_CHECK = "accepts images"  # the probe a run needs only when its sensing includes the image
 
 
@@ -574,6 +578,12 @@ class HttpBackend(Backend):
         try:
             return ChatPost(self.client.post(self.chat_path, self.build_body(request)))
         except HttpStatusError as err:
+            if err.status == 404 and _MODEL_NOT_FOUND.search(err.reason):  # a name in the spec: bad input
+                where = self.client.redact(self.client.base_url)
+                raise BackendSpecError(
+                    f"{self.name}: the server at {where} does not serve '{self.model_name}' "
+                    f"({one_line(err.reason, 160)}); name one it serves in --backend"
+                ) from None
             if not images or not images_rejected(err.reason):
                 raise
             with _TEXT_ONLY_LOCK:

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from llmnav.commands.common import cli_errors, console, err_console, esc, parse_option_pairs, path_option
+from llmnav.commands.common import cli_errors, console, err_console, esc, parse_option_pairs, path_option, print_table
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -239,7 +239,7 @@ def _print_plan(ablation: Ablation) -> None:
         table.add_column(column)
     for row in describe_episodes(ablation.episodes):
         table.add_row(*(esc(cell) for cell in row))
-    console.print(table)
+    print_table(table)
     factors = ablation.grid.factors()
     detail = ", ".join(f"{k}: {len(v)}" for k, v in factors.items()) or "no factors"
     console.print(esc(f"{ablation.size} episodes ({detail}; trials: {ablation.grid.trials})"), highlight=False)
