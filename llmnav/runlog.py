@@ -11,8 +11,8 @@ Event vocabulary (field `type`; every event also has `t_wall` [s since start] an
 - `observation`  what the planner saw: `step`, `pose`, `odom`, `lidar_front_m`, `lidar_text`, `detections`,
                  `image` (sha256 or absent).
 - `llm_call`     `step`, `purpose` (action | correction | veto | self_check | ground | waypoints |
-                 suggestion | choice), `request` (ChatRequest.to_log()), `reply` (ChatResult.to_log()) or
-                 `error` (one line).
+                 suggestion | choice), `cache` (hit | miss | off: the reply cache, `--cache`), `request`
+                 (ChatRequest.to_log()), `reply` (ChatResult.to_log()) or `error` (one line).
 - `guard`        `step`, `outcome` (ok | parse | schema | bounds | veto), `error`, `attempt`, and `value`
                  (the accepted answer as JSON data, or None).
 - `action`       `step`, `command`, `parameters`, `pose_before`, `pose_after`, `collided`, `collision_with`,

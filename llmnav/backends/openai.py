@@ -114,6 +114,7 @@ class OpenAIBackend(HttpBackend):
             root = self.base_url.removesuffix("/v1")
             headers, secrets = bearer(self.__key)
             self._root = JsonHttpClient(self.name, root, self.settings, headers=headers, secrets=secrets)
+            self._root.cache = self.reply_cache
         return self._root
 
     def _tokenize(self, text: str) -> list[int]:
@@ -158,12 +159,17 @@ class OpenAIBackend(HttpBackend):
         prefix = self._tokenize(request.prefix)
         scores: list[ContinuationScore] = []
         elapsed = 0.0
+        states: set[str] = set()
         for text in request.continuations:
             tail = continuation_tokens(prefix, self._tokenize(request.prefix + text), text)
             reply = self.client.post("/completions", {"model": self.model, **forced_request(prefix, tail)})
             elapsed += reply.elapsed_s
+            states.add(reply.cache)
             scores.append(ContinuationScore(forced_logprob(reply.data, tail, text), len(tail)))
-        return ScoreResult(tuple(scores), elapsed, self.model, {"mode": "score", "prefix_tokens": len(prefix)})
+        # the call is a hit only when every continuation's reply came from the cache
+        cache = "off" if not self.caching else ("hit" if states == {"hit"} else "miss")
+        meta = {"mode": "score", "prefix_tokens": len(prefix), "cache": cache}
+        return ScoreResult(tuple(scores), elapsed, self.model, meta)
 
     def check_server(self) -> list[Check]:
         """The shared probes, then whether the server scores continuations."""
