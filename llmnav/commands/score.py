@@ -46,12 +46,16 @@ def score(
         typer.Option(
             "--table",
             help="Only this table: episodes, path, null_policies, ceiling, wording, wording_spread, failures, aborted, "
-            "comparison, or one a planner declares (its name is in the JSON). CSV writes one table (default: "
+            "cost, comparison, or one a planner declares (its name is in the JSON). CSV writes one table (default: "
             "the first).",
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")] = None,
+    prices: Annotated[
+        Path | None,
+        typer.Option("--prices", help="Reprice every run's model calls with this price table (TOML) from its log."),
+    ] = None,
     success_radius: Annotated[
         float | None,
         typer.Option(
@@ -81,7 +85,10 @@ def score(
     chart_folder_option(plot)
     if success_radius is not None and not (math.isfinite(success_radius) and success_radius > 0):
         raise BadInputError(f"--success-radius {success_radius}: expected a distance in metres above 0")
-    runs, broken = read_runs(paths, success_radius)
+    from llmnav.backends.prices import load_prices
+
+    table_of_prices = load_prices(prices) if prices is not None else None
+    runs, broken = read_runs(paths, success_radius, table_of_prices)
     keys = varying_keys(runs) if by is None else parse_keys(by)
     tables = build_tables(runs, keys)
     results, aborted = split_aborted(runs)
