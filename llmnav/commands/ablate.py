@@ -178,7 +178,8 @@ def ablate(
     if model_layout not in lib.LAYOUTS:
         raise BadInputError(f"--model-layout {model_layout!r}: choose one of {', '.join(lib.LAYOUTS)}")
     workers = _usable_workers(workers)
-    cache_dir, prices_file = path_option(cache, "--cache"), path_option(prices, "--prices")
+    cache_dir = _absolute(path_option(cache, "--cache"))
+    prices_file = _absolute(path_option(prices, "--prices"))
     budget = _budget(max_cost, episode_tokens, prices_file)
     for ablation in ablations:
         with _progress() as progress:
@@ -330,6 +331,19 @@ class _progress:
         self.bar.update(self.task_id, advance=1, finished=done, successes=successes, errors=errors)
 
 
+def _absolute(path: Path | None) -> Path | None:
+    """A path the workers (and Ray tasks, which may start elsewhere) find as this process does."""
+    return path.absolute() if path is not None else None
+
+
+def _cost_line(ablation: Ablation) -> str:
+    """", cost 0.0123 USD" over the finished episodes (", cost unknown for N" when some have none)."""
+    done = [e for e in ablation.entries.values() if e.status == "done"]
+    unknown = sum(1 for e in done if e.cost_usd is None)
+    total = sum(e.cost_usd or 0.0 for e in done)
+    return f", cost {total:.4f} USD" + (f" (+ unknown for {unknown} episode(s))" if unknown else "")
+
+
 def _print_results(ablation: Ablation) -> None:
     from llmnav.ablate import results_runs, table_keys
     from llmnav.reporting.tables import print_tables
@@ -340,7 +354,7 @@ def _print_results(ablation: Ablation) -> None:
     if runs:
         print_tables(console, build_tables(runs, table_keys(ablation)))
     console.print(
-        f"{len(runs)}/{ablation.size} episodes done, {len(errors)} error(s); "
+        f"{len(runs)}/{ablation.size} episodes done, {len(errors)} error(s){_cost_line(ablation)}; "
         f"manifest: {esc(ablation.root / 'manifest.json')}",
         highlight=False,
         soft_wrap=True,
