@@ -87,7 +87,8 @@ def score(
         raise BadInputError(f"--success-radius {success_radius}: expected a distance in metres above 0")
     from llmnav.backends.prices import load_prices
 
-    table_of_prices = load_prices(prices) if prices is not None else None
+    checked = load_prices(prices)  # a bad $LLMNAV_PRICES is one line here, not a skipped run per old summary
+    table_of_prices = checked if prices is not None else None
     runs, broken = read_runs(paths, success_radius, table_of_prices)
     keys = varying_keys(runs) if by is None else parse_keys(by)
     tables = build_tables(runs, keys)

@@ -213,3 +213,18 @@ def test_estimates_and_lookups(tmp_path):
     assert no_counts["cost_usd"] is None and "without token counts" in no_counts["cost_note"]
     old = run_cost({"backend": "openai:gpt-4o"}, calls, table)  # a run from before billing was recorded
     assert old["cost_usd"] is None
+
+
+def test_drive_through_the_cache_says_what_it_cost(chat_server, tmp_path, monkeypatch):
+    prices = tmp_path / "prices.toml"
+    prices.write_text(PRICES)
+    args = ["drive", "--scenario", str(SMALL_ROOM), "--task-id", "T1", "--planner", "hybrid", "--decide", "generate",
+            "--sensing", "lidar", "-o", "max_iterations=1", "--backend", f"openai:m@{chat_server.url}/v1",
+            "--cache", str(tmp_path / "cache"), "--prices", str(prices), "--quiet"]  # fmt: skip
+    first = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "a")])
+    assert "cost 1.0000 USD (1 model call(s))" in first.output, first.output
+    second = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "b")])
+    assert "cost 0.0000 USD (1 model call(s), 1 from the cache)" in second.output, second.output
+    assert len(chat_server.seen) == 1
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert summary["tokens"] == {"prompt": 1000, "completion": 50, "paid_prompt": 0, "paid_completion": 0}
