@@ -54,9 +54,22 @@ def _row(label: str, record: dict[str, Any]) -> list[str]:
     return [label, *(str(record[k]) for k in keys), *_money(record)]
 
 
+def asks_a_server(run: Run) -> bool:
+    """Whether the run's calls went to a model API (priced or not) or its reply cache.
+
+    The local engine, policies and replays bill nothing and send nothing: a cost table of theirs is noise.
+    """
+    from llmnav.backends.prices import billing_of
+
+    return "free" not in billing_of(run.config) or bool(run.summary.get("cache_hits"))
+
+
 def cost_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Per condition, then for all runs: calls, cache hits, tokens and cost (None without a model call)."""
-    if not any(_int(r.summary.get("llm_calls")) for r in runs):
+    """Per condition, then for all runs: calls, cache hits, tokens and cost.
+
+    None when no run asked a model API (`asks_a_server`).
+    """
+    if not any(_int(r.summary.get("llm_calls")) and asks_a_server(r) for r in runs):
         return None
     rows, records = [], []
     for _task, cond, group in group_runs(runs, keys, by_task=False):
