@@ -32,6 +32,7 @@ from llmnav.failures import failure_cause
 from llmnav.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
 
 if TYPE_CHECKING:
+    from llmnav.backends.prices import PriceTable
     from llmnav.planners.base import EpisodeOutcome
     from llmnav.runlog import RunRecord
     from llmnav.scenario import Scenario
@@ -387,6 +388,7 @@ def summarize_run(
     outcome: EpisodeOutcome | None = None,
     *,
     success_radius_m: float = SUCCESS_RADIUS_M,
+    prices: PriceTable | None = None,
 ) -> dict[str, Any]:
     """Every metric of one episode, from its run log (complete or cut short) and its scenario.
 
@@ -394,8 +396,11 @@ def summarize_run(
     otherwise the `end` event is used, and a run without one counts as aborted ("cut short").
     `scenario` may be None when it cannot be loaded: targets logged as points still score.
     `success_radius_m` [m]: the radius success is judged at (`llmnav score --success-radius`); the score's
-    distance term keeps its own 2.5 m.
+    distance term keeps its own 2.5 m. `prices`: the table `cost_usd` is computed with (default: `$LLMNAV_PRICES`,
+    else the bundled one; see `llmnav.backends.prices`).
     """
+    from llmnav.backends.prices import load_prices, run_cost
+
     config = record.config
     events = record.events
     task, targets, faces = _task_info(config, scenario)
@@ -485,6 +490,8 @@ def summarize_run(
         "latency_s_mean": _rounded(_mean(latencies)),
         "llm_calls": len(record.of_type("llm_call")),
         "new_prompt_tokens_median": new_prompt_tokens_median(record.of_type("llm_call")),
+        # cache_hits, tokens, cost_usd (None: unknown) and cost_note
+        **run_cost(config, record.of_type("llm_call"), prices or load_prices()),
         "json_errors": sum(1 for g in guards if g in GUARD_JSON_OUTCOMES),
         "safety_vetoes": sum(1 for g in guards if g == GUARD_VETO_OUTCOME),
         "final_pose": final.as_list() if final is not None else None,

@@ -209,10 +209,26 @@ def call_model(ctx: ModelLine, request: ChatRequest, purpose: str, step: int | N
         with beside_simulation(ctx.options.realtime):
             result = ctx.backend.chat(request)
     except LlmnavError as err:
-        ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, error=err))
+        ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, error=err, caching=ctx.backend.caching))
         raise
-    ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, result))
+    ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, result, caching=ctx.backend.caching))
     return result
+
+
+def cache_state(meta: dict[str, Any], caching: bool) -> str:
+    """What the reply cache did for a call: "hit", "miss" (asked the server), or "off" (no cache)."""
+    state = meta.get("cache")
+    if state in ("hit", "miss"):
+        return str(state)
+    return "miss" if caching else "off"
+
+
+def _reply_log(log: dict[str, Any]) -> dict[str, Any]:
+    """A reply's log form with the cache state lifted out of its meta (the event carries it, once)."""
+    meta = log.get("meta")
+    if isinstance(meta, dict) and "cache" in meta:
+        log["meta"] = {k: v for k, v in meta.items() if k != "cache"}
+    return log
 
 
 def llm_call_fields(
@@ -221,19 +237,27 @@ def llm_call_fields(
     step: int | None,
     result: ChatResult | None = None,
     error: BaseException | str | None = None,
+    caching: bool = False,
 ) -> dict[str, Any]:
     """The fields of the `llm_call` event for a chat call: its reply, or its error when it failed.
 
     For a caller that made the call by other means than `call_model` (the FSM's model process) and logs
-    it later, in the same form.
+    it later, in the same form. `caching`: the backend has a reply cache (a failed call was a miss).
     """
     if result is None:
-        return {"step": step, "purpose": purpose, "request": request.to_log(), "error": one_line(error or "")}
+        return {
+            "step": step,
+            "purpose": purpose,
+            "cache": cache_state({}, caching),
+            "request": request.to_log(),
+            "error": one_line(error or ""),
+        }
     return {
         "step": step,
         "purpose": purpose,
+        "cache": cache_state(result.meta, caching),
         "request": request.to_log(),
-        "reply": result.to_log(),
+        "reply": _reply_log(result.to_log()),
         "new_prompt_tokens": new_prompt_tokens(result),
     }
 
@@ -256,9 +280,14 @@ def call_scorer(ctx: ModelLine, request: ScoreRequest, step: int | None) -> Scor
             got, asked = len(result.scores), len(request.continuations)
             raise ModelError(f"{ctx.backend.spec} returned {got} scores for {asked} continuations")
     except LlmnavError as err:
-        ctx.log.event("llm_call", step=step, purpose="score", request=request.to_log(), error=one_line(err))
+        cache = cache_state({}, ctx.backend.caching)
+        ctx.log.event(
+            "llm_call", step=step, purpose="score", cache=cache, request=request.to_log(), error=one_line(err)
+        )
         raise
-    ctx.log.event("llm_call", step=step, purpose="score", request=request.to_log(), reply=result.to_log())
+    cache = cache_state(result.meta, ctx.backend.caching)
+    reply = _reply_log(result.to_log())
+    ctx.log.event("llm_call", step=step, purpose="score", cache=cache, request=request.to_log(), reply=reply)
     return result
 
 

@@ -38,6 +38,7 @@ from llmnav.stats import Comparison, Describe, clip_interval, compare, describe,
 from llmnav.tasks import ADHOC_ID
 
 if TYPE_CHECKING:
+    from llmnav.backends.prices import PriceTable
     from llmnav.geometry import Pose2D
     from llmnav.scenario import Scenario, Task
 
@@ -45,6 +46,7 @@ NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
 ORACLE_MARK = " (oracle answers)"
 FAILED = "failed"  # a failed plan's cell: the waypoint source leaves failed plans out of its averages
+CACHE_MARK = " (from cache)"  # a run some of whose model answers came from the reply cache (`--cache`)
 
 
 @dataclass
@@ -198,12 +200,13 @@ def scenario_of(config: dict[str, Any]) -> Scenario | None:
 _COLLISION_KEYS = ("collisions", "collided_with")
 
 
-def load_run(run_dir: Path, success_radius_m: float | None = None) -> Run:
+def load_run(run_dir: Path, success_radius_m: float | None = None, prices: PriceTable | None = None) -> Run:
     """A run's summary: summary.json when the run ended, else computed from its (cut-short) log.
 
     `success_radius_m` [m]: success, oracle success, SPL, Soft-SPL and the failure cause are recomputed from
     the log at this radius (`--success-radius`). A summary written before some of these keys existed gets
-    them computed from its log the same way (`llmnav.metrics.summarize_run`).
+    them computed from its log the same way (`llmnav.metrics.summarize_run`). `prices` (`--prices`): the
+    cost is recomputed from the log with this table instead of the one the run was priced with.
     """
     return run_from_record(read_run(run_dir), success_radius_m)
 
@@ -229,6 +232,10 @@ def run_from_record(record: RunRecord, success_radius_m: float | None = None) ->
             summary = {**summary, **{k: fresh[k] for k in dict.fromkeys((*missing, *redo))}}
             if scenario is None and summary.get("task_kind") == "target":
                 problems.append(f"{why}; no SPL or Soft-SPL")
+    if "cost_usd" not in summary or prices is not None:  # a summary from before costs were: priced now
+        from llmnav.backends.prices import load_prices, run_cost
+
+        summary = {**summary, **run_cost(record.config, record.of_type("llm_call"), prices or load_prices())}
     # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
     if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_without_result(summary):
         problems.append("no score: the task's targets could not be resolved")
@@ -240,18 +247,20 @@ def load_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> l
     return [load_run(d, success_radius_m) for d in find_run_dirs(paths)]
 
 
-def read_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> tuple[list[Run], list[str]]:
+def read_runs(
+    paths: Sequence[Path], success_radius_m: float | None = None, prices: PriceTable | None = None
+) -> tuple[list[Run], list[str]]:
     """Every readable run below the given paths, and "folder: why" for each that is not.
 
     One damaged log among thousands must not cancel the tables of the rest; when none can be read, the
     first one's error is raised (a single broken run named on the command line is an error).
-    `success_radius_m`: as for `load_run`.
+    `success_radius_m` and `prices`: as for `load_run`.
     """
     runs: list[Run] = []
     broken: list[tuple[Path, BadInputError]] = []
     for run_dir in find_run_dirs(paths):
         try:
-            runs.append(load_run(run_dir, success_radius_m))
+            runs.append(load_run(run_dir, success_radius_m, prices))
         except BadInputError as err:
             broken.append((run_dir, err))
     if broken and not runs:
@@ -292,12 +301,14 @@ def condition_label(run: Run, keys: Sequence[str]) -> str:
     """`key=value, ...` over the varying keys ("all" when nothing varies); oracle runs are marked as such.
 
     The mark is part of the label even when the backend is not a grouping key, so oracle answers are never
-    pooled with a model's and a reader never takes them for one.
+    pooled with a model's and a reader never takes them for one. A run served (partly) from the reply cache
+    is marked too: its answers were not asked of the model in this run, and its latencies are the first run's.
     """
     oracle = is_oracle(run)
     parts = [f"{k}={run.condition.get(k)}{ORACLE_MARK if oracle and k == 'backend' else ''}" for k in keys]
     label = ", ".join(parts) or "all"
-    return label + ORACLE_MARK if oracle and "backend" not in keys else label
+    label = label + ORACLE_MARK if oracle and "backend" not in keys else label
+    return label + CACHE_MARK if run.summary.get("cache_hits") else label
 
 
 def condition_fields(run: Run, keys: Sequence[str]) -> dict[str, Any]:
@@ -732,6 +743,9 @@ def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -
     policies = (null_policy_table, ceiling_table, wording_table, wording_spread_table)
     tables += [t for t in (b(results, keys) for b in policies) if t is not None]
     tables += [t for t in (failures_table(runs, keys), aborted_table(aborted, keys)) if t is not None]
+    from llmnav.score_cost import cost_table
+
+    tables += [t for t in (cost_table(runs, keys),) if t is not None]
     return tables
 
 

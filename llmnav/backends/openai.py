@@ -113,6 +113,7 @@ class OpenAIBackend(HttpBackend):
             root = self.base_url.removesuffix("/v1")
             headers, secrets = bearer(self.__key)
             self._root = JsonHttpClient(self.name, root, self.settings, headers=headers, secrets=secrets)
+            self._root.cache = self.reply_cache
         return self._root
 
     def _tokenize(self, text: str) -> list[int]:
@@ -155,18 +156,23 @@ class OpenAIBackend(HttpBackend):
             where = self.client.redact(self.base_url)
             raise ModelError(f"{self.spec.split('@')[0]} at {where} cannot score continuations")
         elapsed = 0.0
+        states: set[str] = set()
 
         def complete(body: dict[str, Any]) -> dict[str, Any]:
             nonlocal elapsed
             reply = self.client.post("/completions", {"model": self.model, **body})
             elapsed += reply.elapsed_s
+            states.add(reply.cache)
             return reply.data
 
         scores = tuple(
             score_continuation(request.prefix, text, self._tokenize, complete) for text in request.continuations
         )
+        # the call is a hit only when every continuation's reply came from the cache
+        cache = "off" if not self.caching else ("hit" if states == {"hit"} else "miss")
         prefix_tokens = len(self._tokenize(normalised(request.prefix)))
-        return ScoreResult(scores, elapsed, self.model, {"mode": "score", "prefix_tokens": prefix_tokens})
+        meta = {"mode": "score", "prefix_tokens": prefix_tokens, "cache": cache}
+        return ScoreResult(scores, elapsed, self.model, meta)
 
     def check_server(self) -> list[Check]:
         """The shared probes, then whether the server scores continuations."""

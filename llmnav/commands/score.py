@@ -47,12 +47,16 @@ def score(
             "--table",
             help="Only this table: runs (one row per run, streamed), episodes, path, null_policies, ceiling, "
             "wording, wording_spread, failures, aborted, "
-            "comparison, or one a planner declares (its name is in the JSON). CSV writes one table (default: "
+            "cost, comparison, or one a planner declares (its name is in the JSON). CSV writes one table (default: "
             "the first).",
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")] = None,
+    prices: Annotated[
+        Path | None,
+        typer.Option("--prices", help="Reprice every run's model calls with this price table (TOML) from its log."),
+    ] = None,
     success_radius: Annotated[
         float | None,
         typer.Option(
@@ -82,13 +86,17 @@ def score(
     chart_folder_option(plot)
     if success_radius is not None and not (math.isfinite(success_radius) and success_radius > 0):
         raise BadInputError(f"--success-radius {success_radius}: expected a distance in metres above 0")
+    from llmnav.backends.prices import load_prices
+
+    checked = load_prices(prices)  # a bad $LLMNAV_PRICES is one line here, not a skipped run per old summary
+    table_of_prices = checked if prices is not None else None
     if table == "runs":
         for flag, given in (("--compare", compare), ("--by", by), ("--plot", plot)):
             if given:
                 raise BadInputError(f"--table runs: {flag} does not apply (it lists every run, ungrouped)")
         runs_table(paths, fmt, out, success_radius)
         return
-    runs, broken = read_runs(paths, success_radius)
+    runs, broken = read_runs(paths, success_radius, table_of_prices)
     keys = varying_keys(runs) if by is None else parse_keys(by)
     tables = build_tables(runs, keys)
     results, aborted = split_aborted(runs)

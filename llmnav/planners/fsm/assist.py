@@ -334,7 +334,8 @@ class AssistPipeline:
         """The model process's call, logged as `call_model` logs one."""
         from llmnav.observe import llm_call_fields
 
-        self.outbox.append(("llm_call", llm_call_fields(request, "suggestion", None, result, error)))
+        caching = bool(self.ctx.backend and self.ctx.backend.caching)
+        self.outbox.append(("llm_call", llm_call_fields(request, "suggestion", None, result, error, caching)))
 
     def _call_virtual(self, request: ChatRequest, now: float) -> Suggestion:
         """Call between ticks with the simulation frozen; charge the latency to simulation time."""
