@@ -208,10 +208,12 @@ def load_run(run_dir: Path, success_radius_m: float | None = None, prices: Price
     them computed from its log the same way (`llmnav.metrics.summarize_run`). `prices` (`--prices`): the
     cost is recomputed from the log with this table instead of the one the run was priced with.
     """
-    return run_from_record(read_run(run_dir), success_radius_m)
+    return run_from_record(read_run(run_dir), success_radius_m, prices)
 
 
-def run_from_record(record: RunRecord, success_radius_m: float | None = None) -> Run:
+def run_from_record(
+    record: RunRecord, success_radius_m: float | None = None, prices: PriceTable | None = None
+) -> Run:
     """`load_run` of a log already read (the per-run table also sums the log's token counts)."""
     run_dir = record.run_dir
     summary = record.summary
