@@ -48,6 +48,7 @@ from llmnav.score import (
     group_runs,
     installed_declarations,
     load_scenario_of,
+    task_of_run,
 )
 from llmnav.stats import compare, describe
 
@@ -170,14 +171,30 @@ def _legs(run: Run) -> list[dict[str, Any]]:
     return [leg for leg in legs if isinstance(leg, dict)] if isinstance(legs, list) else []
 
 
-def _target_label(run: Run, target_id: str) -> str:
+def _leg_names(run: Run, commands: Sequence[str]) -> list[str]:
+    """What each leg of the run's task drives to, as the scenario labels it.
+
+    The leg's first target's label; the command text where the scenario cannot be loaded or the target is
+    a point.
+    """
+    from llmnav.tasks import sequence_legs
+
     scenario, _why = load_scenario_of(run.config)
     if scenario is None:
-        return target_id
+        return list(commands)
     try:
-        return scenario.object(target_id).label
-    except KeyError:
-        return target_id
+        legs = sequence_legs(scenario, task_of_run(scenario, run))
+    except (KeyError, BadInputError):
+        return list(commands)
+    names = []
+    for leg, command in zip(legs, commands, strict=False):
+        first = leg.targets[0].object if leg.targets else None
+        names.append(scenario.object(first).label if first and _has_object(scenario, first) else command)
+    return names + list(commands[len(names) :])
+
+
+def _has_object(scenario: Any, object_id: str) -> bool:
+    return any(obj.id == object_id for obj in scenario.objects)
 
 
 def _collided(leg: dict[str, Any]) -> bool:
@@ -245,11 +262,12 @@ def waypoint_legs_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | Non
         count = max(len(commands), *(len(_legs(r)) for r in group))
         lead = [*([cond] if with_condition else []), *([task] if with_route else [])]
         fields = {"condition": cond, **condition_fields(group[0], keys), "route": task}
+        names = _leg_names(group[0], commands)
         previous = START_LABEL
         for index in range(count):
             legs = [_legs(r)[index] for r in group if index < len(_legs(r))]
             target = next((str(leg.get("target")) for leg in legs if leg.get("target")), None)
-            here = _target_label(group[0], target) if target else (commands[index] if index < len(commands) else "?")
+            here = names[index] if index < len(names) else (target or "?")
             label = f"{previous} → {here}"
             cells, record = _leg_cells(legs, len(group))
             rows.append([*lead, label, *cells])
