@@ -36,6 +36,7 @@ from llmnav.score import (
     FAILED,
     MISSING,
     NA,
+    ORACLE_MARK,
     Run,
     Table,
     _fmt,
@@ -47,6 +48,7 @@ from llmnav.score import (
     condition_label,
     group_runs,
     installed_declarations,
+    is_oracle,
     load_scenario_of,
     task_of_run,
 )
@@ -299,21 +301,30 @@ def _fsm_runs(runs: Sequence[Run]) -> list[Run]:
 def _fsm_conditions(runs: Sequence[Run], keys: Sequence[str]) -> list[tuple[str, list[Run]]]:
     """Conditions in the source's order (FSM-only, FSM + EMA, FSM + LLM).
 
-    They are named as the source names them when the assist is all that tells them apart.
+    When each condition has its own assist, they are named as the source names them, FSM + LLM with its
+    backend (or "oracle answers"); otherwise by their full labels.
     """
     groups = _conditions(runs, keys)
     order = list(ASSIST_NAMES)
 
+    def assist_of(group: Sequence[Run]) -> str:
+        return str(group[0].metrics.get("assist"))
+
     def rank(item: tuple[str, list[Run]]) -> tuple[int, str]:
-        assist = str(item[1][0].metrics.get("assist"))
+        assist = assist_of(item[1])
         return (order.index(assist) if assist in order else len(order), item[0])
 
     groups.sort(key=rank)
+    assists = [assist_of(group) for _, group in groups]
+    if len(set(assists)) < len(assists) or not set(assists) <= set(ASSIST_NAMES):
+        return groups
     named = []
-    for label, group in groups:
-        assist = str(group[0].metrics.get("assist"))
-        plain = (set(keys) <= {"assist"} and label == f"assist={assist}") or label == "all"
-        named.append((ASSIST_NAMES.get(assist, label) if plain else label, group))
+    for (_label, group), assist in zip(groups, assists, strict=True):
+        name = ASSIST_NAMES[assist]
+        backend = group[0].summary.get("backend")
+        if assist == "llm" and backend:
+            name += ORACLE_MARK if is_oracle(group[0]) else f" ({backend})"
+        named.append((name, group))
     return named
 
 

@@ -198,9 +198,9 @@ def test_waypoint_table_leaves_failed_plans_out_of_execution_and_path() -> None:
 
 
 def fsm_run(root: Path, name: str, assist: str, e_pos: float, eta: float, loop_ms: float,
-            cmds: list[tuple[str, float, float | None, float]]) -> None:  # fmt: skip
+            cmds: list[tuple[str, float, float | None, float]], backend: str | None = None) -> None:  # fmt: skip
     """An FSM run folder: its end metrics and its sampled `cmd` records (state, base v, raw v, fused v)."""
-    cfg = config_for("T1", planner="fsm", options={"assist": assist}, backend=None)
+    cfg = config_for("T1", planner="fsm", options={"assist": assist}, backend=backend)
     run_dir = root / name
     with RunLog(run_dir, cfg) as log:
         log.event("pose", pose=[0.0, 0.0, 0.0])
@@ -216,13 +216,13 @@ def fsm_run(root: Path, name: str, assist: str, e_pos: float, eta: float, loop_m
     write_json_atomic(run_dir / SUMMARY_FILE, summarize_run(read_run(run_dir), tiny_scenario()))
 
 
-def fsm_runs(root: Path) -> None:
+def fsm_runs(root: Path, llm_backend: str | None = None) -> None:
     approach = [("SEARCH", 0.0, None, 0.0), ("APPROACH", 0.06, None, 0.06), ("APPROACH", 0.03, None, 0.03)]
     for k, (e_pos, eta, loop) in enumerate([(0.25, 0.80, 3.3), (0.20, 0.84, 3.4), (0.30, 0.82, 3.5)]):
         fsm_run(root, f"none-{k}", "none", e_pos, eta, loop, approach)
     assisted = [("APPROACH", 0.06, 0.04, 0.05), ("APPROACH", 0.03, 0.01, 0.02), ("APPROACH", 0.0, None, 0.0)]
     for k, (e_pos, eta, loop) in enumerate([(0.15, 0.90, 3.4), (0.12, 0.92, 3.5), (0.18, 0.89, 3.3)]):
-        fsm_run(root, f"llm-{k}", "llm", e_pos, eta, loop, assisted)
+        fsm_run(root, f"llm-{k}", "llm", e_pos, eta, loop, assisted, backend=llm_backend)
 
 
 def test_fsm_compare_has_a_row_per_metric_and_the_loop_latency(tmp_path: Path) -> None:
@@ -235,6 +235,14 @@ def test_fsm_compare_has_a_row_per_metric_and_the_loop_latency(tmp_path: Path) -
     assert rows["e_pos (m)"][1:3] == ["0.250 ± 0.050", "0.150 ± 0.030"]
     assert rows["Control-loop latency (ms)"][1:3] == ["3.40 ± 0.10", "3.40 ± 0.10"]
     assert float(rows["e_pos (m)"][3]) < 0 and float(rows["η = L_opt / L_real"][3]) > 0  # FSM + LLM against FSM-only
+
+
+def test_fsm_conditions_say_who_answered(tmp_path: Path) -> None:
+    """Oracle answers are marked in the column's name, a model's backend named: never taken for each other."""
+    fsm_runs(tmp_path / "oracle", llm_backend="policy:oracle")
+    assert table(tmp_path / "oracle", "fsm-compare")["columns"][2] == "FSM + LLM (oracle answers)"
+    fsm_runs(tmp_path / "local", llm_backend="local")
+    assert table(tmp_path / "local", "fsm-compare")["columns"][2] == "FSM + LLM (local)"
 
 
 def test_fsm_velocity_has_baseline_accepted_and_fused_rows(tmp_path: Path) -> None:
