@@ -277,8 +277,10 @@ def waypoint_legs_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | Non
             previous = here
         every = [leg for r in group for leg in _legs(r)]
         cells, record = _leg_cells(every, len(group))
-        collided = sum(1 for leg in every if _collided(leg))
-        cells[-1] = f"{collided}/{len(every)}"  # the Average row counts legs with a collision
+        driven_legs = [leg for leg in every if not leg.get("plan_failed")]
+        collided = sum(1 for leg in driven_legs if _collided(leg))
+        # the Average row counts the driven legs with a collision (a failed plan drove nothing)
+        cells[-1] = f"{collided}/{len(driven_legs)}" if driven_legs else MISSING
         rows.append([*lead, "Average", *cells])
         records.append({**fields, "leg": "average", "label": "Average", "target": None, **record})
     note = (

@@ -170,6 +170,7 @@ def test_failed_plans_are_marked_and_left_out_of_the_averages(tmp_path: Path) ->
     assert (average[4], average[5]) == ("15.00", "5.00")  # (10 + 20) / 2 s and (4 + 6) / 2 m: the failure is out
     assert (average[1], average[2]) == ("2.00", "40.0")  # WGSR pooled over the legs: 2 valid of 5 attempts
     assert average[3] == "0.7"  # replans per leg: (1 + 1 + 0) / 3, a count
+    assert average[6] == "0/2"  # the driven legs with a collision: the failed plan drove nothing
 
 
 def test_waypoint_table_leaves_failed_plans_out_of_execution_and_path() -> None:
