@@ -301,10 +301,11 @@ def _fsm_runs(runs: Sequence[Run]) -> list[Run]:
 
 
 def _fsm_conditions(runs: Sequence[Run], keys: Sequence[str]) -> list[tuple[str, list[Run]]]:
-    """Conditions in the source's order (FSM-only, FSM + EMA, FSM + LLM).
+    """Conditions in the source's order (FSM-only, FSM + EMA, FSM + LLM); oracle answers before a model's.
 
-    When each condition has its own assist, they are named as the source names them, FSM + LLM with its
-    backend (or "oracle answers"); otherwise by their full labels.
+    They are named as the source names them, FSM + LLM with its backend (or "oracle answers"), when those
+    names tell every condition apart; otherwise by their full labels. So the t and g columns (last against
+    first) compare a model with FSM-only, as the source does, whenever a model ran.
     """
     groups = _conditions(runs, keys)
     order = list(ASSIST_NAMES)
@@ -312,22 +313,22 @@ def _fsm_conditions(runs: Sequence[Run], keys: Sequence[str]) -> list[tuple[str,
     def assist_of(group: Sequence[Run]) -> str:
         return str(group[0].metrics.get("assist"))
 
-    def rank(item: tuple[str, list[Run]]) -> tuple[int, str]:
+    def rank(item: tuple[str, list[Run]]) -> tuple[int, bool, str]:
         assist = assist_of(item[1])
-        return (order.index(assist) if assist in order else len(order), item[0])
+        return (order.index(assist) if assist in order else len(order), not is_oracle(item[1][0]), item[0])
 
     groups.sort(key=rank)
-    assists = [assist_of(group) for _, group in groups]
-    if len(set(assists)) < len(assists) or not set(assists) <= set(ASSIST_NAMES):
-        return groups
-    named = []
-    for (_label, group), assist in zip(groups, assists, strict=True):
-        name = ASSIST_NAMES[assist]
-        backend = group[0].summary.get("backend")
+
+    def name(group: Sequence[Run]) -> str:
+        assist, backend = assist_of(group), group[0].summary.get("backend")
         if assist == "llm" and backend:
-            name += ORACLE_MARK if is_oracle(group[0]) else f" ({backend})"
-        named.append((name, group))
-    return named
+            return ASSIST_NAMES[assist] + (ORACLE_MARK if is_oracle(group[0]) else f" ({backend})")
+        return ASSIST_NAMES.get(assist, "?")
+
+    names = [name(group) for _, group in groups]
+    if "?" in names or len(set(names)) < len(names):
+        return groups
+    return [(label, group) for label, (_, group) in zip(names, groups, strict=True)]
 
 
 # (row label, record key, how to read one run, decimals): the rows of the comparison, in the source's order
