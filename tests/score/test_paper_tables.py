@@ -244,6 +244,8 @@ def test_fsm_conditions_say_who_answered(tmp_path: Path) -> None:
     assert table(tmp_path / "oracle", "fsm-compare")["columns"][2] == "FSM + LLM (oracle answers)"
     fsm_runs(tmp_path / "local", llm_backend="local")
     assert table(tmp_path / "local", "fsm-compare")["columns"][2] == "FSM + LLM (local)"
+    both = table(tmp_path, "fsm-compare")  # the model last: t and g compare it with FSM-only
+    assert both["columns"] == ["Metric", "FSM-only", "FSM + LLM (oracle answers)", "FSM + LLM (local)", "t", "p", "g"]
 
 
 def test_fsm_velocity_has_baseline_accepted_and_fused_rows(tmp_path: Path) -> None:
