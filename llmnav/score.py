@@ -45,6 +45,7 @@ if TYPE_CHECKING:
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
 ORACLE_MARK = " (oracle answers)"
+START_POSE_KEY = "start_pose"  # `--by start_pose`: the stepwise source's Tables 3–7 report per start position
 FAILED = "failed"  # a failed plan's cell: the waypoint source leaves failed plans out of its averages
 CACHE_MARK = " (from cache)"  # a run some of whose model answers came from the reply cache (`--cache`)
 
@@ -93,6 +94,12 @@ class Run:
             if key not in found:
                 found[key] = "+".join(map(str, value)) if isinstance(value, list) else value
         return found
+
+    def value(self, key: str) -> Any:
+        """A grouping key's value: a condition key, or `start_pose` (the 1-based start pose index)."""
+        if key == START_POSE_KEY:
+            return self.summary.get("start_pose_index")
+        return self.condition.get(key)
 
     @property
     def planner(self) -> str:
@@ -307,7 +314,7 @@ def condition_label(run: Run, keys: Sequence[str]) -> str:
     is marked too: its answers were not asked of the model in this run, and its latencies are the first run's.
     """
     oracle = is_oracle(run)
-    parts = [f"{k}={run.condition.get(k)}{ORACLE_MARK if oracle and k == 'backend' else ''}" for k in keys]
+    parts = [f"{k}={run.value(k)}{ORACLE_MARK if oracle and k == 'backend' else ''}" for k in keys]
     label = ", ".join(parts) or "all"
     label = label + ORACLE_MARK if oracle and "backend" not in keys else label
     return label + CACHE_MARK if run.summary.get("cache_hits") else label
@@ -315,7 +322,7 @@ def condition_label(run: Run, keys: Sequence[str]) -> str:
 
 def condition_fields(run: Run, keys: Sequence[str]) -> dict[str, Any]:
     """The grouping keys' values as separate record fields (tidy CSV: one column per condition key)."""
-    return {k: run.condition.get(k) for k in keys}
+    return {k: run.value(k) for k in keys}
 
 
 def _task_sort_key(task: str) -> tuple[Any, ...]:
@@ -859,7 +866,7 @@ def parse_selector(text: str) -> tuple[str, str]:
     """`KEY=VALUE` of `--compare`; KEY a condition key or task/scenario."""
     key, sep, value = text.partition("=")
     key = key.strip().replace("-", "_")
-    allowed = (*CONDITION_KEYS, "task", "scenario")
+    allowed = (*CONDITION_KEYS, START_POSE_KEY, "task", "scenario")
     if not sep or not key or not value:
         raise BadInputError(f"--compare {text!r}: expected KEY=VALUE, e.g. lidar_sectors=8")
     if key not in allowed and not is_option_key(key):
@@ -873,7 +880,7 @@ def _selected(run: Run, key: str, value: str) -> bool:
     elif key == "scenario":
         actual = run.summary.get("scenario")
     else:
-        actual = run.condition.get(key)
+        actual = run.value(key)
     return str(actual).lower() == value.lower()
 
 

@@ -118,7 +118,7 @@ def show(
         try:
             chosen = scenario.task(task)
         except KeyError:
-            known = ", ".join(t.id for t in scenario.tasks) or "none"
+            known = ", ".join([t.id for t in scenario.tasks] + [r.id for r in scenario.routes]) or "none"
             raise BadInputError(f"scenario '{scenario.name}' has no task '{task}' (tasks: {known})") from None
     console.print(
         f"[bold]{esc(scenario.name)}[/] ({esc(scenario.robot)}, {_size(scenario)}, "
@@ -130,7 +130,8 @@ def show(
     for column in ("id", "kind", "difficulty", "text", "targets"):
         table.add_column(column, no_wrap=column in ("id", "kind"))
     table.add_column("start poses x, y @ yaw", no_wrap=True)
-    for t in [chosen] if chosen is not None else scenario.tasks:
+    # routes (legs driven one after another, `--task-id ID`) are listed as the tasks they run as
+    for t in [chosen] if chosen is not None else [*scenario.tasks, *(r.as_task() for r in scenario.routes)]:
         starts = "\n".join(f"{s.x:g}, {s.y:g} @ {s.yaw_deg:g}°" for s in scenario.start_poses(t))
         table.add_row(esc(t.id), t.kind, t.difficulty, esc(t.text), esc(_targets(scenario, t)), starts)
     print_table(table)

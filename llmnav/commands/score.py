@@ -36,7 +36,10 @@ def score(
     ] = None,
     by: Annotated[
         str | None,
-        typer.Option("--by", help="Group by these condition keys (comma-separated); default: all that vary."),
+        typer.Option(
+            "--by",
+            help="Group by these condition keys or start_pose (comma-separated); default: all keys that vary.",
+        ),
     ] = None,
     fmt: Annotated[
         OutputFormat, typer.Option("--format", help="rich (terminal), md, csv (one table) or json.")
@@ -46,9 +49,9 @@ def score(
         typer.Option(
             "--table",
             help="Only this table: runs (one row per run, streamed), episodes, path, null_policies, ceiling, "
-            "wording, wording_spread, failures, aborted, "
-            "cost, comparison, or one a planner declares (its name is in the JSON). CSV writes one table (default: "
-            "the first).",
+            "wording, wording_spread, failures, aborted, cost, comparison, one a planner declares (its name is in "
+            "the JSON), or a source paper's in its own layout: stepwise-1, stepwise-position, waypoints-legs, "
+            "fsm-compare, fsm-velocity (docs/paper-tables.md). CSV writes one table (default: the first).",
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
@@ -80,7 +83,10 @@ def score(
         split_aborted,
         varying_keys,
     )
+    from llmnav.score_papers import PAPER_TABLES, check_table_name, paper_table
 
+    if table is not None:
+        check_table_name(table)  # before any run is read: a typo costs nothing
     if out is not None:
         check_output_path(out, "--out", paths)
     chart_folder_option(plot)
@@ -98,13 +104,14 @@ def score(
         return
     runs, broken = read_runs(paths, success_radius, table_of_prices)
     keys = varying_keys(runs) if by is None else parse_keys(by)
-    tables = build_tables(runs, keys)
     results, aborted = split_aborted(runs)
+    # a paper's table alone: llmnav's own tables are not built (their oracle paths cost time)
+    tables = [paper_table(table, results, keys)] if table in PAPER_TABLES else build_tables(runs, keys)
     if compare:
         if len(compare) != 2:
             raise BadInputError("--compare needs exactly two selections: --compare KEY=A --compare KEY=B")
         tables.append(compare_groups(results, compare[0], compare[1])[0])
-    if table is not None:
+    if table is not None and table not in PAPER_TABLES:
         tables = [select_table(tables, table)]
     elif fmt is OutputFormat.csv and tables:
         rest = ", ".join(t.name for t in tables[1:])
@@ -191,13 +198,14 @@ def _short(value: object) -> str:
 def parse_keys(text: str) -> list[str]:
     """`--by lidar_sectors,prompt` → validated condition keys."""
     from llmnav.metrics import CONDITION_KEYS
-    from llmnav.score import is_option_key
+    from llmnav.score import START_POSE_KEY, is_option_key
 
     keys = [k.strip().replace("-", "_") for k in text.split(",") if k.strip()]
-    unknown = [k for k in keys if k not in CONDITION_KEYS and not is_option_key(k)]
+    unknown = [k for k in keys if k not in (*CONDITION_KEYS, START_POSE_KEY) and not is_option_key(k)]
     if unknown:
         raise BadInputError(
-            f"--by: unknown key '{unknown[0]}' (one of: {', '.join(CONDITION_KEYS)}, or any planner option)"
+            f"--by: unknown key '{unknown[0]}' (one of: {', '.join(CONDITION_KEYS)}, {START_POSE_KEY}, "
+            "or any planner option)"
         )
     return keys
 
