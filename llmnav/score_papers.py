@@ -454,8 +454,8 @@ PAPER_TABLES: dict[str, Callable[[Sequence[Run], Sequence[str]], Table | None]] 
     "fsm-velocity": fsm_velocity_table,
 }
 # llmnav's own tables (`llmnav.score.build_tables`, `--compare`) whatever the planners declare
-OWN_TABLES = ("episodes", "path", "null_policies", "ceiling", "wording", "wording_spread", "failures", "aborted",
-              "comparison")  # fmt: skip
+OWN_TABLES = ("runs", "episodes", "path", "null_policies", "ceiling", "wording", "wording_spread", "failures",
+              "aborted", "cost", "comparison")  # fmt: skip
 
 
 def table_names() -> list[str]:
