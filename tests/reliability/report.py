@@ -28,6 +28,7 @@ ORDER = [
     "raw access",
     "honest accounting",
     "crashed runs",
+    "mode fallback",
     "scoring scripts",
     "bad input",
     "secrets",

@@ -62,6 +62,7 @@ from llmnav.planners.base import (
     Planner,
     StepInfo,
     decides_by_scores,
+    fallback_mark,
 )
 from llmnav.planners.hybrid.execute import Executor, with_seen_obstacles
 from llmnav.planners.hybrid.memory import Memory, believed_pose, look, remember, start_memory
@@ -177,7 +178,7 @@ class HybridPlanner(Planner):
         world, scenario = ctx.world, ctx.scenario
         json_errors = vetoes = 0
         mode = self.decision_mode(ctx)
-        ctx.event("planner", decide=mode, requested=ctx.options.decide)
+        ctx.event("planner", decide=mode, requested=ctx.options.decide, **fallback_mark(ctx.options.decide, mode))
         bounds = scenario.bounds  # the extent the explorer may know: a bigger world gets more looks
         area = (bounds.x[1] - bounds.x[0]) * (bounds.y[1] - bounds.y[0])  # [m^2]
         mapped = bool(scenario.corridors)
