@@ -43,6 +43,7 @@ CATEGORIES = {
     "test_raw_access": "raw access",
     "test_crashed_runs": "crashed runs",
     "test_mode_fallback": "mode fallback",
+    "test_dead_assist": "dead assist",
 }
 
 

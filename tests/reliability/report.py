@@ -33,6 +33,7 @@ ORDER = [
     "bad input",
     "secrets",
     "fsm deadline",
+    "dead assist",
 ]
 # Categories whose "logs lost" count results lost or mislabelled: concurrent sweeps, resumes, kills.
 RESULT_CATEGORIES = ("data safety",)
