@@ -44,6 +44,7 @@ CATEGORIES = {
     "test_crashed_runs": "crashed runs",
     "test_mode_fallback": "mode fallback",
     "test_dead_assist": "dead assist",
+    "test_worker_kill": "worker kill",
 }
 
 

@@ -19,6 +19,7 @@ ORDER = [
     "backend faults",
     "crash safety",
     "data safety",
+    "worker kill",
     "hostile folders",
     "hostile sizes",
     "servers",
