@@ -61,6 +61,7 @@ from llmnav.planners.base import (
     Planner,
     StepInfo,
     decides_by_scores,
+    fallback_mark,
 )
 from llmnav.planners.hybrid.config import HybridConfig
 from llmnav.planners.hybrid.execute import Executor, with_seen_obstacles
@@ -159,7 +160,13 @@ class HybridPlanner(Planner):
         area = (bounds.x[1] - bounds.x[0]) * (bounds.y[1] - bounds.y[0])  # [m^2]
         mapped = bool(scenario.corridors)
         explore = self.explore_mode(ctx)
-        ctx.event("planner", decide=mode, requested=ctx.options.decide, explore=explore)
+        ctx.event(
+            "planner",
+            decide=mode,
+            requested=ctx.options.decide,
+            explore=explore,
+            **fallback_mark(ctx.options.decide, mode),
+        )
         chooser = (
             ScoredChooser(ctx, ctx.task.text, mapped=mapped, area_m2=area, explore=ctx.options.explore)
             if mode == "score"
