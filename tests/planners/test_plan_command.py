@@ -184,3 +184,34 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str], messa
     assert res.exit_code == 2, res.output
     assert len(res.output.strip().splitlines()) == 1 and message in res.output, res.output
     assert "Traceback" not in res.output and not (tmp_path / "p.png").exists()
+
+
+def test_plan_figure_never_replaces_a_file(tmp_path: Path) -> None:
+    figure = tmp_path / "mine.png"
+    figure.write_bytes(b"the user's own picture")
+    backend = replay(tmp_path / "script", [plan_text(GOOD)])
+    res = runner.invoke(app, ["plan", "--task", "Go to room 105", "--backend", backend, "--plot", str(figure)])
+    assert res.exit_code == 2 and "exists" in res.output and len(res.output.strip().splitlines()) == 1, res.output
+    assert figure.read_bytes() == b"the user's own picture"
+
+
+def test_plan_figure_goes_into_a_new_folder_each_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    for number in (1, 2):
+        backend = replay(tmp_path / f"script{number}", [plan_text(GOOD)])
+        res = runner.invoke(app, ["plan", "--task", "Go to room 105", "--backend", backend])
+        assert res.exit_code == 0, res.output
+    figures = sorted((tmp_path / "runs").glob("*-plan-*/plan.png"))
+    assert len(figures) == 2 and figures[0].parent != figures[1].parent
+    assert not (tmp_path / "plan.png").exists()
+    assert all(f.read_bytes()[:4] == b"\x89PNG" for f in figures)
+    assert f"plot {figures[-1].relative_to(tmp_path)}" in " ".join(res.output.split())
+
+
+def test_execute_puts_the_figure_into_the_run_folder(tmp_path: Path) -> None:
+    backend = replay(tmp_path / "script", [plan_text(GOOD)])
+    out = tmp_path / "run"
+    args = ["plan", "--task", "Go to room 105", "--backend", backend, "--execute", "--out", str(out)]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert (out / "plan.png").read_bytes()[:4] == b"\x89PNG" and (out / "run.jsonl").is_file()
