@@ -496,7 +496,7 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
     by_step: dict[Any, StepView] = {}
     previous: list[MessageView] = []
     ahead = _reading_ahead(record)
-    acted = {e.get("step") for e in record.of_type("action")}
+    acted = {e["step"] for e in record.of_type("action") if isinstance(e.get("step"), int)}
     for event in record.events:
         kind = event.get("type")
         if kind not in ("observation", "llm_call", "guard", "action", "planner", "decision") or "step" not in event:
