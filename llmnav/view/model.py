@@ -516,6 +516,8 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
             image = event.get("image")
             step.image = step.image or (image if isinstance(image, str) else None)
             text = event.get("lidar_text")
+            if not isinstance(text, str):
+                text = event.get("text")  # a Gymnasium episode's text observation: what the agent read
             step.lidar_text = text if isinstance(text, str) else None
             front = event.get("lidar_front_m")
             step.lidar = logged_lidar(event.get("lidar_sectors"), front, event.get("lidar_range_m")) or parse_lidar(
