@@ -232,7 +232,7 @@ def spool_rows(
         del record  # a long log is freed before the next one is read
         spool.problems += [f"{run.run_dir}: {text}" for text in run.problems]
         for key, value in row.items():
-            if value is not None:
+            if value is not None and value != "":  # an empty list of options reads as "" (nothing to show)
                 spool.columns[key] = True
             else:
                 spool.columns.setdefault(key, False)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -13,7 +14,9 @@ from llmnav.errors import BadInputError, printable
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
+    from llmnav.geometry import Pose2D
     from llmnav.planners.waypoints import PlanResult
+    from llmnav.scenario import Scenario
     from llmnav.tasks import ResolvedTask
 
 
@@ -29,7 +32,13 @@ def plan(
     backend: Annotated[str, typer.Option(help="Model backend spec NAME[:ARG].")] = "local",
     max_generations: Annotated[int, typer.Option("--max-generations", help="Attempts before giving up.")] = 5,
     seed: Annotated[int, typer.Option(help="Model seed.")] = 0,
-    plot: Annotated[str | None, typer.Option(help="Write the plan figure here (PNG).")] = "plan.png",
+    plot: Annotated[
+        str | None,
+        typer.Option(
+            help="Write the plan figure to this new file (never over an existing one). Default: plan.png in the "
+            "run folder (with --execute) or in a new folder runs/<time>-plan-<task>."
+        ),
+    ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the plan as JSON only.")] = False,
     execute: Annotated[bool, typer.Option(help="Drive the valid plan (drive --planner waypoints).")] = False,
     out: Annotated[str | None, typer.Option(help="Run folder for --execute.")] = None,
@@ -42,6 +51,8 @@ def plan(
 
     out_dir = path_option(out, "--out")
     plot_path = plot_option(plot)  # checked before any model work
+    if plot_path is not None and os.path.lexists(plot_path):
+        raise BadInputError(f"--plot {plot_path}: exists; llmnav plan never replaces a file, choose another name")
     if (task is None) == (task_audio is None):
         raise BadInputError("give exactly one of --task TEXT or --task-audio FILE.wav")
     if task_audio is not None:
@@ -68,21 +79,29 @@ def plan(
         start = resolved.start.pose()
         result = generate_plan(sc, target, start, call, max_generations=max_generations, grid=build_grid(sc), seed=seed)
         result.planning_time_s += grounding_s
-        if plot_path is not None:
-            from llmnav.reporting.planplot import plot_plan
+        run_dir = None
+        if execute and result.waypoints is not None:
+            from llmnav.commands.drive import default_out_dir
 
-            plot_path.parent.mkdir(parents=True, exist_ok=True)
-            plot_plan(sc, result, start, plot_path)
+            run_dir = out_dir or default_out_dir("waypoints", resolved.task.text)
+        if plot_path is None and run_dir is None:
+            from llmnav.commands.drive import default_out_dir
+
+            plot_path = default_out_dir("plan", resolved.task.text) / PLAN_FILE
+        if plot_path is not None:
+            _write_figure(sc, result, start, plot_path)
         if json_output:
             print_data(json.dumps(plan_summary(result)))
         else:
-            _print_plan(result, sc.name, plot_path)
+            _print_plan(result, sc.name, plot_path or (run_dir / PLAN_FILE if run_dir else None))
         if result.waypoints is None:
             raise typer.Exit(1)
         if execute:
             # the scenario as the user gave it (a file path stays a path); the same backend object, so a
             # replay continues where planning stopped and a local model is not loaded twice
-            _execute(resolved, scenario or sc.name, model, result.waypoints, max_generations, seed, out_dir)
+            assert run_dir is not None
+            figure = (sc, result, start) if plot_path is None else None  # into the run folder, once it holds the run
+            _execute(resolved, scenario or sc.name, model, result.waypoints, max_generations, seed, run_dir, figure)
     finally:
         model.close()
 
@@ -100,6 +119,25 @@ def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
     start = resolved.start.pose()
     truth = GroundTruth(resolved.scenario, resolved.task, lambda: start, lambda: 0.0)
     oracle.attach_answer_key(WaypointPlanner().oracle_answers(truth, WaypointOptions(planner="waypoints")))
+
+
+PLAN_FILE = "plan.png"
+
+
+def _write_figure(sc: Scenario, result: PlanResult, start: Pose2D, path: Path) -> None:
+    """Draw the plan into a new file at `path`: made aside and linked into place, so nothing is ever replaced."""
+    from llmnav.reporting.planplot import plot_plan
+    from llmnav.safefiles import private_dir
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with private_dir(path.parent) as work:
+            tmp = plot_plan(sc, result, start, work / ("figure" + path.suffix))
+            os.link(tmp, path)  # fails if anything is at `path` by now (another plan's figure, a link)
+    except FileExistsError:
+        raise BadInputError(f"--plot {path}: exists; llmnav plan never replaces a file, choose another name") from None
+    except OSError as err:
+        raise BadInputError(f"--plot {path}: cannot write: {err.strerror or err}") from None
 
 
 def _print_plan(result: PlanResult, scenario: str, plot: Path | None) -> None:
@@ -132,9 +170,9 @@ def _execute(
     waypoints: list[tuple[float, float]],
     max_generations: int,
     seed: int,
-    out: Path | None,
+    out: Path,
+    figure: tuple[Scenario, PlanResult, Pose2D] | None = None,
 ) -> None:
-    from llmnav.commands.drive import default_out_dir
     from llmnav.planners.base import drive_options
     from llmnav.reporting.live import print_result
     from llmnav.runner import EpisodeSpec, exit_code, run_episode
@@ -151,8 +189,10 @@ def _execute(
         start_pose=resolved.start_pose_index,
         options=options,
         backend=model.spec,
-        out_dir=out or default_out_dir("waypoints", resolved.task.text),
+        out_dir=out,
     )
     summary = run_episode(spec, backend_obj=model)
+    if figure is not None:
+        _write_figure(*figure, out / PLAN_FILE)
     print_result(console, summary)
     raise typer.Exit(exit_code(summary))

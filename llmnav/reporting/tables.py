@@ -119,7 +119,7 @@ def to_csv(table: Table) -> str:
     rows = [flatten(r) for r in table.records]
     columns: dict[str, None] = {}
     for row in rows:
-        columns.update(dict.fromkeys(k for k, v in row.items() if v is not None))
+        columns.update(dict.fromkeys(k for k, v in row.items() if v is not None and v != ""))
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n", restval="", extrasaction="ignore")
     writer.writeheader()

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import numpy as np
@@ -67,10 +67,13 @@ def draw_base_map(
     faint_paths: bool = False,
     targets: Sequence[Sequence[float]] = (),
     radius_m: float = 2.5,
+    markers: Sequence[Sequence[float]] = (),
 ) -> BaseMap:
     """The scenario's top view (or an empty frame around the trajectory), optionally with the paths.
 
     `targets`: points [m] drawn as stars inside a dashed circle of `radius_m` [m], the success radius.
+    `markers`: points [m] where the page draws a marker of MARKER_PX (the run's start and end): object
+    names are placed clear of them.
     """
     import cv2
     import matplotlib
@@ -79,29 +82,11 @@ def draw_base_map(
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from llmnav.reporting.topview import draw_scenario, draw_targets
-
     fig = plt.figure(figsize=(width_px / DPI, height_px / DPI), dpi=DPI)
     ax = fig.add_axes(AXES_BOX)
     try:
-        if scenario is not None:
-            draw_scenario(ax, scenario)
-        else:
-            ax.set_aspect("equal")
-            points = list(trajectory) or [(0.0, 0.0)]
-            xs, ys = [float(p[0]) for p in points], [float(p[1]) for p in points]
-            ax.set_xlim(min(xs) - MARGIN_M, max(xs) + MARGIN_M)
-            ax.set_ylim(min(ys) - MARGIN_M, max(ys) + MARGIN_M)
-            ax.grid(True, linewidth=0.3, alpha=0.4)
-        if targets:
-            draw_targets(ax, targets, radius_m, legend=False)
-        if faint_paths and oracle:
-            ax.plot([p[0] for p in oracle], [p[1] for p in oracle], "--", color="0.35", lw=1.2, zorder=5.5)
-        if faint_paths and trajectory:
-            ax.plot([p[0] for p in trajectory], [p[1] for p in trajectory], color="tab:blue", lw=1.0, alpha=0.35)
-        ax.tick_params(labelsize=7)
-        ax.xaxis.label.set_fontsize(8)
-        ax.yaxis.label.set_fontsize(8)
+        draw_map(ax, scenario, oracle=oracle, trajectory=trajectory, faint_paths=faint_paths, targets=targets,
+                 radius_m=radius_m, markers=markers)  # fmt: skip
         fig.canvas.draw()
         rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
         # Display coordinates have y up from the bottom; image rows go down from the top.
@@ -111,6 +96,53 @@ def draw_base_map(
         return BaseMap(pixels, float(x1 - x0), float(x0), float(-(y1 - y0)), float(rows - y0))
     finally:
         plt.close(fig)
+
+
+MARKER_PX = 12.0  # [px] half the size of the page's start and end markers, with a little room
+
+
+def draw_map(
+    ax: Any,
+    scenario: Scenario | None,
+    *,
+    oracle: Sequence[Sequence[float]] | None = None,
+    trajectory: Sequence[Sequence[float]] = (),
+    faint_paths: bool = False,
+    targets: Sequence[Sequence[float]] = (),
+    radius_m: float = 2.5,
+    markers: Sequence[Sequence[float]] = (),
+) -> None:
+    """`draw_base_map`'s drawing on an axes (the object names placed last, clear of targets and markers)."""
+    from matplotlib.transforms import Bbox
+
+    from llmnav.reporting.topview import draw_scenario, draw_targets, label_fontsize, place_labels
+
+    if scenario is not None:
+        draw_scenario(ax, scenario, labels=False)
+    else:
+        ax.set_aspect("equal")
+        points = list(trajectory) or [(0.0, 0.0)]
+        xs, ys = [float(p[0]) for p in points], [float(p[1]) for p in points]
+        ax.set_xlim(min(xs) - MARGIN_M, max(xs) + MARGIN_M)
+        ax.set_ylim(min(ys) - MARGIN_M, max(ys) + MARGIN_M)
+        ax.grid(True, linewidth=0.3, alpha=0.4)
+    if targets:
+        draw_targets(ax, targets, radius_m, legend=False)
+    if faint_paths and oracle:
+        ax.plot([p[0] for p in oracle], [p[1] for p in oracle], "--", color="0.35", lw=1.2, zorder=5.5)
+    if faint_paths and trajectory:
+        ax.plot([p[0] for p in trajectory], [p[1] for p in trajectory], color="tab:blue", lw=1.0, alpha=0.35)
+    ax.tick_params(labelsize=7)
+    ax.xaxis.label.set_fontsize(8)
+    ax.yaxis.label.set_fontsize(8)
+    if scenario is not None:
+        ax.apply_aspect()
+        renderer = ax.figure.canvas.get_renderer()
+        avoid = [line.get_window_extent(renderer) for line in ax.lines if line.get_marker() == "*"]
+        for point in markers:
+            px, py = ax.transData.transform((float(point[0]), float(point[1])))
+            avoid.append(Bbox.from_extents(px - MARKER_PX, py - MARKER_PX, px + MARKER_PX, py + MARKER_PX))
+        place_labels(ax, scenario, fontsize=label_fontsize(scenario), avoid=avoid)
 
 
 def page_size(scenario: Scenario | None, width_px: int = 720) -> tuple[int, int]:

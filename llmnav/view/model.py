@@ -496,7 +496,7 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
     by_step: dict[Any, StepView] = {}
     previous: list[MessageView] = []
     ahead = _reading_ahead(record)
-    acted = {e.get("step") for e in record.of_type("action")}
+    acted = {e["step"] for e in record.of_type("action") if isinstance(e.get("step"), int)}
     for event in record.events:
         kind = event.get("type")
         if kind not in ("observation", "llm_call", "guard", "action", "planner", "decision") or "step" not in event:
@@ -516,6 +516,8 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
             image = event.get("image")
             step.image = step.image or (image if isinstance(image, str) else None)
             text = event.get("lidar_text")
+            if not isinstance(text, str):
+                text = event.get("text")  # a Gymnasium episode's text observation: what the agent read
             step.lidar_text = text if isinstance(text, str) else None
             front = event.get("lidar_front_m")
             step.lidar = logged_lidar(event.get("lidar_sectors"), front, event.get("lidar_range_m")) or parse_lidar(

@@ -228,8 +228,14 @@ def run_context(view: RunView) -> dict[str, Any]:
         from llmnav.mapping.targets import with_added_obstacles
 
         scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
+    ends = [view.trajectory[0], view.trajectory[-1]] if view.trajectory else []
     base = draw_base_map(
-        scenario, *page_size(scenario), trajectory=view.trajectory, targets=view.targets, radius_m=view.success_radius_m
+        scenario,
+        *page_size(scenario),
+        trajectory=view.trajectory,
+        targets=view.targets,
+        radius_m=view.success_radius_m,
+        markers=ends,  # the page's start and end circles: object names are placed clear of them
     )
     trajectory = view.trajectory
     images = {h: data_uri(p, view.run_dir) for h, p in view.image_files.items()}

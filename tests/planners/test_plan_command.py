@@ -199,3 +199,34 @@ def test_plan_with_oracle_answers(tmp_path: Path, scenario: str, task: str, targ
     assert plan["target"] == target and plan["wgsr"] == 100.0 and len(plan["attempts"]) == 1
     goal = load_scenario(scenario).object(target).goal_point
     assert np.allclose(plan["waypoints"][-1], goal, atol=0.05)
+
+
+def test_plan_figure_never_replaces_a_file(tmp_path: Path) -> None:
+    figure = tmp_path / "mine.png"
+    figure.write_bytes(b"the user's own picture")
+    backend = replay(tmp_path / "script", [plan_text(GOOD)])
+    res = runner.invoke(app, ["plan", "--task", "Go to room 105", "--backend", backend, "--plot", str(figure)])
+    assert res.exit_code == 2 and "exists" in res.output and len(res.output.strip().splitlines()) == 1, res.output
+    assert figure.read_bytes() == b"the user's own picture"
+
+
+def test_plan_figure_goes_into_a_new_folder_each_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    for number in (1, 2):
+        backend = replay(tmp_path / f"script{number}", [plan_text(GOOD)])
+        res = runner.invoke(app, ["plan", "--task", "Go to room 105", "--backend", backend])
+        assert res.exit_code == 0, res.output
+    figures = sorted((tmp_path / "runs").glob("*-plan-*/plan.png"))
+    assert len(figures) == 2 and figures[0].parent != figures[1].parent
+    assert not (tmp_path / "plan.png").exists()
+    assert all(f.read_bytes()[:4] == b"\x89PNG" for f in figures)
+    assert f"plot {figures[-1].relative_to(tmp_path)}" in " ".join(res.output.split())
+
+
+def test_execute_puts_the_figure_into_the_run_folder(tmp_path: Path) -> None:
+    backend = replay(tmp_path / "script", [plan_text(GOOD)])
+    out = tmp_path / "run"
+    args = ["plan", "--task", "Go to room 105", "--backend", backend, "--execute", "--out", str(out)]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert (out / "plan.png").read_bytes()[:4] == b"\x89PNG" and (out / "run.jsonl").is_file()

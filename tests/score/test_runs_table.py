@@ -32,7 +32,7 @@ def _make(root: Path) -> None:
     root.mkdir(parents=True, exist_ok=True)
     sc = write_scenario_file(root.parent / f"{root.name}-tiny.yaml")
     for name, pose, end in (("b1", 1, [4.6, 0, 0]), ("b2", 2, [0.5, 3, 0])):
-        cfg = config_for("T1", start_pose_index=pose, scenario_file=sc)
+        cfg = config_for("T1", start_pose_index=pose, scenario_file=sc, options={"obstacles": [], "appearing": []})
         write_run(root / name, cfg, [cfg["start_pose"], end], summary=True)
     pellets = _free_config("head for the pellets", {"object": "pellets"}, sc)
     corner = _free_config("go to the far corner", {"point": [-8.0, 0.0]}, sc)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from llmnav.gym import FactoryEnv, RunLog
+from llmnav.gym import FactoryEnv, RunLog, TextObservation
 from llmnav.view.api import write_view
 from llmnav.view.model import build_run_view
 
@@ -39,3 +39,12 @@ def test_view_of_a_gym_episode(tmp_path: Path) -> None:
     page = html.unescape(write_view(run_dir, tmp_path / "gym.html").page.read_text(encoding="utf-8"))
     assert "no action" not in page and "? None" not in page
     assert re.search(r"BACK 0\.5\d* m", page) and "COMPLETE" in page
+
+
+def test_view_of_a_text_gym_episode_shows_what_the_agent_read(tmp_path: Path) -> None:
+    env = RunLog(TextObservation(FactoryEnv(scenario=SMALL, task_id="T1")), tmp_path / "gym", images=False)
+    env.reset(seed=0)
+    env.step(_action("ROTATE_LEFT", angle_deg=30.0))
+    env.close()
+    view = build_run_view(tmp_path / "gym" / "episode-0001")
+    assert len(view.steps) == 1 and "LiDAR" in (view.steps[0].lidar_text or "")

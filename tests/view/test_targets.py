@@ -77,3 +77,31 @@ def test_page_and_video_maps_show_the_target(tmp_path: Path) -> None:
     config = config_for("T1", scenario_file=write_scenario_file(tmp_path / "tiny.yaml"))
     view = build_run_view(write_run(tmp_path / "r", config, [[0, 0, 0]], summary=True))
     assert view.targets == [tuple(target)] and view.success_radius_m == SUCCESS_RADIUS_M
+
+
+def test_page_map_names_stay_clear_of_the_end_marker() -> None:
+    """The run ended just above the pellets, where their name would go: the name moves, the marker stays clear."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.text import Text
+    from matplotlib.transforms import Bbox
+
+    from llmnav.view.basemap import AXES_BOX, MARKER_PX, draw_map
+
+    scenario = tiny_scenario()
+    end = (5.0, 0.8)
+    for markers, clear in (((), False), ((end,), True)):
+        fig = plt.figure(figsize=(6.0, 6.0), dpi=100)
+        ax = fig.add_axes(AXES_BOX)
+        try:
+            draw_map(ax, scenario, markers=markers)
+            fig.canvas.draw()
+            renderer = fig.canvas.get_renderer()
+            px, py = ax.transData.transform(end)
+            marker = Bbox.from_extents(px - MARKER_PX, py - MARKER_PX, px + MARKER_PX, py + MARKER_PX)
+            (label,) = [t for t in ax.texts if t.get_text() == "pile of pellets"]
+            assert Text.get_window_extent(label, renderer).overlaps(marker) is not clear
+        finally:
+            plt.close(fig)
