@@ -165,7 +165,7 @@ def test_execute_an_ambiguous_target_from_a_scenario_file(tmp_path: Path) -> Non
     assert Path(record.config["scenario_file"]) == scenario_file
     # driving grounds "the window" on the plan's final point, without asking the model again
     assert record.of_type("llm_call") == []
-    assert [e["target"] for e in record.of_type("planner") if e["kind"] == "grounding"] == ["WIN2"]
+    assert [e["target"] for e in record.of_type("planner") if e.get("kind") == "grounding"] == ["WIN2"]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcome"] == "completed" and summary["target_index"] == 1
 
