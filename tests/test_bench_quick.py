@@ -75,7 +75,13 @@ ROWS: dict[str, list[str]] = {
         rf"\s+CPU per scan \[ms\]\s+median {NUMBER}\s+p95 {NUMBER}\s+max {NUMBER}",
         rf"\s+pose error at the end \[m\]\s+median {NUMBER}\s+max {NUMBER}",
     ],
-    "rl": [rf"\s+{name}\s+\d+\s+\d+\s+\d+\s+\d+$" for name in ("Factory-v0", "Corridor-v0", "Maze-v0")],
+    "rl": [
+        r"\s+training steps\s+64$",
+        rf"\s+training wall time \[s\]\s+{NUMBER} \(\d+ steps/s\)",
+        r"\s+success\s+\d/2 evaluation episodes \(\d+ %\), target 80 %: quick: not a measurement",
+        rf"\s+load {NUMBER} at the start, {NUMBER} at the end",
+        *(rf"\s+{name}\s+\d+\s+\d+\s+\d+\s+\d+$" for name in ("Factory-v0", "Corridor-v0", "Maze-v0")),
+    ],
     "protocol": [
         rf"\s+wall time of the sweep\s+{NUMBER} min",
         rf"\s+episodes per minute\s+{NUMBER}",
