@@ -229,6 +229,14 @@ def test_flat_observation_refuses_a_text_dict() -> None:
         env.close()
 
 
+def test_the_rl_extra_installs_moviepy() -> None:
+    import tomllib
+
+    pyproject = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())
+    rl = pyproject["project"]["optional-dependencies"]["rl"]
+    assert any(req.startswith("moviepy") for req in rl), rl
+
+
 def test_record_video_writes_an_mp4_with_moviepy(tmp_path: Path) -> None:
     import moviepy  # noqa: F401 - the `rl` extra installs it; RecordVideo needs it
     from gymnasium.wrappers import RecordVideo
