@@ -95,6 +95,8 @@ class HybridConfig:
     max_frontiers_scored: int = 6  # scored decisions read no prompt: more frontiers, each weighed by its description
     describe_radius_m: float = 3.0  # [m] landmarks this close to a frontier describe it (about a room's half-width)
     describe_max: int = 3  # landmark names in a description (the nearest)
+    between_max_m: float = 6.0  # [m] two landmarks farther apart than this name no place between them
+    max_relational: int = 16  # relational places offered to a scored decision (the nearest)
     min_hop_m: float = 1.0  # [m] a frontier nearer than this shows next to nothing new: not offered
     frontier_decay_per_m: float = 0.2  # [1/m] how fast a frontier's worth falls with the drive to it
     frontier_min_cells: int = 12  # smaller frontier clusters are noise
@@ -272,8 +274,8 @@ def _drop_if_stuck(ctx: EpisodeContext, memory: Memory, option: Option, before: 
     after = believed_pose(ctx, memory)
     if after.distance_to(before.x, before.y) >= STUCK_M:
         return
-    if option.landmark_id is not None:
-        memory.unreachable.add(option.landmark_id)
+    if option.landmark_id is not None or option.place is not None:
+        memory.unreachable.add(option.key)
     else:
         memory.explored.append(option.goal)
     ctx.log.sim_time = ctx.world.sim_time
