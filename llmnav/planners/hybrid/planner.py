@@ -243,8 +243,8 @@ def _drop_if_stuck(ctx: EpisodeContext, memory: Memory, option: Option, before: 
     after = believed_pose(ctx, memory)
     if after.distance_to(before.x, before.y) >= STUCK_M:
         return
-    if option.landmark_id is not None:
-        memory.unreachable.add(option.landmark_id)
+    if option.landmark_id is not None or option.place is not None:
+        memory.unreachable.add(option.key)
     else:
         memory.explored.append(option.goal)
     ctx.log.sim_time = ctx.world.sim_time

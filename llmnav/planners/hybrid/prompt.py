@@ -89,10 +89,11 @@ def scored_choice(
         Candidate(
             o.number,
             o.kind,
-            (o.name,) if o.kind == "landmark" and o.name else (o.near if o.kind == "frontier" else o.at),
+            (o.name, *o.parts) if o.kind == "landmark" and o.name else (o.near if o.kind == "frontier" else o.at),
             o.distance_m,
             o.utility,
-            o.goal if o.kind == "frontier" else None,
+            o.goal if o.kind == "frontier" else o.place,
+            o.standing,
         )
         for o in options
     ]
