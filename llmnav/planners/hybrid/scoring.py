@@ -22,7 +22,8 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
 4. A target is sure when its PMI reaches `sure_pmi`. An unsure one is not taken while there is more to
    see: explore the frontier worth the most first (its length discounted by the drive to it), at most
    max(`explore_budget`, the world's area / `explore_area_m2`) times in an episode. Exploring
-   ends early when something new comes into view, and the decision is made again.
+   ends early when something new comes into view, and the decision is made again (such an exploration is
+   not counted against the budget).
 5. With nothing left to explore, a target whose PMI reaches `min_pmi` (the task makes it e times
    likelier) is taken; below that, look around where the robot has not yet, else the episode ends
    `not_found`: a place the scores reject is never driven to or finished at, and neither is anything
@@ -137,8 +138,15 @@ class ScoredChooser:
             self.intent = "turn" if best[0] == "turn" else "go"
         return self.intent
 
-    def choose(self, candidates: list[Candidate], *, turned: bool, step: int | None) -> Decision:
-        """The option to take now; `turned`: a full turn has been made in this episode."""
+    def choose(
+        self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None = None
+    ) -> Decision:
+        """The option to take now; `turned`: a full turn has been made in this episode.
+
+        `explored`: explorations carried to their end so far, which the budget counts (default: every
+        choice to explore). One cut short because something new came into view is not spent: it hands
+        the decision back with more to go on, and what can come into view is finite.
+        """
         by_kind: dict[str, list[Candidate]] = {}
         for candidate in candidates:
             by_kind.setdefault(candidate.kind, []).append(candidate)
@@ -168,15 +176,17 @@ class ScoredChooser:
             return Decision(finish.number, why, intent, scores, True)
         value, name, best = max(options, key=lambda item: item[0])
         sure = scores[name] >= self.cfg.sure_pmi
-        if not sure and self.explored < self.explore_budget() and by_kind.get("frontier"):
+        spent = self.explored if explored is None else explored
+        if not sure and spent < self.explore_budget() and by_kind.get("frontier"):
             self.explored += 1
             return self._frontier(by_kind, intent, scores, f"{name} {scores[name]:+.1f} is unsure")
         if scores[name] < self.cfg.min_pmi:
             if scan is not None:
                 why = f"no known place fits ({name} {scores[name]:+.1f}): look around"
                 return Decision(scan.number, why, intent, scores)
-            # Never Finish at, or drive to, a place the scores reject: say so instead.
-            why = f"not found: no known place fits ({name} {scores[name]:+.1f}) and nothing is left to explore"
+            # Never Finish at, or drive to, a place the scores reject: say so instead, and why the search ended.
+            ended = f"the exploration budget is spent ({spent})" if by_kind.get("frontier") else "nothing is left"
+            why = f"not found: no known place fits ({name} {scores[name]:+.1f}) and {ended} to explore"
             return Decision(finish.number, why, intent, scores, True)
         if best is None:
             if not sure and scan is not None and not self.mapped:
