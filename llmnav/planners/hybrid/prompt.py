@@ -97,6 +97,6 @@ def scored_choice(
         )
         for o in options
     ]
-    decision = chooser.choose(candidates, turned=memory.scans > 0, step=step)
+    decision = chooser.choose(candidates, turned=memory.scans > 0, step=step, explored=len(memory.explored))
     ctx.event("decision", step=step, **decision.to_log())
     return decision

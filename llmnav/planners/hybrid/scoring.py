@@ -22,7 +22,8 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
 4. A target is sure when its PMI reaches `sure_pmi`. An unsure one is not taken while there is more to
    see: explore the frontier worth the most first (its length discounted by the drive to it), at most
    max(`explore_budget`, the world's area / `explore_area_m2`) times in an episode. Exploring
-   ends early when something new comes into view, and the decision is made again.
+   ends early when something new comes into view, and the decision is made again (such an exploration is
+   not counted against the budget).
 5. Once the budget is spent (or nothing is left to explore), a target whose PMI reaches `min_pmi` (the
    task makes it e times likelier) is taken. Below that there is nothing to take: explore on while
    frontiers remain (the budget only bounds the search before an unsure target is taken), then look
@@ -201,13 +202,18 @@ class ScoredChooser:
             self.intent = "turn" if best[0] == "turn" else "go"
         return self.intent
 
-    def choose(self, candidates: list[Candidate], *, turned: bool, step: int | None) -> Decision:
+    def choose(
+        self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None = None
+    ) -> Decision:
         """The option to take now; `turned`: a full turn has been made in this episode.
 
-        The decision lists every frontier on the menu with what is known near it and its utility (and,
-        where it chose by scores, each one's description, PMI and value).
+        `explored`: explorations carried to their end so far, which the budget counts (default: every
+        choice to explore). One cut short because something new came into view is not spent: it hands
+        the decision back with more to go on, and what can come into view is finite. The decision lists
+        every frontier on the menu with what is known near it and its utility (and, where it chose by
+        scores, each one's description, PMI and value).
         """
-        decision = self._choose(candidates, turned=turned, step=step)
+        decision = self._choose(candidates, turned=turned, step=step, explored=explored)
         if not decision.frontiers:
             decision.frontiers = [
                 {"option": c.number, "near": list(c.names), "utility": round(c.utility, 3)}
@@ -216,7 +222,9 @@ class ScoredChooser:
             ]
         return decision
 
-    def _choose(self, candidates: list[Candidate], *, turned: bool, step: int | None) -> Decision:
+    def _choose(
+        self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None
+    ) -> Decision:
         by_kind: dict[str, list[Candidate]] = {}
         for candidate in candidates:
             by_kind.setdefault(candidate.kind, []).append(candidate)
@@ -260,7 +268,8 @@ class ScoredChooser:
             return Decision(finish.number, why, intent, scores, True)
         value, pmi, name, best = max(options, key=lambda item: item[0])
         sure = pmi >= self.cfg.sure_pmi
-        if not sure and self.explored < self.explore_budget() and by_kind.get("frontier"):
+        spent = self.explored if explored is None else explored
+        if not sure and spent < self.explore_budget() and by_kind.get("frontier"):
             self.explored += 1
             return self._frontier(by_kind, intent, scores, f"{name} {pmi:+.1f} is unsure")
         if pmi < self.cfg.min_pmi:
