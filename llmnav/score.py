@@ -21,6 +21,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.backends.base import answerer
 from llmnav.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
 from llmnav.errors import BadInputError
 from llmnav.failures import FAILURE_CAUSES
@@ -28,23 +29,25 @@ from llmnav.metrics import (
     CONDITION_KEYS,
     RESCORED_KEYS,
     SUCCESS_RADIUS_M,
-    aborted_by_infrastructure,
+    aborted_without_result,
     summarize_run,
 )
-from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, read_run
+from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, RunRecord, read_run
 from llmnav.scenario import SEQUENCE_JOIN
-from llmnav.stats import Comparison, compare, describe
+from llmnav.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
+from llmnav.tasks import ADHOC_ID
 
 if TYPE_CHECKING:
+    from llmnav.backends.prices import PriceTable
     from llmnav.geometry import Pose2D
     from llmnav.scenario import Scenario, Task
 
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
-ORACLE_BACKEND = "policy:oracle"  # answers computed from the ground truth: a ceiling, neither model nor null policy
 ORACLE_MARK = " (oracle answers)"
 START_POSE_KEY = "start_pose"  # `--by start_pose`: the stepwise source's Tables 3–7 report per start position
 FAILED = "failed"  # a failed plan's cell: the waypoint source leaves failed plans out of its averages
+CACHE_MARK = " (from cache)"  # a run some of whose model answers came from the reply cache (`--cache`)
 
 
 @dataclass
@@ -58,8 +61,25 @@ class Run:
 
     @property
     def task(self) -> str:
-        """Task id, else its text."""
-        return str(self.summary.get("task_id") or self.summary.get("task_text") or "?")
+        """Task id; a free-text task (typed, no scenario's id) by its text, so two of them are never pooled."""
+        task_id = self.summary.get("task_id")
+        text = self.summary.get("task_text")
+        if text and (not task_id or task_id == ADHOC_ID or self.wording == "free"):
+            return str(text)
+        return str(task_id or text or "?")
+
+    def task_record(self, scenario: Scenario) -> Task:
+        """The run's task: the scenario's of its id, else the one its configuration line records (free text)."""
+        from llmnav.scenario import Task
+
+        task_id = str(self.summary.get("task_id") or "")
+        if task_id and task_id != ADHOC_ID and self.wording != "free":
+            return scenario.task(task_id)
+        logged = self.config.get("task")
+        if not isinstance(logged, dict):
+            raise BadInputError("the config line records no task")
+        fields = {k: logged[k] for k in ("id", "text", "kind", "difficulty", "targets") if k in logged}
+        return Task.model_validate(fields)
 
     @property
     def condition(self) -> dict[str, Any]:
@@ -70,7 +90,7 @@ class Run:
         """
         found = dict(self.summary.get("condition") or {})
         options = self.config.get("options")
-        for key, value in (options.items() if isinstance(options, dict) else ()):
+        for key, value in options.items() if isinstance(options, dict) else ():
             if key not in found:
                 found[key] = "+".join(map(str, value)) if isinstance(value, list) else value
         return found
@@ -187,14 +207,22 @@ def scenario_of(config: dict[str, Any]) -> Scenario | None:
 _COLLISION_KEYS = ("collisions", "collided_with")
 
 
-def load_run(run_dir: Path, success_radius_m: float | None = None) -> Run:
+def load_run(run_dir: Path, success_radius_m: float | None = None, prices: PriceTable | None = None) -> Run:
     """A run's summary: summary.json when the run ended, else computed from its (cut-short) log.
 
     `success_radius_m` [m]: success, oracle success, SPL, Soft-SPL and the failure cause are recomputed from
     the log at this radius (`--success-radius`). A summary written before some of these keys existed gets
-    them computed from its log the same way (`llmnav.metrics.summarize_run`).
+    them computed from its log the same way (`llmnav.metrics.summarize_run`). `prices` (`--prices`): the
+    cost is recomputed from the log with this table instead of the one the run was priced with.
     """
-    record = read_run(run_dir)
+    return run_from_record(read_run(run_dir), success_radius_m, prices)
+
+
+def run_from_record(
+    record: RunRecord, success_radius_m: float | None = None, prices: PriceTable | None = None
+) -> Run:
+    """`load_run` of a log already read (the per-run table also sums the log's token counts)."""
+    run_dir = record.run_dir
     summary = record.summary
     problems = []
     if summary is None or "outcome" not in summary:
@@ -213,8 +241,12 @@ def load_run(run_dir: Path, success_radius_m: float | None = None) -> Run:
             summary = {**summary, **{k: fresh[k] for k in dict.fromkeys((*missing, *redo))}}
             if scenario is None and summary.get("task_kind") == "target":
                 problems.append(f"{why}; no SPL or Soft-SPL")
+    if "cost_usd" not in summary or prices is not None:  # a summary from before costs were: priced now
+        from llmnav.backends.prices import load_prices, run_cost
+
+        summary = {**summary, **run_cost(record.config, record.of_type("llm_call"), prices or load_prices())}
     # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
-    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_by_infrastructure(summary):
+    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_without_result(summary):
         problems.append("no score: the task's targets could not be resolved")
     return Run(Path(run_dir), summary, record.config, problems)
 
@@ -224,18 +256,20 @@ def load_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> l
     return [load_run(d, success_radius_m) for d in find_run_dirs(paths)]
 
 
-def read_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> tuple[list[Run], list[str]]:
+def read_runs(
+    paths: Sequence[Path], success_radius_m: float | None = None, prices: PriceTable | None = None
+) -> tuple[list[Run], list[str]]:
     """Every readable run below the given paths, and "folder: why" for each that is not.
 
     One damaged log among thousands must not cancel the tables of the rest; when none can be read, the
     first one's error is raised (a single broken run named on the command line is an error).
-    `success_radius_m`: as for `load_run`.
+    `success_radius_m` and `prices`: as for `load_run`.
     """
     runs: list[Run] = []
     broken: list[tuple[Path, BadInputError]] = []
     for run_dir in find_run_dirs(paths):
         try:
-            runs.append(load_run(run_dir, success_radius_m))
+            runs.append(load_run(run_dir, success_radius_m, prices))
         except BadInputError as err:
             broken.append((run_dir, err))
     if broken and not runs:
@@ -246,9 +280,9 @@ def read_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> t
 
 
 def split_aborted(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
-    """(the model's results, the runs aborted by a backend or server failure): the latter never enter a mean."""
-    results = [r for r in runs if not aborted_by_infrastructure(r.summary)]
-    return results, [r for r in runs if aborted_by_infrastructure(r.summary)]
+    """(the model's results, the runs aborted by a server failure or a crash): the latter never enter a mean."""
+    results = [r for r in runs if not aborted_without_result(r.summary)]
+    return results, [r for r in runs if aborted_without_result(r.summary)]
 
 
 # --- grouping -----------------------------------------------------------------------------------
@@ -269,20 +303,21 @@ def varying_keys(runs: Sequence[Run]) -> list[str]:
 
 def is_oracle(run: Run) -> bool:
     """Whether oracle answers (`policy:oracle`, computed from the ground truth) drove this run."""
-    backend = str(run.summary.get("backend") or "")
-    return backend == ORACLE_BACKEND or backend.startswith(f"{ORACLE_BACKEND}:")
+    return answerer(str(run.summary.get("backend") or "")) == "oracle"
 
 
 def condition_label(run: Run, keys: Sequence[str]) -> str:
     """`key=value, ...` over the varying keys ("all" when nothing varies); oracle runs are marked as such.
 
     The mark is part of the label even when the backend is not a grouping key, so oracle answers are never
-    pooled with a model's and a reader never takes them for one.
+    pooled with a model's and a reader never takes them for one. A run served (partly) from the reply cache
+    is marked too: its answers were not asked of the model in this run, and its latencies are the first run's.
     """
     oracle = is_oracle(run)
     parts = [f"{k}={run.value(k)}{ORACLE_MARK if oracle and k == 'backend' else ''}" for k in keys]
     label = ", ".join(parts) or "all"
-    return label + ORACLE_MARK if oracle and "backend" not in keys else label
+    label = label + ORACLE_MARK if oracle and "backend" not in keys else label
+    return label + CACHE_MARK if run.summary.get("cache_hits") else label
 
 
 def condition_fields(run: Run, keys: Sequence[str]) -> dict[str, Any]:
@@ -332,10 +367,17 @@ def _median(values: Sequence[float]) -> str:
     return f"{statistics.median(values):.0f}" if values else MISSING
 
 
-def _stats_record(values: Sequence[float]) -> dict[str, Any] | None:
+# Metric ranges [low, high] (None: unbounded): a confidence interval is cut to them, never impossible values.
+UNIT_RANGE: tuple[float | None, float | None] = (0.0, 1.0)  # score, SPL, Soft-SPL
+NON_NEGATIVE: tuple[float | None, float | None] = (0.0, None)  # counts, lengths, times, ratios of lengths
+
+
+def _stats_record(
+    values: Sequence[float], bounds: tuple[float | None, float | None] = NON_NEGATIVE
+) -> dict[str, Any] | None:
     if not values:
         return None
-    d = describe(values)
+    d = describe(values, bounds=bounds)
     clean = [None if not math.isfinite(x) else x for x in (d.mean, d.sd, d.ci_low, d.ci_high)]
     return {"n": d.n, "mean": clean[0], "sd": clean[1], "ci95": [clean[2], clean[3]]}
 
@@ -394,9 +436,10 @@ def episodes_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
                 "n": len(group),
                 "successes": successes,
                 "success_rate": successes / len(group),
+                "success_rate_ci95": list(wilson_interval(successes, len(group))),
                 "oracle_successes": sum(reached) if reached else None,
                 "oracle_success_n": len(reached),
-                "score": None if no_target else _stats_record(scores),
+                "score": None if no_target else _stats_record(scores, UNIT_RANGE),
                 **common_fields,
                 **{name: _stats_record(vals) for name, vals in fields.items()},
             }
@@ -429,8 +472,8 @@ def common_columns(group: Sequence[Run]) -> tuple[list[str], dict[str, Any]]:
     fields = {
         "collisions": sum(counts) if counts else None,
         "runs_collided": sum(1 for c in counts if c > 0) if counts else None,
-        "spl": _stats_record(spl),
-        "soft_spl": _stats_record(soft),
+        "spl": _stats_record(spl, UNIT_RANGE),
+        "soft_spl": _stats_record(soft, UNIT_RANGE),
     }
     return cells, fields
 
@@ -485,6 +528,8 @@ def task_of_run(scenario: Scenario, run: Run) -> Task:
     try:
         return scenario.task(run.task)
     except KeyError:
+        if run.summary.get("task_id") != SEQUENCE_ID and isinstance(run.config.get("task"), dict):
+            return run.task_record(scenario)  # free text: the task as `drive` resolved it, targets included
         text = run.summary.get("task_text")
         if not isinstance(text, str) or not text:
             raise
@@ -628,11 +673,11 @@ def _declared_row(spec: ScoreTable, group: Sequence[Run]) -> tuple[list[str], di
         elif column.aggregate == "median":
             values = _column_values(group, column)
             cells.append(f"{statistics.median(values):.{column.digits}f}" if values else MISSING)
-            medians[column.key] = _stats_record(values)
+            medians[column.key] = _stats_record(values, column.bounds)
         else:
             values = _column_values(group, column)
             cells.append(FAILED if _all_left_out(group, column) else _mean_sd(values, column.digits))
-            means[column.key] = _stats_record(values)
+            means[column.key] = _stats_record(values, column.bounds)
     return cells, counts | means | shares | medians
 
 
@@ -707,6 +752,9 @@ def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -
     policies = (null_policy_table, ceiling_table, wording_table, wording_spread_table)
     tables += [t for t in (b(results, keys) for b in policies) if t is not None]
     tables += [t for t in (failures_table(runs, keys), aborted_table(aborted, keys)) if t is not None]
+    from llmnav.score_cost import cost_table
+
+    tables += [t for t in (cost_table(runs, keys),) if t is not None]
     return tables
 
 
@@ -749,7 +797,7 @@ def collided_runs(runs: Sequence[Run]) -> list[str]:
 
 
 def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Per task and condition: the runs a backend or server failure ended, kept out of every mean above."""
+    """Per task and condition: the runs a backend or server failure or a crash ended, kept out of every mean."""
     if not aborted:
         return None
     rows, records = [], []
@@ -760,11 +808,11 @@ def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
         records.append({"task": task, "condition": label, **condition_fields(group[0], keys), "n": len(group),
                         "reasons": reasons})  # fmt: skip
     return Table(
-        "Runs aborted by a backend or server failure (not in the means above)",
+        "Runs aborted by a backend or server failure or a crash (not in the means above)",
         ["Task", "Condition", "N", "Reason"],
         rows,
         records,
-        note="No answer came from the model's server: these runs say nothing about the model.",
+        note="No answer came from the model's server, or llmnav crashed: these runs say nothing about the model.",
         name="aborted",
     )
 
@@ -774,7 +822,7 @@ def select_table(tables: Sequence[Table], name: str) -> Table:
     for table in tables:
         if table.name == name:
             return table
-    there = ", ".join(t.name for t in tables) or "none"
+    there = ", ".join(["runs", *(t.name for t in tables)])  # `runs` (a row per run) is always there
     raise BadInputError(f"--table {name}: no such table for these runs (tables: {there})")
 
 
@@ -784,6 +832,11 @@ def problems(runs: Sequence[Run]) -> list[str]:
 
 
 # --- comparisons --------------------------------------------------------------------------------
+
+# The range of each compared metric (its interval is cut to it); success is a rate: Wilson's interval.
+COMPARE_BOUNDS: dict[str, tuple[float | None, float | None]] = {
+    "score": UNIT_RANGE, "success": UNIT_RANGE, "spl": UNIT_RANGE, "soft_spl": UNIT_RANGE, "wgsr": (0.0, 100.0),
+}  # fmt: skip
 
 # What `--compare` tests: name → how to read it from a run.
 COMPARE_METRICS: dict[str, Callable[[Run], Any]] = {
@@ -852,7 +905,10 @@ def compare_groups(runs: Sequence[Run], first: str, second: str) -> tuple[Table,
     for name, get in COMPARE_METRICS.items():
         a, b = _values(group_a, get), _values(group_b, get)
         if len(a) >= 2 and len(b) >= 2:
-            results.append(GroupComparison(name, compare(a, b)))
+            c = compare(a, b)
+            bounds = COMPARE_BOUNDS.get(name, NON_NEGATIVE)
+            ranged = [_ranged(d, name == "success", bounds) for d in (c.a, c.b)]
+            results.append(GroupComparison(name, Comparison(ranged[0], ranged[1], c.welch, c.hedges_g)))
     columns = ["Metric", f"{first} mean ± SD [95% CI]", f"{second} mean ± SD [95% CI]", "t", "df", "p", "g"]
     rows, records = [], []
     for item in results:
@@ -886,6 +942,15 @@ def compare_groups(runs: Sequence[Run], first: str, second: str) -> tuple[Table,
         )
     note = "Welch's t (two-sided p), Hedges' g with small-sample correction; positive = first group larger"
     return Table(f"Comparison: {first} vs {second}", columns, rows, records, note, name="comparison"), results
+
+
+def _ranged(d: Describe, rate: bool, bounds: tuple[float | None, float | None]) -> Describe:
+    """`d` with an interval inside the metric's range: Wilson's for a rate of 0/1 outcomes, else the t interval cut."""
+    if rate:
+        low, high = wilson_interval(round(d.mean * d.n), d.n, d.confidence)
+    else:
+        low, high = clip_interval(d.ci_low, d.ci_high, bounds)
+    return Describe(d.n, d.mean, d.sd, low, high, d.confidence)
 
 
 def _nan_none(value: float) -> float | None:

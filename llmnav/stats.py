@@ -75,10 +75,51 @@ def describe_summary(mean: float, sd: float, n: int, confidence: float = 0.95) -
     return Describe(n, mean, sd, low, high, confidence)
 
 
-def describe(values: Sequence[float | None], confidence: float = 0.95) -> Describe:
-    """Mean ± SD and t-CI of a sample (None and non-finite values are dropped)."""
+def describe(
+    values: Sequence[float | None],
+    confidence: float = 0.95,
+    bounds: tuple[float | None, float | None] = (None, None),
+) -> Describe:
+    """Mean ± SD and t-CI of a sample (None and non-finite values are dropped).
+
+    `bounds`: the metric's range; the interval is cut to it (see `clip_interval`).
+    """
     mean, sd, n = mean_sd(values)
-    return describe_summary(mean, sd, n, confidence)
+    d = describe_summary(mean, sd, n, confidence)
+    if bounds == (None, None):
+        return d
+    low, high = clip_interval(d.ci_low, d.ci_high, bounds)
+    return Describe(d.n, d.mean, d.sd, low, high, confidence)
+
+
+def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson's score interval of a rate (Wilson 1927): always inside [0, 1], sensible at 0/n and n/n.
+
+    The t interval of 0/1 outcomes reaches below 0 and above 1 for small n, and is a single point at
+    0/n or n/n; Wilson's never leaves the rate's range. (nan, nan) for n = 0.
+    """
+    from scipy import stats
+
+    if n <= 0:
+        return math.nan, math.nan
+    z = float(stats.norm.ppf(0.5 + confidence / 2))
+    p = successes / n
+    denominator = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denominator
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denominator
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def clip_interval(
+    low: float, high: float, bounds: tuple[float | None, float | None] = (None, None)
+) -> tuple[float, float]:
+    """An interval cut to a metric's range (a score is never below 0, a length never negative)."""
+    lowest, highest = bounds
+    if lowest is not None and math.isfinite(low):
+        low, high = max(low, lowest), max(high, lowest)
+    if highest is not None and math.isfinite(high):
+        low, high = min(low, highest), min(high, highest)
+    return low, high
 
 
 def welch_summary(mean1: float, sd1: float, n1: int, mean2: float, sd2: float, n2: int) -> Welch:

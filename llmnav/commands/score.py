@@ -48,14 +48,18 @@ def score(
         str | None,
         typer.Option(
             "--table",
-            help="Only this table: episodes, path, null_policies, ceiling, wording, wording_spread, failures, aborted, "
-            "comparison, one a planner declares (its name is in the JSON), or a source paper's in its own layout: "
-            "stepwise-1, stepwise-position, waypoints-legs, fsm-compare, fsm-velocity (docs/paper-tables.md). "
-            "CSV writes one table (default: the first).",
+            help="Only this table: runs (one row per run, streamed), episodes, path, null_policies, ceiling, "
+            "wording, wording_spread, failures, aborted, cost, comparison, one a planner declares (its name is in "
+            "the JSON), or a source paper's in its own layout: stepwise-1, stepwise-position, waypoints-legs, "
+            "fsm-compare, fsm-velocity (docs/paper-tables.md). CSV writes one table (default: the first).",
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")] = None,
+    prices: Annotated[
+        Path | None,
+        typer.Option("--prices", help="Reprice every run's model calls with this price table (TOML) from its log."),
+    ] = None,
     success_radius: Annotated[
         float | None,
         typer.Option(
@@ -88,7 +92,17 @@ def score(
     chart_folder_option(plot)
     if success_radius is not None and not (math.isfinite(success_radius) and success_radius > 0):
         raise BadInputError(f"--success-radius {success_radius}: expected a distance in metres above 0")
-    runs, broken = read_runs(paths, success_radius)
+    from llmnav.backends.prices import load_prices
+
+    checked = load_prices(prices)  # a bad $LLMNAV_PRICES is one line here, not a skipped run per old summary
+    table_of_prices = checked if prices is not None else None
+    if table == "runs":
+        for flag, given in (("--compare", compare), ("--by", by), ("--plot", plot)):
+            if given:
+                raise BadInputError(f"--table runs: {flag} does not apply (it lists every run, ungrouped)")
+        runs_table(paths, fmt, out, success_radius)
+        return
+    runs, broken = read_runs(paths, success_radius, table_of_prices)
     keys = varying_keys(runs) if by is None else parse_keys(by)
     results, aborted = split_aborted(runs)
     # a paper's table alone: llmnav's own tables are not built (their oracle paths cost time)
@@ -119,12 +133,66 @@ def score(
     if aborted:
         err_console.print(
             f"[yellow]left out of the means:[/] {len(aborted)} run(s) aborted by a backend or server failure "
-            "(table 'aborted' lists them per condition)",
+            "or a crash (table 'aborted' lists them per condition)",
             highlight=False,
             soft_wrap=True,
         )
     cut = sum(1 for r in runs if r.summary.get("cut_short"))
     err_console.print(f"[dim]{len(runs)} run(s) read{f', {cut} cut short' if cut else ''}[/]", highlight=False)
+
+
+def runs_table(paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None) -> None:
+    """`--table runs`: a row per run, streamed through a spool file (see `llmnav.score_runs`)."""
+    import contextlib
+
+    from llmnav.safefiles import atomic_text
+    from llmnav.score_runs import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
+
+    spool = spool_rows(paths, success_radius)
+    with spool.file, contextlib.ExitStack() as stack:
+        if fmt is OutputFormat.rich and out is None and spool.count <= RICH_ROWS:
+            _print_runs(spool, DISPLAY_COLUMNS)
+        else:
+            try:
+                stream = sys.stdout if out is None else stack.enter_context(atomic_text(out))
+            except OSError as err:
+                raise BadInputError(f"--out {out}: cannot write: {err.strerror or err}") from None
+            if fmt is OutputFormat.csv:
+                write_csv(spool, stream)
+            elif fmt is OutputFormat.json:
+                write_json(spool, stream)
+            else:  # md, or more rows than a terminal table is worth: Markdown, the terminal's columns only
+                write_markdown(spool, stream, None if fmt is OutputFormat.md else DISPLAY_COLUMNS)
+            stream.flush()
+        if out is not None:
+            err_console.print(f"[dim]table written to {esc(out)}[/]")
+        for line in spool.problems:
+            err_console.print(f"[yellow]not computed:[/] {esc(line)}", highlight=False, soft_wrap=True)
+        for line in spool.broken:
+            err_console.print(f"[yellow]skipped:[/] {esc(line)}", highlight=False, soft_wrap=True)
+        err_console.print(f"[dim]{spool.count} run(s) read[/]", highlight=False)
+
+
+RICH_ROWS = 1000  # a terminal table above this many runs is written as Markdown rows (a rich table holds them all)
+
+
+def _print_runs(spool: object, columns: tuple[str, ...]) -> None:
+    """The runs as a rich table of the given columns (those some run has a value in)."""
+    from llmnav.reporting.tables import print_tables
+    from llmnav.score import Table
+    from llmnav.score_runs import NOTE, TITLE, Spool
+
+    assert isinstance(spool, Spool)
+    shown = [c for c in columns if c in spool.filled]
+    rows = [["" if row.get(c) is None else _short(row.get(c)) for c in shown] for row in spool.rows()]
+    print_tables(console, [Table(TITLE, shown, rows, note=NOTE + "; every column: --format csv or json", name="runs")])
+
+
+def _short(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    text = str(value)
+    return Path(text).name if "/" in text and Path(text).is_absolute() else text
 
 
 def parse_keys(text: str) -> list[str]:

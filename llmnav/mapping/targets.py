@@ -246,9 +246,11 @@ def oracle_path(
 
 
 @lru_cache(maxsize=1024)
-def _cached_length(key: _ScenarioKey, task_id: str, x: float, y: float) -> float | None:
-    scenario = key.scenario
-    path = oracle_path(scenario, scenario.task(task_id), Pose2D(x, y, 0.0))
+def _cached_length(key: _ScenarioKey, task_json: str, x: float, y: float) -> float | None:
+    from llmnav.scenario import Task
+
+    # keyed by the task's content, not its id: free-text tasks share one id and differ in their targets
+    path = oracle_path(key.scenario, Task.model_validate_json(task_json), Pose2D(x, y, 0.0))
     return None if path is None else path.length_m
 
 
@@ -269,7 +271,8 @@ def oracle_length(scenario: Scenario, task: Task | str, start_pose_index_or_pose
         pose = poses[index - 1].pose()
     if not task_obj.targets:
         return None
-    return _cached_length(_ScenarioKey.of(scenario), task_obj.id, round(pose.x, 6), round(pose.y, 6))
+    task_json = task_obj.model_copy(update={"start_poses": [], "paraphrases": []}).model_dump_json()
+    return _cached_length(_ScenarioKey.of(scenario), task_json, round(pose.x, 6), round(pose.y, 6))
 
 
 # For scoring: the robot's own footprint and nothing more, so no driven path can be shorter than this one.

@@ -64,7 +64,12 @@ def plot_plan(scenario: Scenario, plan: PlanResult, start: Pose2D, out: Path) ->
         for index, (x, y) in enumerate(plan.waypoints, start=1):
             ax.annotate(str(index), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8, zorder=7)
     ax.plot(start.x, start.y, "o", color="tab:green", ms=9, zorder=7, label="start")
-    ax.plot(*plan.target, "*", color="tab:red", ms=14, zorder=7, label=f"target {plan.target_id}")
+    from llmnav.metrics import SUCCESS_RADIUS_M
+    from llmnav.reporting.topview import TARGET_RGB, draw_targets
+
+    draw_targets(ax, [plan.target], SUCCESS_RADIUS_M, legend=False)
+    label = f"target {plan.target_id} (success within {SUCCESS_RADIUS_M:g} m)"
+    ax.plot([], [], "*", color=TARGET_RGB, ms=11, label=label)
     ax.set_aspect("equal")
     ax.set_xlim(bx[0] - 0.3, bx[1] + 0.3)
     ax.set_ylim(by[0] - 0.3, by[1] + 0.3)

@@ -40,24 +40,36 @@ def to_rich(table: Table) -> RichTable:
     return out
 
 
-PIPE_WIDTH = 240  # [characters] width of tables written to a pipe or file: never squeezed to 80 columns
+UNBOUNDED = 1 << 16  # [characters] a width no table reaches: measure at this to get its natural width
+
+
+def print_unsqueezed(console: Console, renderable: Any) -> None:
+    """Print fitted to a terminal; to a pipe or file at its natural width, however wide.
+
+    Rich fits output to 80 columns when it is not writing to a terminal, which cuts table cells with
+    ellipses ("policy:ora…") and wraps the rest: `llmnav backends | grep oracle` found nothing. Piped,
+    a table is as wide as its longest cells need, one line per row.
+    """
+    if console.is_terminal:
+        console.print(renderable)
+        return
+    from rich.measure import Measurement
+
+    natural = Measurement.get(console, console.options.update_width(UNBOUNDED), renderable).maximum
+    # print(width=...) is capped at the console's width: widen it for a moment. Restore the setting itself
+    # (None: follow COLUMNS and the terminal), not the width it gave then, which would pin it for good.
+    previous = console._width
+    console.width = max(console.width, natural)
+    try:
+        console.print(renderable)
+    finally:
+        console._width = previous
 
 
 def print_tables(console: Console, tables: Sequence[Table]) -> None:
     """Print rich tables: fitted to a terminal, at their natural width when piped."""
-    if console.is_terminal:
-        for table in tables:
-            console.print(to_rich(table))
-        return
-    # print(width=...) is capped at the console's width: widen it for a moment. Restore the setting itself
-    # (None: follow COLUMNS and the terminal), not the width it gave then, which would pin it for good.
-    previous = console._width
-    console.width = max(console.width, PIPE_WIDTH)
-    try:
-        for table in tables:
-            console.print(to_rich(table))
-    finally:
-        console._width = previous
+    for table in tables:
+        print_unsqueezed(console, to_rich(table))
 
 
 def _md_cell(text: str) -> str:
@@ -81,15 +93,15 @@ def to_markdown(tables: Sequence[Table]) -> str:
 def flatten(record: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     """One level of columns from a nested record: `score: {mean, sd, ci95: [lo, hi]}` -> `score_mean`, ...
 
-    Nested dicts join their keys with `_`; a two-item `ci95` becomes `_low` and `_high`; other lists are
-    written as JSON text so a cell never holds a Python repr.
+    Nested dicts join their keys with `_`; a two-item `ci95` (or `..._ci95`) becomes `_low` and `_high`;
+    other lists are written as JSON text so a cell never holds a Python repr.
     """
     out: dict[str, Any] = {}
     for key, value in record.items():
         name = f"{prefix}{key}"
         if isinstance(value, dict):
             out.update(flatten(value, f"{name}_"))
-        elif isinstance(value, list) and key == "ci95" and len(value) == 2:
+        elif isinstance(value, list) and (key == "ci95" or key.endswith("_ci95")) and len(value) == 2:
             out[f"{name}_low"], out[f"{name}_high"] = value
         elif isinstance(value, list):
             out[name] = json.dumps(value)
@@ -101,23 +113,32 @@ def flatten(record: dict[str, Any], prefix: str = "") -> dict[str, Any]:
 def to_csv(table: Table) -> str:
     """One tidy CSV table: a row per record (task × condition), one column per metric, raw numbers.
 
-    Columns are the union over the rows, in order of first appearance; a value a row lacks is empty.
+    Columns are the union over the rows, in order of first appearance; a value a row lacks is empty. A
+    column empty in every row is left out (pandas would read it as a column of NaN).
     """
     rows = [flatten(r) for r in table.records]
     columns: dict[str, None] = {}
     for row in rows:
-        columns.update(dict.fromkeys(row))
+        columns.update(dict.fromkeys(k for k, v in row.items() if v is not None))
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n", restval="")
+    writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n", restval="", extrasaction="ignore")
     writer.writeheader()
     for row in rows:
         writer.writerow({k: "" if v is None else v for k, v in row.items()})
     return buffer.getvalue()
 
 
+def without_empty_fields(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The records without the fields that are null in every one of them (nothing to show)."""
+    filled = {k for record in records for k, v in record.items() if v is not None}
+    return [{k: v for k, v in record.items() if k in filled} for record in records]
+
+
 def to_json(tables: Sequence[Table]) -> str:
-    """The tables' raw records (numbers, not formatted strings)."""
-    data = [{"name": t.name, "title": t.title, "note": t.note, "records": t.records} for t in tables]
+    """The tables' raw records (numbers, not formatted strings); a field null in every record is left out."""
+    data = [
+        {"name": t.name, "title": t.title, "note": t.note, "records": without_empty_fields(t.records)} for t in tables
+    ]
     return json.dumps(data, indent=2, allow_nan=False, default=str) + "\n"
 
 

@@ -101,9 +101,13 @@ def draw_scenario(ax: Axes, scenario: Scenario, *, labels: bool = True) -> None:
     ax.set_ylabel("y [m]")
     ax.grid(True, linewidth=0.3, alpha=0.4)
     if labels:
-        # Dense worlds (corridor_c has ~40 objects) and big ones get the smaller size.
-        extent = max(bx[1] - bx[0], by[1] - by[0])
-        place_labels(ax, scenario, fontsize=7.5 if extent > 12 else 8.5)
+        place_labels(ax, scenario, fontsize=label_fontsize(scenario))
+
+
+def label_fontsize(scenario: Scenario) -> float:
+    """[pt] Dense worlds (corridor_c has ~40 objects) and big ones get the smaller size."""
+    bx, by = scenario.bounds.x, scenario.bounds.y
+    return 7.5 if max(bx[1] - bx[0], by[1] - by[0]) > 12 else 8.5
 
 
 _HALO_PT = 2.6  # [pt] the white outline behind each label: readable on dark walls and markers
@@ -113,13 +117,14 @@ _LEADER = {"arrowstyle": "-", "linewidth": 0.6, "color": (0.25, 0.25, 0.25), "sh
 _DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, 1), (1, -1), (-1, -1))
 
 
-def place_labels(ax: Axes, scenario: Scenario, *, fontsize: float) -> list[Any]:
+def place_labels(ax: Axes, scenario: Scenario, *, fontsize: float, avoid: Sequence[Any] = ()) -> list[Any]:
     """Label every object where its text overlaps no other label, with a leader line when set apart.
 
     Candidate places go around the footprint, then on two wider rings (those get a leader line). Each is
     scored in display pixels: overlapping a placed label is worst, leaving the axes next, covering a
     wall, obstacle or object (a label on a dark wall) after that, distance last. A white halo keeps the
     text readable wherever it lands. A cluster of objects with the same text (barrels) gets one label.
+    `avoid`: display-space boxes (a run's start and end markers, its target) that count as placed labels.
     Call it after the axes' limits and size are final; returns the annotations.
     """
     from matplotlib import patheffects
@@ -139,7 +144,7 @@ def place_labels(ax: Axes, scenario: Scenario, *, fontsize: float) -> list[Any]:
 
     covers = [footprint(shape) for shape in (*scenario.walls, *scenario.obstacles, *scenario.objects)]
     probe = ax.text(0.0, 0.0, "", fontsize=fontsize)
-    placed: list[tuple[Bbox, str]] = []
+    placed: list[tuple[Bbox, str]] = [(box, "") for box in avoid]
     annotations: list[Any] = []
     for obj in scenario.objects:
         own = footprint(obj)
@@ -197,6 +202,89 @@ def _gap(a: Any, b: Any) -> float:
     return math.hypot(max(0.0, max(a.x0, b.x0) - min(a.x1, b.x1)), max(0.0, max(a.y0, b.y0) - min(a.y1, b.y1)))
 
 
+TARGET_RGB = (0.77, 0.19, 0.19)  # the target's star and success circle (the end marker's red, darker)
+
+
+def draw_targets(ax: Axes, points: Sequence[Sequence[float]], radius_m: float, *, legend: bool = True) -> None:
+    """Each target point as a star inside a dashed circle of the success radius [m]: where success begins.
+
+    Without it a path that stops `radius_m` short of an object looks like it fell short. One legend entry.
+    """
+    from matplotlib.patches import Circle
+
+    for index, point in enumerate(points):
+        x, y = float(point[0]), float(point[1])
+        first = legend and index == 0
+        ax.add_patch(
+            Circle(
+                (x, y),
+                radius_m,
+                fill=False,
+                edgecolor=TARGET_RGB,
+                linestyle="--",
+                linewidth=1.1,
+                zorder=5.2,
+                label=f"success radius ({radius_m:g} m)" if first else None,
+            )
+        )
+        ax.plot(x, y, "*", color=TARGET_RGB, ms=11, mec="white", mew=0.6, zorder=6.5, label="target" if first else None)
+
+
+def place_point_labels(
+    ax: Axes, items: Sequence[tuple[str, Sequence[float]]], *, fontsize: float, color: Any, avoid: Sequence[Any] = ()
+) -> list[Any]:
+    """Label points where no label meets another label, a text already on the axes or a box in `avoid`.
+
+    Candidates go around each point on two rings; the first free one wins (else the least crowded).
+    `avoid`: display-space boxes of markers (the start and end) that a label must not cover. Call it after
+    the axes' limits are final.
+    """
+    from matplotlib import patheffects
+    from matplotlib.transforms import Bbox
+
+    ax.apply_aspect()
+    renderer = ax.figure.canvas.get_renderer()  # type: ignore[attr-defined]
+    px_per_pt = ax.figure.dpi / 72.0
+    taken = [t.get_window_extent(renderer) for t in ax.texts if t.get_text()] + list(avoid)
+    probe = ax.text(0.0, 0.0, "", fontsize=fontsize)
+    placed = []
+    for text, point in items:
+        probe.set_text(text)
+        size = probe.get_window_extent(renderer)
+        w, h = size.width + 2 * _HALO_PT * px_per_pt, size.height + _HALO_PT * px_per_pt
+        px, py = ax.transData.transform((float(point[0]), float(point[1])))
+        best: tuple[int, Any, tuple[float, float]] | None = None
+        for reach in (4.0, 4.0 + 1.3 * h, 4.0 + 2.6 * h):
+            for dx, dy in ((1, 1), (1, -1), (-1, 1), (-1, -1), (1, 0), (-1, 0), (0, 1), (0, -1)):
+                cx = px + dx * (reach + w / 2) if dx else px
+                cy = py + dy * (reach + h / 2) if dy else py
+                box = Bbox.from_extents(cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
+                crowd = sum(box.overlaps(b) for b in taken)
+                if best is None or crowd < best[0]:
+                    best = (crowd, box, (cx - px, cy - py))
+            if best is not None and best[0] == 0:
+                break
+        assert best is not None
+        _, box, (ox, oy) = best
+        placed.append(
+            ax.annotate(
+                text,
+                (float(point[0]), float(point[1])),
+                xytext=(ox / px_per_pt, oy / px_per_pt),
+                textcoords="offset points",
+                ha="center",
+                va="center",
+                fontsize=fontsize,
+                color=color,
+                zorder=7,
+                path_effects=[patheffects.withStroke(linewidth=_HALO_PT, foreground="white")],
+            )
+        )
+        taken.append(box)
+    probe.remove()
+    return placed
+
+
 def _draw_start_poses(ax: Axes, scenario: Scenario, task: Task | None) -> None:
     """Numbered arrows for the start poses (all tasks' when `task` is None)."""
     tasks = [task] if task is not None else scenario.tasks
@@ -248,6 +336,10 @@ def plot_scenario(scenario: Scenario, path: str | Path, *, task: Task | None = N
     try:
         draw_scenario(ax, scenario)
         _draw_start_poses(ax, scenario, task)
+        if task is not None and task.kind == "target":
+            from llmnav.metrics import SUCCESS_RADIUS_M
+
+            draw_targets(ax, scenario.target_points(task), SUCCESS_RADIUS_M)
         title = scenario.name if task is None else f"{scenario.name} - {task.id}: {task.text}"
         ax.set_title(printable(title), fontsize=10)
         fig.tight_layout()

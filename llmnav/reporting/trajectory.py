@@ -1,7 +1,9 @@
 """The trajectory figure of one run: the top view, the driven path, numbered steps and the oracle path.
 
-Start in green, end in red, each executed action's end pose numbered by its step, the oracle's shortest
-path dashed (skipped when the oracle cannot plan one). Drawn from the run log alone plus the scenario.
+Start in green, end in red, the target as a star inside its success-radius circle, each executed action's
+end pose numbered by its step (labels placed clear of each other, the object names and the start and end
+markers), the oracle's shortest path dashed (skipped when the oracle cannot plan one). Drawn from the run
+log alone plus the scenario.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ FIG_WIDTH_IN = 8.0  # [in]
 DPI = 120
 SAME_SPOT_M = 0.15  # [m] step ends closer than this share one label
 HEADING_ARROW_M = 0.8  # [m] length of the start and end heading arrows
+MARKER_PT = 9  # [pt] start and end marker size
 
 
 def oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tuple[float, float]] | None:
@@ -46,32 +49,10 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from llmnav.reporting.topview import draw_scenario
-
-    poses = record.poses()
     (x0, x1), (y0, y1) = scenario.bounds.x, scenario.bounds.y
-    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN, FIG_WIDTH_IN * (y1 - y0) / max(x1 - x0, 1e-6) + 0.6))
+    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN, FIG_WIDTH_IN * (y1 - y0) / max(x1 - x0, 1e-6) + 0.6), dpi=DPI)
     try:
-        draw_scenario(ax, scenario)
-        start = record.config.get("start_pose") or (poses[0] if poses else None)
-        if start is not None:
-            oracle = oracle_points(scenario, task, start)
-            if oracle:
-                ax.plot(*zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=5.5)
-        if poses:
-            xs, ys = [p[0] for p in poses], [p[1] for p in poses]
-            ax.plot(xs, ys, "-", color="tab:blue", lw=2.0, label="robot path", zorder=5)
-            ax.plot(xs[0], ys[0], "o", color="green", ms=9, label="start", zorder=6)
-            ax.plot(xs[-1], ys[-1], "o", color="red", ms=9, label="end", zorder=6)
-            _heading(ax, poses[0], "green")
-            _heading(ax, poses[-1], "red")
-        _number_steps(ax, record.of_type("action"))
-        outcome = (record.of_type("end") or [{}])[-1].get("outcome", "cut short")
-        ax.set_title(
-            printable(f"{scenario.name} · {task.id}: {task.text} · {record.config.get('planner')} · {outcome}"),
-            fontsize=9,
-        )
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
+        draw_record(ax, record, scenario, task)
         out_path = Path(out_path)
         fig.savefig(out_path, dpi=DPI, bbox_inches="tight")
     finally:
@@ -79,8 +60,51 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
     return out_path
 
 
-def _number_steps(ax: Any, actions: list[dict[str, Any]]) -> None:
-    """Label each step's end pose with its number; steps ending at one spot (turns) share a label."""
+def draw_record(ax: Any, record: RunRecord, scenario: Scenario, task: Task) -> None:
+    """The run on `ax`: top view, target and success radius, oracle path, driven path, numbered steps."""
+    from llmnav.metrics import SUCCESS_RADIUS_M
+    from llmnav.reporting.topview import draw_scenario, draw_targets, label_fontsize, place_labels
+
+    poses = record.poses()
+    draw_scenario(ax, scenario, labels=False)  # object names last, placed clear of the run's markers
+    if task.kind == "target" and task.targets:
+        radius = (record.summary or {}).get("success_radius_m")
+        radius_m = float(radius) if isinstance(radius, (int, float)) and radius > 0 else SUCCESS_RADIUS_M
+        draw_targets(ax, scenario.target_points(task), radius_m)
+    start = record.config.get("start_pose") or (poses[0] if poses else None)
+    if start is not None:
+        oracle = oracle_points(scenario, task, start)
+        if oracle:
+            ax.plot(*zip(*oracle, strict=True), "--", color="0.35", lw=1.4, label="oracle path", zorder=5.5)
+    markers = []
+    if poses:
+        xs, ys = [p[0] for p in poses], [p[1] for p in poses]
+        ax.plot(xs, ys, "-", color="tab:blue", lw=2.0, label="robot path", zorder=5)
+        markers += ax.plot(xs[0], ys[0], "o", color="green", ms=MARKER_PT, label="start", zorder=6)
+        markers += ax.plot(xs[-1], ys[-1], "o", color="red", ms=MARKER_PT, label="end", zorder=6)
+        _heading(ax, poses[0], "green")
+        _heading(ax, poses[-1], "red")
+    outcome = (record.of_type("end") or [{}])[-1].get("outcome", "cut short")
+    ax.set_title(
+        printable(f"{scenario.name} · {task.id}: {task.text} · {record.config.get('planner')} · {outcome}"),
+        fontsize=9,
+    )
+    renderer = ax.figure.canvas.get_renderer()
+    ax.apply_aspect()
+    stars = [line for line in ax.lines if line.get_marker() == "*"]
+    avoid = [m.get_window_extent(renderer) for m in (*markers, *stars)]
+    place_labels(ax, scenario, fontsize=label_fontsize(scenario), avoid=avoid)
+    _number_steps(ax, record.of_type("action"), avoid)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
+
+
+def _number_steps(ax: Any, actions: list[dict[str, Any]], avoid: list[Any]) -> None:
+    """Label each step's end pose with its number, clear of the other labels and the start and end markers.
+
+    Steps ending at one spot (turns) share a label.
+    """
+    from llmnav.reporting.topview import place_point_labels
+
     ends: dict[Any, list[float]] = {}
     for action in actions:
         if action.get("pose_after") is not None:
@@ -91,18 +115,10 @@ def _number_steps(ax: Any, actions: list[dict[str, Any]]) -> None:
         key = (round(pose[0] / SAME_SPOT_M), round(pose[1] / SAME_SPOT_M))
         spots.setdefault(key, []).append(str(step))
         where.setdefault(key, pose)
-    for key, steps in spots.items():
-        pose = where[key]
-        label = ",".join(steps) if len(steps) <= 4 else f"{steps[0]}–{steps[-1]}"
-        ax.annotate(
-            label,
-            (pose[0], pose[1]),
-            xytext=(4, 4),
-            textcoords="offset points",
-            fontsize=7,
-            color="tab:blue",
-            zorder=7,
-        )
+    items = [
+        (",".join(steps) if len(steps) <= 4 else f"{steps[0]}–{steps[-1]}", where[key]) for key, steps in spots.items()
+    ]
+    place_point_labels(ax, items, fontsize=7, color="tab:blue", avoid=avoid)
 
 
 def _heading(ax: Any, pose: list[float], color: str) -> None:

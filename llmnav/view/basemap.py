@@ -65,8 +65,13 @@ def draw_base_map(
     oracle: Sequence[Sequence[float]] | None = None,
     trajectory: Sequence[Sequence[float]] = (),
     faint_paths: bool = False,
+    targets: Sequence[Sequence[float]] = (),
+    radius_m: float = 2.5,
 ) -> BaseMap:
-    """The scenario's top view (or an empty frame around the trajectory), optionally with the paths."""
+    """The scenario's top view (or an empty frame around the trajectory), optionally with the paths.
+
+    `targets`: points [m] drawn as stars inside a dashed circle of `radius_m` [m], the success radius.
+    """
     import cv2
     import matplotlib
 
@@ -74,7 +79,7 @@ def draw_base_map(
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from llmnav.reporting.topview import draw_scenario
+    from llmnav.reporting.topview import draw_scenario, draw_targets
 
     fig = plt.figure(figsize=(width_px / DPI, height_px / DPI), dpi=DPI)
     ax = fig.add_axes(AXES_BOX)
@@ -88,6 +93,8 @@ def draw_base_map(
             ax.set_xlim(min(xs) - MARGIN_M, max(xs) + MARGIN_M)
             ax.set_ylim(min(ys) - MARGIN_M, max(ys) + MARGIN_M)
             ax.grid(True, linewidth=0.3, alpha=0.4)
+        if targets:
+            draw_targets(ax, targets, radius_m, legend=False)
         if faint_paths and oracle:
             ax.plot([p[0] for p in oracle], [p[1] for p in oracle], "--", color="0.35", lw=1.2, zorder=5.5)
         if faint_paths and trajectory:

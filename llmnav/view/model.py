@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.declarations import Declarations, declarations_of
 from llmnav.geometry import logged_pose
+from llmnav.relevance import CONTENT_FREE_TASK
 from llmnav.runlog import IMAGES_DIR, RunRecord, read_run
 
 if TYPE_CHECKING:
@@ -85,6 +86,9 @@ class CallView:
     latency_s: float | None
     tokens: dict[str, Any]  # prompt_tokens, completion_tokens and whatever other *_tokens the backend logged
     t_wall: float | None = None
+    # A scoring call writes no reply: the log-probability [nats] and token count of each continuation.
+    scores: list[tuple[str, float, int]] = field(default_factory=list)
+    content_free: bool = False  # its prompt holds the content-free task (the PMI's baseline), not the user's
 
 
 @dataclass
@@ -187,6 +191,24 @@ class RunView:
         return self.record.config
 
     @property
+    def targets(self) -> list[tuple[float, float]]:
+        """The task's target points [m] (none for a task without targets or a scenario that did not load)."""
+        if self.scenario is None or self.task is None or not self.task.targets:
+            return []
+        try:
+            return [(float(p[0]), float(p[1])) for p in self.scenario.target_points(self.task)]
+        except KeyError:  # a target object the scenario does not have
+            return []
+
+    @property
+    def success_radius_m(self) -> float:
+        """[m] The radius success was judged at (the summary's, else the default)."""
+        from llmnav.metrics import SUCCESS_RADIUS_M
+
+        value = _number(self.summary.get("success_radius_m"))
+        return value if value is not None and value > 0 else SUCCESS_RADIUS_M
+
+    @property
     def header(self) -> dict[str, Any]:
         """The page header's fields (absent ones are None)."""
         config, summary = self.config, self.summary
@@ -267,9 +289,16 @@ def one_line_reasoning(value: Any) -> str:
 
 def describe_action(action: dict[str, Any]) -> str:
     """`FRONT 1.5`, `GOTO 2.3 (Go to room 101)`, `WAYPOINT [1.0, 2.0]`, plus what stopped it."""
-    command = str(action.get("command", "?"))
+    command = action.get("command")
     params = action.get("parameters")
-    text = command if params in (None, 0, 0.0) and command == "COMPLETE" else f"{command} {params}"
+    if command is None and isinstance(action.get("action"), str):
+        text = action["action"]  # a Gymnasium episode logs the action as one phrase: `BACK 4.55 m`, `COMPLETE`
+    elif command is None:
+        text = "?"
+    elif params is None or (params in (0, 0.0) and command == "COMPLETE"):
+        text = str(command)
+    else:
+        text = f"{command} {params}"
     if action.get("option"):
         text += f" ({action['option']})"
     if action.get("vetoed"):
@@ -357,6 +386,7 @@ def _call_view(event: dict[str, Any], previous: list[MessageView]) -> CallView:
                 if key.endswith("tokens") and value is not None:
                     tokens.setdefault(key, value)
     latency = reply.get("latency_s") if reply else None
+    scores = _scores(event.get("request"), reply)
     return CallView(
         purpose=str(event.get("purpose") or "call"),
         new_messages=new,
@@ -367,7 +397,28 @@ def _call_view(event: dict[str, Any], previous: list[MessageView]) -> CallView:
         latency_s=float(latency) if isinstance(latency, (int, float)) else None,
         tokens=tokens,
         t_wall=event.get("t_wall"),
+        scores=scores,
+        content_free=bool(scores) and any(CONTENT_FREE_LINE in m.text for m in messages),
     )
+
+
+CONTENT_FREE_LINE = f"Task: {CONTENT_FREE_TASK}\n"  # how a scoring prompt names the content-free task
+
+
+def _scores(request: Any, reply: dict[str, Any] | None) -> list[tuple[str, float, int]]:
+    """(continuation, log-probability [nats], tokens) of a scoring call; [] for a call that wrote a reply."""
+    logged = reply.get("scores") if reply else None
+    texts = request.get("continuations") if isinstance(request, dict) else None
+    if not isinstance(logged, list) or not isinstance(texts, list) or len(texts) != len(logged):
+        return []
+    out = []
+    for text, item in zip(texts, logged, strict=True):
+        value = item if isinstance(item, list) and len(item) == 2 else [None, None]
+        logprob, count = _number(value[0]), _number(value[1])
+        if logprob is None:
+            return []
+        out.append((str(text), logprob, int(count or 0)))
+    return out
 
 
 def _planner_note(event: dict[str, Any]) -> str:
@@ -413,6 +464,17 @@ def _suggestion_steps(record: RunRecord) -> list[StepView]:
     return steps
 
 
+def _reading_ahead(record: RunRecord) -> bool:
+    """Whether the log numbers each reading one step before the action taken on it.
+
+    A Gymnasium episode (`llmnav.gym.RunLog`) logs the reading of `reset` as step 0 and action k with the
+    reading that follows it; llmnav's planners log the reading and the action of a decision under one step.
+    """
+    observed = [e["step"] for e in record.of_type("observation") if isinstance(e.get("step"), int)]
+    acted = [e["step"] for e in record.of_type("action") if isinstance(e.get("step"), int)]
+    return bool(observed and acted) and min(observed) == min(acted) - 1
+
+
 def _place_by_time(steps: list[StepView], record: RunRecord) -> None:
     """Give decisions without poses the trajectory sample logged last before them (by sim time)."""
     import bisect
@@ -433,6 +495,8 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
     """Decisions by logged step value, in the order they first appear, labelled `noun` and the value."""
     by_step: dict[Any, StepView] = {}
     previous: list[MessageView] = []
+    ahead = _reading_ahead(record)
+    acted = {e.get("step") for e in record.of_type("action")}
     for event in record.events:
         kind = event.get("type")
         if kind not in ("observation", "llm_call", "guard", "action", "planner", "decision") or "step" not in event:
@@ -440,6 +504,10 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
         key = event.get("step")
         if key is None or isinstance(key, (dict, list)):
             continue
+        if ahead and kind == "observation" and isinstance(key, int):
+            key += 1  # the reading the next action was chosen from belongs to that action's decision
+            if key not in acted:
+                continue  # the reading after the last action: the end pose, no decision of its own
         step = by_step.get(key)
         if step is None:
             step = by_step[key] = StepView(len(by_step), f"{noun} {key}", key, t_sim=event.get("t_sim"))

@@ -60,6 +60,9 @@ def environment() -> Environment:
     env.filters["num"] = _num
     env.filters["pose"] = _pose
     env.filters["joined"] = _joined
+    from llmnav.relevance import CONTENT_FREE_TASK
+
+    env.globals["content_free_task"] = CONTENT_FREE_TASK
     return env
 
 
@@ -225,7 +228,9 @@ def run_context(view: RunView) -> dict[str, Any]:
         from llmnav.mapping.targets import with_added_obstacles
 
         scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
-    base = draw_base_map(scenario, *page_size(scenario), trajectory=view.trajectory)
+    base = draw_base_map(
+        scenario, *page_size(scenario), trajectory=view.trajectory, targets=view.targets, radius_m=view.success_radius_m
+    )
     trajectory = view.trajectory
     images = {h: data_uri(p, view.run_dir) for h, p in view.image_files.items()}
     metre = base.metre_px
@@ -273,16 +278,42 @@ def _href(target: Path, page: Path) -> str:
     return quote(relative if relative.startswith("../") else "./" + relative)
 
 
-def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, str]]:
-    """The score/success bar charts of `llmnav score --plot`, inlined as PNG data URIs."""
-    from llmnav.reporting.charts import plot_conditions
+def _bar(value: float | None, low: float | None, high: float | None) -> dict[str, Any]:
+    """One bar on a 0–1 scale as CSS percentages: its length and its interval's whisker."""
+    if value is None:
+        return {"value": None}
+    low = value if low is None or low != low else low  # nan: no interval (n = 1)
+    high = value if high is None or high != high else high
+    return {"value": value, "width": round(100 * value, 2), "left": round(100 * low, 2),
+            "span": round(100 * (high - low), 2)}  # fmt: skip
 
-    charts = []
-    with tempfile.TemporaryDirectory(prefix="llmnav-view-") as tmp:
-        for path in plot_conditions(runs, keys, Path(tmp)):
-            encoded = base64.b64encode(path.read_bytes()).decode("ascii")
-            charts.append({"title": path.stem, "src": "data:image/png;base64," + encoded})
-    return charts
+
+def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, Any]]:
+    """Per task, one bar per condition: mean score ± SD and success rate with Wilson's 95 % interval.
+
+    HTML, not a picture: each condition's label is text in its own row, wrapped to the column's width, so
+    long labels (a backend URL, several factors) never run into each other, and a reader can copy them.
+    """
+    from llmnav.score import UNIT_RANGE, group_runs
+    from llmnav.stats import clip_interval, describe, wilson_interval
+
+    by_task: dict[str, list[dict[str, Any]]] = {}
+    for task, label, group in group_runs(runs, keys):
+        scores = [float(r.summary["score"]) for r in group if isinstance(r.summary.get("score"), (int, float))]
+        d = describe(scores)
+        sd = d.sd if d.n > 1 else 0.0
+        score_low, score_high = clip_interval(d.mean - sd, d.mean + sd, UNIT_RANGE) if d.n else (None, None)
+        ok = sum(1 for r in group if r.summary.get("success"))
+        rate_low, rate_high = wilson_interval(ok, len(group))
+        by_task.setdefault(task, []).append(
+            {
+                "label": label,
+                "n": len(group),
+                "score": _bar(d.mean if d.n else None, score_low, score_high) | {"sd": sd, "n": d.n},
+                "rate": _bar(ok / len(group), rate_low, rate_high) | {"ok": ok, "low": rate_low, "high": rate_high},
+            }
+        )
+    return [{"title": task, "bars": bars} for task, bars in by_task.items()]
 
 
 def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> list[dict[str, Any]]:

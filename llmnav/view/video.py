@@ -53,14 +53,67 @@ class VideoInfo:
         return self.frames / self.fps
 
 
-def _camera(view: RunView, step: StepView | None) -> np.ndarray:
-    """The camera image of a decision fitted into the right panel, or a panel saying there is none."""
+class CameraRenderer:
+    """The run's world rebuilt for the video: the camera's view from a logged pose, for decisions that sent none.
+
+    Most runs send the model text only (the default sensing is LiDAR), so their logs hold no picture; the
+    video renders one (PyBullet's TinyRenderer, as the robot's camera) at the pose each decision started
+    from. Obstacles placed from the start are rebuilt too; those that appear later are not.
+    """
+
+    def __init__(self, view: RunView) -> None:
+        self.view = view
+        self._world: Any = None
+        self.failed = view.scenario is None
+
+    def render(self, pose: list[float] | None) -> np.ndarray | None:
+        """The BGR view from `pose` [x, y, yaw], or None (no scenario or pose, or the world cannot be built)."""
+        if self.failed or pose is None or len(pose) < 3:
+            return None
+        import numpy as np
+
+        from llmnav.geometry import Pose2D
+
+        try:
+            if self._world is None:
+                self._world = self._build()
+            self._world.reset(Pose2D(float(pose[0]), float(pose[1]), float(pose[2])))
+            rgb = self._world.camera.capture(width=PANEL_W, height=PANEL_H).rgb
+        except Exception:  # noqa: BLE001 — no picture is the panel's own message, never a failed video
+            self.failed = True
+            return None
+        return np.ascontiguousarray(np.asarray(rgb)[:, :, 2::-1])
+
+    def _build(self) -> Any:
+        from llmnav.sim.world import World
+
+        assert self.view.scenario is not None
+        world = World(self.view.scenario)
+        options = self.view.config.get("options")
+        for item in options.get("obstacles") or [] if isinstance(options, dict) else []:
+            if isinstance(item, list) and len(item) >= 2:
+                world.add_obstacle(float(item[0]), float(item[1]))
+        return world
+
+    def close(self) -> None:
+        """Disconnect the rebuilt world."""
+        if self._world is not None:
+            self._world.close()
+            self._world = None
+
+
+def _camera(view: RunView, step: StepView | None, renderer: CameraRenderer | None = None) -> np.ndarray:
+    """The camera image of a decision fitted into the right panel, or a panel saying there is none.
+
+    The image sent to the model, else one `renderer` draws for the video (labelled as such).
+    """
     import cv2
     import numpy as np
 
     panel = np.full((PANEL_H, PANEL_W, 3), 235, np.uint8)
     path = view.image_files.get(step.image) if step is not None and step.image else None
     image = None
+    rendered = False
     if path is not None:  # the same checks as the page's images: a regular file in the run, a picture
         from llmnav.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes
 
@@ -70,6 +123,9 @@ def _camera(view: RunView, step: StepView | None) -> np.ndarray:
             data = b""
         if image_kind(data) is not None:
             image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None and step is not None and not step.image and renderer is not None:
+        image = renderer.render(step.pose_before or step.pose_after)
+        rendered = image is not None
     if image is None:
         text = "no camera image sent" if step is None or not step.image else "camera image missing"
         cv2.putText(panel, text, (170, PANEL_H // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (90, 90, 90), 2, cv2.LINE_AA)
@@ -79,6 +135,9 @@ def _camera(view: RunView, step: StepView | None) -> np.ndarray:
     resized = cv2.resize(image, (w, h))
     top, left = (PANEL_H - h) // 2, (PANEL_W - w) // 2
     panel[top : top + h, left : left + w] = resized
+    label = "camera view rendered for the video (the model was not sent it)" if rendered else "camera image sent"
+    cv2.rectangle(panel, (0, 0), (PANEL_W, 26), (255, 255, 255), -1)
+    cv2.putText(panel, label, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (60, 60, 60), 1, cv2.LINE_AA)
     return panel
 
 
@@ -124,22 +183,45 @@ def _segments(view: RunView) -> list[tuple[StepView | None, list[list[float]]]]:
     return out
 
 
-def _frames(view: RunView, fps: float, seconds_per_step: float) -> Iterator[np.ndarray]:
-    import cv2
-    import numpy as np
-
+def _frames(view: RunView, fps: float, seconds_per_step: float, render_camera: bool = True) -> Iterator[np.ndarray]:
     from llmnav.view.basemap import draw_base_map
 
     base = draw_base_map(
-        view.scenario, PANEL_W, PANEL_H, oracle=view.oracle, trajectory=view.trajectory, faint_paths=True
+        view.scenario,
+        PANEL_W,
+        PANEL_H,
+        oracle=view.oracle,
+        trajectory=view.trajectory,
+        faint_paths=True,
+        targets=view.targets,
+        radius_m=view.success_radius_m,
     )
     per_action = max(1, round(fps * seconds_per_step))
     segments = _segments(view)
+    renderer = CameraRenderer(view) if render_camera else None
+    try:
+        yield from _compose(view, base, segments, per_action, fps, renderer)
+    finally:
+        if renderer is not None:
+            renderer.close()
+
+
+def _compose(
+    view: RunView,
+    base: Any,
+    segments: list[tuple[StepView | None, list[list[float]]]],
+    per_action: int,
+    fps: float,
+    renderer: CameraRenderer | None,
+) -> Iterator[np.ndarray]:
+    import cv2
+    import numpy as np
+
     trail: list[tuple[int, int]] = []
     number = 0  # frames so far; its clock in the corner also keeps every frame distinct (GIF writers merge twins)
     last_pose: list[float] | None = view.trajectory[0] if view.trajectory else None
     for step, samples in segments:
-        camera = _camera(view, step)
+        camera = _camera(view, step, renderer)
         lines = _caption(step, len(view.steps))
         per_step = per_action * _actions(step)
         for k in range(per_step):
@@ -247,8 +329,13 @@ def frame_count(view: RunView, fps: float, seconds_per_step: float) -> int:
     return sum(per_action * _actions(step) for step, _ in _segments(view))
 
 
-def render_video(view: RunView, out: Path, *, fps: float = 10.0, seconds_per_step: float = 1.0) -> VideoInfo:
-    """Write the episode to `out` (.mp4 or .gif); returns what was written."""
+def render_video(
+    view: RunView, out: Path, *, fps: float = 10.0, seconds_per_step: float = 1.0, render_camera: bool = True
+) -> VideoInfo:
+    """Write the episode to `out` (.mp4 or .gif); returns what was written.
+
+    `render_camera`: decisions that sent the model no image show the camera's view rendered for the video.
+    """
     suffix = out.suffix.lower()
     if suffix not in (".mp4", ".gif"):
         raise BadInputError(f"--video {out}: give a file ending in .mp4 or .gif")
@@ -276,9 +363,9 @@ def render_video(view: RunView, out: Path, *, fps: float = 10.0, seconds_per_ste
                 out = out.with_suffix(".gif")
             tmp = work / ("partial" + out.suffix)
             if codec is None:
-                info = _write_gif(view, tmp, fps, seconds_per_step, width, height)
+                info = _write_gif(view, tmp, fps, seconds_per_step, width, height, render_camera)
             else:
-                info = _write_mp4(view, tmp, codec, fps, seconds_per_step, width, height)
+                info = _write_mp4(view, tmp, codec, fps, seconds_per_step, width, height, render_camera)
             os.replace(tmp, out)
     except OSError as err:
         raise BadInputError(f"--video {out}: cannot write: {err.strerror or err}") from None
@@ -286,13 +373,15 @@ def render_video(view: RunView, out: Path, *, fps: float = 10.0, seconds_per_ste
     return info
 
 
-def _write_mp4(view: RunView, tmp: Path, codec: str, fps: float, sps: float, width: int, height: int) -> VideoInfo:
+def _write_mp4(
+    view: RunView, tmp: Path, codec: str, fps: float, sps: float, width: int, height: int, render_camera: bool
+) -> VideoInfo:
     import cv2
 
     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*codec), fps, (width, height))
     frames = 0
     try:
-        for frame in _frames(view, fps, sps):
+        for frame in _frames(view, fps, sps, render_camera):
             writer.write(frame)
             frames += 1
     finally:
@@ -300,13 +389,15 @@ def _write_mp4(view: RunView, tmp: Path, codec: str, fps: float, sps: float, wid
     return VideoInfo(tmp, frames, fps, codec, width, height)
 
 
-def _write_gif(view: RunView, tmp: Path, fps: float, sps: float, width: int, height: int) -> VideoInfo:
+def _write_gif(
+    view: RunView, tmp: Path, fps: float, sps: float, width: int, height: int, render_camera: bool
+) -> VideoInfo:
     import cv2
     from PIL import Image
 
     size = (round(width * GIF_SCALE), round(height * GIF_SCALE))
     images: list[Any] = []
-    for frame in _frames(view, fps, sps):
+    for frame in _frames(view, fps, sps, render_camera):
         small = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
         images.append(Image.fromarray(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)).quantize(colors=128))
     # GIF delays are whole centiseconds: fps values that do not divide 100 are rounded to the nearest.

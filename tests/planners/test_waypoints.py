@@ -13,8 +13,9 @@ import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
-from llmnav.guard.schemas import WaypointList, response_schema, target_choice_model
+from llmnav.guard.schemas import response_schema
 from llmnav.planners.base import drive_options
+from llmnav.planners.waypoints.answers import WaypointList, target_choice_model
 from llmnav.prompting import render
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode

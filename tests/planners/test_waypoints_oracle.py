@@ -12,10 +12,11 @@ import pytest
 
 from llmnav.chat import ChatRequest, ChatResult, Message, ScoreRequest
 from llmnav.geometry import Pose2D
-from llmnav.guard.schemas import response_schema, target_choice_model
+from llmnav.guard.schemas import response_schema
 from llmnav.mapping.grid import build_grid
 from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.waypoints import WaypointPlanner, generate_plan
+from llmnav.planners.waypoints.answers import target_choice_model
 from llmnav.planners.waypoints.oracle import OTHER_LOGPROB, WaypointAnswerKey
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode

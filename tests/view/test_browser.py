@@ -136,3 +136,35 @@ def test_view_screenshot_opens_the_asked_step(browser, runs, tmp_path):
     a, b = cv2.imread(str(first)), cv2.imread(str(last))
     assert a.shape == b.shape == (800, 1280, 3)
     assert np.abs(a.astype(int) - b.astype(int)).mean() > 1.0  # another decision is shown
+
+
+def test_sweep_chart_labels_never_overlap(browser, tmp_path):
+    """Long condition labels (backend URLs) are wrapped in their own rows: no two label boxes meet, none is cut."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parents[1] / "score"))
+    from score_fakes import config_for, write_run
+
+    root = tmp_path / "long-labels"
+    for k in range(6):
+        backend = f"openai:http://127.0.0.1:80{k:02d}/v1/a-rather-long-model-name-{k}-instruct-q4_k_m"
+        write_run(root / f"r{k}", config_for("T1", backend=backend), [[0, 0, 0], [1.0 + k * 0.7, 0, 0]], summary=True)
+    view = Page(browser, write_view(root).page)
+    view.page.set_viewport_size({"width": 760, "height": 900})
+    labels = view.page.locator("table.bars th.bar-label")
+    assert labels.count() == 6
+    boxes = [labels.nth(i).bounding_box() for i in range(6)]
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1 :]:
+            apart = a["y"] + a["height"] <= b["y"] or b["y"] + b["height"] <= a["y"]
+            apart = apart or a["x"] + a["width"] <= b["x"] or b["x"] + b["width"] <= a["x"]
+            assert apart, (a, b)
+    # every label whole (wrapped, not cut or spilling into the bars beside it)
+    spill = labels.evaluate_all(
+        "els => els.filter(e => e.scrollWidth > e.clientWidth + 1"
+        " || e.getBoundingClientRect().right > e.nextElementSibling.getBoundingClientRect().left + 0.5).length"
+    )
+    assert spill == 0
+    texts = [labels.nth(i).inner_text() for i in range(6)]
+    assert all("a-rather-long-model-name" in t for t in texts)
+    assert view.problems == []

@@ -117,7 +117,7 @@ def test_sweep_page_links_every_run_and_writes_missing_run_pages(sweep, tmp_path
     for run_dir in run_dirs:
         assert (run_dir / "view.html").is_file()
         assert f'href="./{quote(run_dir.name)}/view.html"' in page
-    assert "Episodes (stepwise source" in page and "data:image/png;base64," in page
+    assert "Episodes (stepwise source" in page and page.count('<th scope="row" class="bar-label">') == 2
     assert page.count('class="success-map"') == 2  # lidar_sectors=3 and =8
 
 

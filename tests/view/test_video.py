@@ -91,3 +91,23 @@ def test_waypoint_leg_lasts_one_slot_per_waypoint_driven(runs, tmp_path):
     assert info is not None and info.frames == slots * 2
     with Image.open(tmp_path / "w.gif") as gif:
         assert gif.n_frames == slots * 2
+
+
+def test_a_run_that_sent_no_image_still_shows_the_camera(runs, tmp_path):
+    """The hybrid run reads LiDAR text only: the video renders the camera's view from each decision's pose."""
+    import numpy as np
+    from PIL import Image
+
+    from llmnav.view.model import build_run_view
+
+    assert not any(step.image for step in build_run_view(runs["hybrid"]).steps)  # nothing was sent
+    out = tmp_path / "episode.gif"
+    write_view(runs["hybrid"], tmp_path / "p.html", video=out, fps=2, seconds_per_step=0.5)
+    with Image.open(out) as gif:
+        gif.seek(0)
+        frame = np.asarray(gif.convert("RGB"))
+    height, width = frame.shape[:2]
+    camera = frame[int(height * 0.1) : int(height * 0.8), width // 2 :]
+    grey = np.all(np.abs(camera.astype(int) - 235) <= 6, axis=2).mean()
+    assert grey < 0.3, f"{grey:.0%} of the camera half is the empty panel"
+    assert len(np.unique(camera.reshape(-1, 3), axis=0)) > 12  # a picture (in the GIF palette), not a message
