@@ -33,6 +33,7 @@ from llmnav.errors import BadInputError
 from llmnav.runlog import read_run
 from llmnav.scenario import SEQUENCE_JOIN
 from llmnav.score import (
+    CACHE_MARK,
     FAILED,
     MISSING,
     NA,
@@ -321,9 +322,10 @@ def _fsm_conditions(runs: Sequence[Run], keys: Sequence[str]) -> list[tuple[str,
 
     def name(group: Sequence[Run]) -> str:
         assist, backend = assist_of(group), group[0].summary.get("backend")
+        named = ASSIST_NAMES.get(assist, "?")
         if assist == "llm" and backend:
-            return ASSIST_NAMES[assist] + (ORACLE_MARK if is_oracle(group[0]) else f" ({backend})")
-        return ASSIST_NAMES.get(assist, "?")
+            named += ORACLE_MARK if is_oracle(group[0]) else f" ({backend})"
+        return named + (CACHE_MARK if group[0].summary.get("cache_hits") else "")  # as every condition label
 
     names = [name(group) for _, group in groups]
     if "?" in names or len(set(names)) < len(names):
