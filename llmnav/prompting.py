@@ -11,12 +11,18 @@ for a literal dollar sign) and three kinds of HTML-comment directives, invisible
 
 `template_hash` fingerprints a template with its includes expanded, so the run config changes whenever
 any text the model could see changes.
+
+Every function takes an optional `package`: the importable package whose `prompts/` folder holds the
+templates, read through `importlib.resources` (so a plug-in planner ships its own, in a wheel or a zip
+alike, and names it in `Planner.prompt_package`). Without it, llmnav's bundled `prompts/` folder is read.
 """
 
 from __future__ import annotations
 
 import hashlib
 import re
+from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from string import Template
 from typing import Any
@@ -45,6 +51,20 @@ def prompt_dir() -> Path:
     return resource_dir("prompts")
 
 
+def _folder(package: str | None) -> Traversable:
+    """The `prompts/` folder of `package` (None: llmnav's bundled one)."""
+    if package is None:
+        return prompt_dir()
+    try:
+        root = resources.files(package)
+    except (ModuleNotFoundError, TypeError) as err:  # TypeError: a module, not a package
+        raise PromptTemplateError(f"cannot read the prompts of package '{package}': {err}") from None
+    folder = root / "prompts"
+    if not folder.is_dir():
+        raise PromptTemplateError(f"package '{package}' has no prompts/ folder")
+    return folder
+
+
 def _canonical(name: str) -> str:
     """Resolve aliases and CLI spellings (`full-noconstraints` -> `full_noconstraints`)."""
     name = name.strip()
@@ -54,48 +74,50 @@ def _canonical(name: str) -> str:
     return name
 
 
-def _read(path: Path, what: str) -> str:
+def _read(folder: Traversable, name: str, what: str, package: str | None) -> str:
+    path = folder / f"{name}.md"
     try:
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        known = ", ".join(list_templates())
-        raise PromptTemplateError(f"unknown {what} '{path.stem}' (known templates: {known})") from None
+        known = ", ".join(list_templates(package))
+        raise PromptTemplateError(f"unknown {what} '{name}' (known templates: {known})") from None
     except (OSError, UnicodeDecodeError) as err:
         raise PromptTemplateError(f"cannot read {what} {path}: {err}") from None
 
 
-def _expand(text: str, depth: int = 0) -> str:
+def _expand(text: str, package: str | None, depth: int = 0) -> str:
     """Text with every include directive replaced by its part (recursively, to a fixed depth)."""
 
     def include(match: re.Match[str]) -> str:
         if depth >= MAX_INCLUDE_DEPTH:
             raise PromptTemplateError(f"prompt includes nest deeper than {MAX_INCLUDE_DEPTH} (a cycle?)")
         part = _canonical(match.group(1))
-        body = _read(prompt_dir() / "parts" / f"{part}.md", "prompt part")
-        return _expand(body if body.endswith("\n") else body + "\n", depth + 1)
+        body = _read(_folder(package) / "parts", part, "prompt part", package)
+        return _expand(body if body.endswith("\n") else body + "\n", package, depth + 1)
 
     return _INCLUDE.sub(include, text)
 
 
-def source(name: str) -> str:
+def source(name: str, package: str | None = None) -> str:
     """A template's text with includes expanded (directives and placeholders still in place)."""
     canonical = _canonical(name)
-    return _expand(_read(prompt_dir() / f"{canonical}.md", "prompt template"))
+    return _expand(_read(_folder(package), canonical, "prompt template", package), package)
 
 
-def load_template(name: str) -> Template:
+def load_template(name: str, package: str | None = None) -> Template:
     """The template `name` as a `string.Template` (includes expanded; if-blocks resolved by `render`)."""
-    return Template(source(name))
+    return Template(source(name, package))
 
 
-def template_hash(name: str) -> str:
+def template_hash(name: str, package: str | None = None) -> str:
     """SHA-256 (hex) of the template's text with its includes expanded: logged in the run config."""
-    return hashlib.sha256(source(name).encode("utf-8")).hexdigest()
+    return hashlib.sha256(source(name, package).encode("utf-8")).hexdigest()
 
 
-def list_templates() -> list[str]:
-    """Names of all bundled templates."""
-    return sorted(p.stem for p in prompt_dir().glob("*.md"))
+def list_templates(package: str | None = None) -> list[str]:
+    """Names of all templates in the folder (llmnav's bundled one when `package` is None)."""
+    folder = _folder(package)
+    return sorted(entry.name[: -len(".md")] for entry in folder.iterdir() if entry.name.endswith(".md"))
 
 
 def stepwise_variants() -> list[str]:
@@ -111,12 +133,12 @@ def _as_text(value: Any) -> str:
     return str(value)
 
 
-def render(name: str, **values: Any) -> str:
-    """Fill template `name` with `values`; values the template does not use are ignored.
+def render(name: str, package: str | None = None, **values: Any) -> str:
+    """Fill template `name` (of `package`'s prompts/, default llmnav's) with `values`; unused values are ignored.
 
     Raises `PromptTemplateError` naming the template and the first missing placeholder or flag.
     """
-    text = source(name)
+    text = source(name, package)
 
     def choose(match: re.Match[str]) -> str:
         negate, flag, body = bool(match.group(1)), match.group(2), match.group(3)

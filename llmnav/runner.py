@@ -105,7 +105,7 @@ def prompt_hashes(planner: Planner, options: DriveOptions) -> dict[str, str]:
     """Hashes of the prompt templates a planner renders (its `templates` hook)."""
     from llmnav import prompting
 
-    return {name: prompting.template_hash(name) for name in planner.templates(options)}
+    return {name: prompting.template_hash(name, planner.prompt_package) for name in planner.templates(options)}
 
 
 def task_record(task: Task) -> dict[str, Any]:

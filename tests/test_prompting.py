@@ -172,3 +172,33 @@ def test_every_variant_name_is_accepted() -> None:
 
     for name in prompting.stepwise_variants():
         assert drive_options("stepwise", prompt=name).prompt == name  # type: ignore[attr-defined]
+
+
+def test_a_package_ships_its_own_prompts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Templates are read from the named package's prompts/ folder, includes and hashes included."""
+    folder = tmp_path / "shipsprompts" / "prompts"
+    (folder / "parts").mkdir(parents=True)
+    (tmp_path / "shipsprompts" / "__init__.py").write_text("", encoding="utf-8")
+    (folder / "greet.md").write_text("<!-- include who -->\nGo to $place.\n", encoding="utf-8")
+    (folder / "parts" / "who.md").write_text("You are a robot.\n", encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert prompting.list_templates("shipsprompts") == ["greet"]
+    assert prompting.render("greet", "shipsprompts", place="the door") == "You are a robot.\nGo to the door.\n"
+    before = prompting.template_hash("greet", "shipsprompts")
+    (folder / "parts" / "who.md").write_text("You are a rover.\n", encoding="utf-8")
+    assert prompting.template_hash("greet", "shipsprompts") != before
+    # the bundled folder is not searched for a package's names, nor the package for bundled ones
+    with pytest.raises(PromptTemplateError, match="unknown prompt template 'full' .*known templates: greet"):
+        prompting.render("full", "shipsprompts")
+    with pytest.raises(PromptTemplateError, match="unknown prompt template 'greet'"):
+        prompting.render("greet")
+
+
+def test_a_package_without_prompts_is_one_clear_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "noprompts").mkdir()
+    (tmp_path / "noprompts" / "__init__.py").write_text("", encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(PromptTemplateError, match="package 'noprompts' has no prompts/ folder"):
+        prompting.render("x", "noprompts")
+    with pytest.raises(PromptTemplateError, match="cannot read the prompts of package 'nosuchpackage_xyz'"):
+        prompting.render("x", "nosuchpackage_xyz")

@@ -13,6 +13,8 @@ and small hooks, so nothing above it names it:
   varying; `declares`: its score tables and how the view reads its decisions (`llmnav.declarations`);
 - `paces_itself`: it paces its own control loop in `--realtime` (the world then does not);
 - `templates(options)`: the prompt templates it renders (hashed into the run's config line);
+  `prompt_package`: the package whose `prompts/` folder holds them (None: llmnav's bundled one), so a
+  plug-in ships its own and renders them with `self.render_prompt`;
 - `summarize(record, scenario, task)`: planner metrics computed from the finished run log;
 - `figure_kinds`: standard figures the runner draws for it from its run log when plots are on (a kind
   names a figure, e.g. `velocity_profile` from `cmd` records, never a planner);
@@ -29,7 +31,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol
 
-from llmnav import plugins
+from llmnav import plugins, prompting
 from llmnav.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
 from llmnav.observe import call_model, call_scorer
@@ -286,6 +288,8 @@ class Planner(ABC, Generic[OptionsT]):
     declares: ClassVar[Declarations] = NOTHING_DECLARED
     paces_itself: ClassVar[bool] = False  # paces its own loop under --realtime (the world does not)
     figure_kinds: ClassVar[tuple[str, ...]] = ()  # standard figures drawn from its log (llmnav.runner.FIGURES)
+    # the package whose prompts/ folder holds its templates (llmnav.prompting); None: llmnav's bundled one
+    prompt_package: ClassVar[str | None] = None
 
     def requires_backend(self, options: OptionsT) -> bool:
         """Whether this episode needs a model (the runner creates no backend otherwise)."""
@@ -294,6 +298,11 @@ class Planner(ABC, Generic[OptionsT]):
     def templates(self, options: OptionsT) -> list[str]:
         """Prompt templates this planner renders (their hashes go into the config line)."""
         return []
+
+    @classmethod
+    def render_prompt(cls, name: str, **values: Any) -> str:
+        """Its template `name` filled with `values`, read from its `prompt_package`."""
+        return prompting.render(name, cls.prompt_package, **values)
 
     def check_backend(self, backend: Backend, options: OptionsT) -> None:  # noqa: B027 - most need nothing
         """Raise `BadInputError` when this episode cannot run on `backend` (before any run folder exists)."""
