@@ -93,7 +93,8 @@ def make_app() -> typer.Typer:
         if isinstance(target, typer.Typer):
             app.add_typer(target, name=name)
         else:
-            app.command(name)(target)  # type: ignore[type-var]
+            # a command taking the planners' flags names its Typer command class (llmnav.commands.planner_flags)
+            app.command(name, cls=getattr(target, "command_class", None))(target)  # type: ignore[type-var]
     for name, problem in problems.items():
         if name not in builtins:  # a broken plugin's name still answers, with its one-line problem
             app.command(name, help=f"[red]broken[/]: {problem}", add_help_option=False)(_refuse(problem))

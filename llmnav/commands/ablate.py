@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from llmnav.commands.common import cli_errors, console, err_console, esc, parse_option_pairs, path_option, print_table
+from llmnav.commands.planner_flags import GIVEN, SweepFlags, declared_flags
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -19,6 +20,7 @@ EXIT_EPISODE_ERRORS = 1  # the sweep ran, but some episodes ended in an error (t
 
 @cli_errors
 def ablate(
+    ctx: typer.Context,
     scenario: Annotated[
         str | None,
         typer.Option("--scenario", help="Scenario name or file; a suite: a folder of files, or generated:KIND:N."),
@@ -34,13 +36,10 @@ def ablate(
     lidar_sectors: Annotated[
         str | None, typer.Option("--lidar-sectors", help=f"e.g. 3,5,8 ({_LIST}).")
     ] = None,
-    prompt: Annotated[str | None, typer.Option("--prompt", help=f"Prompt variants ({_LIST}).")] = None,
-    history: Annotated[str | None, typer.Option("--history", help=f"0, 1, 2, all ({_LIST}).")] = None,
     sensing: Annotated[
         str | None, typer.Option("--sensing", help=f"e.g. lidar+image,image ({_LIST}).")
     ] = None,
     backend: Annotated[str | None, typer.Option("--backend", help=f"Backend specs ({_LIST}).")] = None,
-    assist: Annotated[str | None, typer.Option("--assist", help=f"none, ema, llm ({_LIST}).")] = None,
     decide: Annotated[
         str | None, typer.Option("--decide", help=f"Choices: score, generate, auto ({_LIST}).")
     ] = None,
@@ -55,11 +54,6 @@ def ablate(
     paraphrases: Annotated[
         bool, typer.Option("--paraphrases", help="Wording as a factor: bundled and paraphrases 1-3.")
     ] = False,
-    model_latency: Annotated[
-        str | None,
-        typer.Option("--model-latency", help="Latency charged to sim time: MS | measured | recorded."),
-    ] = None,
-    ttl: Annotated[str | None, typer.Option("--ttl", help="Suggestion TTL in ms, or auto.")] = None,
     grid: Annotated[
         Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")
     ] = None,
@@ -131,6 +125,9 @@ def ablate(
     """Run an ablation grid (resumable: run it again to finish it), then print the tables by factor."""
     from llmnav import ablate as lib
 
+    planner_flags = declared_flags(sweep=True)  # a planner's own flags: a factor each, or one fixed value
+    factors = {f.key for f in planner_flags if f.sweep == "factor"}
+    fixed = {f.key for f in planner_flags if f.sweep == "fixed"}
     data: dict[str, Any] = lib.load_grid_file(grid) if grid is not None else {}
     flags: dict[str, Any] = {"scenario": scenario, "trials": trials, "seed": seed, "name": name}
     if tasks is not None:
@@ -138,9 +135,9 @@ def ablate(
     if poses is not None:
         flags["poses"] = lib.parse_poses(poses)
     for key, value in (
-        ("lidar_sectors", lidar_sectors), ("prompt", prompt), ("history", history), ("sensing", sensing),
-        ("backend", backend), ("assist", assist), ("planner", planner), ("wording", wording),
-        ("decide", decide),
+        ("lidar_sectors", lidar_sectors), ("sensing", sensing), ("backend", backend), ("planner", planner),
+        ("wording", wording), ("decide", decide),
+        *((key, value) for key, value in ctx.meta.get(GIVEN, {}).items() if key in factors),
     ):  # fmt: skip
         if value is not None:
             flags[key] = lib.split_list(value)
@@ -155,9 +152,9 @@ def ablate(
     data.update({k: v for k, v in flags.items() if v is not None})
     if drop_images:
         data["options"] = {**(data.get("options") or {}), "drop_images": True}
-    timing = {k: v for k, v in (("model_latency", model_latency), ("ttl", ttl)) if v is not None}
-    if timing:
-        data["options"] = {**data.get("options", {}), **timing}
+    once = {k: v for k, v in ctx.meta.get(GIVEN, {}).items() if k in fixed}
+    if once:
+        data["options"] = {**data.get("options", {}), **once}
     if export not in (None, "mcap"):
         raise BadInputError(f"--export {export!r}: the one format is mcap")
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
@@ -213,6 +210,9 @@ def ablate(
     errors = ablation.counts()[2]
     if errors:  # a sweep with failed episodes is not a clean result, whatever the tables show
         raise typer.Exit(EXIT_EPISODE_ERRORS)
+
+
+ablate.command_class = SweepFlags  # type: ignore[attr-defined]  # the planners' flags join ablate's
 
 
 def _budget(max_cost: float | None, episode_tokens: str | None, prices: Path | None) -> Any:

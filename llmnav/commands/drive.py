@@ -22,6 +22,7 @@ from llmnav.commands.common import (
     path_option,
     print_data,
 )
+from llmnav.commands.planner_flags import GIVEN, DriveFlags, flag_of
 from llmnav.errors import BadInputError
 from llmnav.planners import DEFAULT_PLANNER
 
@@ -33,21 +34,24 @@ if TYPE_CHECKING:
     from llmnav.runner import EpisodeSpec
 
 
-# Option keys whose flag is not the key with dashes
+# Option keys whose flag is not the key with dashes (a planner's own flags say so on their declarations)
 _FLAGS = {
     "lidar_fov_deg": "--lidar-fov",
     "obstacles": "--obstacle",
     "appearing": "--obstacle",
-    "ttl_ms": "--ttl",
-    "ttl_auto": "--ttl",
 }
+
+
+def _flag(key: str) -> str:
+    """The flag that sets option `key`."""
+    return _FLAGS.get(key) or flag_of(key) or "--" + key.replace("_", "-")
 
 
 def _option_error(err: ValidationError, from_o: set[str]) -> BadInputError:
     """A pydantic error on the planner's options as one line naming the flag (or `-o KEY`)."""
     first = err.errors()[0]
     field = str(first["loc"][0]) if first["loc"] else "options"
-    flag = f"-o {field}" if field in from_o else _FLAGS.get(field, "--" + field.replace("_", "-"))
+    flag = f"-o {field}" if field in from_o else _flag(field)
     return BadInputError(f"{flag}: {first['msg'].removeprefix('Value error, ')} (got {first.get('input')!r})")
 
 
@@ -84,6 +88,7 @@ def default_out_dir(planner: str, task_label: str, root: Path = Path("runs")) ->
 
 @cli_errors
 def drive(
+    ctx: typer.Context,
     task: Annotated[
         list[str] | None, typer.Option("--task", help="Task text (repeat for a sequence of targets).")
     ] = None,
@@ -111,9 +116,6 @@ def drive(
         str | None,
         typer.Option(help="What the planner may know: map | sensed | oracle (default: map where published)."),
     ] = None,
-    menu_order: Annotated[
-        str | None, typer.Option("--menu-order", help="Menu order: distance (neutral) | relevance.")
-    ] = None,
     decide: Annotated[
         str | None,
         typer.Option(help="Choices: score option texts | generate an answer | auto (score if the backend can)."),
@@ -125,11 +127,6 @@ def drive(
     lidar_fov: Annotated[
         float | None, typer.Option("--lidar-fov", help="LiDAR summary field of view in degrees [default: 90].")
     ] = None,
-    prompt: Annotated[str | None, typer.Option(help="Prompt variant (see prompts/) [default: full].")] = None,
-    history: Annotated[
-        str | None, typer.Option(help="Previous exchanges re-sent: all | 0 | 1 | 2 [default: all].")
-    ] = None,
-    self_check: Annotated[bool, typer.Option("--self-check", help="Ask the model to confirm each answer.")] = False,
     max_iterations: Annotated[
         int | None, typer.Option("--max-iterations", help="Decision steps before failing [default: 30].")
     ] = None,
@@ -138,12 +135,6 @@ def drive(
     realtime: Annotated[bool, typer.Option("--realtime", help="Pace the simulation to the wall clock.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="One progress line instead of the live view.")] = False,
     json_output: Annotated[bool, typer.Option("--json", help="Print only one JSON summary at the end.")] = False,
-    assist: Annotated[str | None, typer.Option(help="Velocity assist: none | ema | llm.")] = None,
-    model_latency: Annotated[
-        str | None,
-        typer.Option("--model-latency", help="Latency charged to sim time: MS | measured | recorded."),
-    ] = None,
-    ttl: Annotated[str | None, typer.Option("--ttl", help="Suggestion TTL in ms, or auto.")] = None,
     obstacle: Annotated[
         list[str] | None,
         typer.Option(
@@ -217,23 +208,17 @@ def drive(
     parsed = [_parse_obstacle(o) for o in obstacle or []]
     named = {
         "information": information,
-        "menu_order": menu_order,
         "decide": decide,
         "sensing": parse_sensing(sensing) if sensing is not None else None,
         "lidar_sectors": lidar_sectors,
         "lidar_fov_deg": lidar_fov,
-        "prompt": prompt,
-        "history": history,
-        "self_check": self_check or None,
         "max_iterations": max_iterations,
         "seed": seed,
         "realtime": realtime or None,
-        "assist": assist,
-        "model_latency": model_latency,
-        "ttl": ttl,
         "obstacles": tuple(o for o in parsed if len(o) == 2) or None,
         "appearing": tuple(o for o in parsed if len(o) == 3) or None,
         "drop_images": drop_images or None,
+        **ctx.meta.get(GIVEN, {}),  # the planners' own flags (llmnav.commands.planner_flags)
     }
     from_o = parse_option_pairs(option)
     given = {**{k: v for k, v in named.items() if v is not None}, **from_o}
@@ -281,10 +266,13 @@ def drive(
     raise typer.Exit(exit_code(summary))
 
 
+drive.command_class = DriveFlags  # type: ignore[attr-defined]  # the planners' flags join drive's
+
+
 def _note_inapplicable(planner: str, ignored: list[str], from_o: set[str]) -> None:
     """One line on stderr naming the given flags the chosen planner ignores."""
     if ignored:
-        flags = ", ".join(f"-o {k}" if k in from_o else _FLAGS.get(k, "--" + k.replace("_", "-")) for k in ignored)
+        flags = ", ".join(f"-o {k}" if k in from_o else _flag(k) for k in ignored)
         err_console.print(f"note: {flags} do(es) not apply to planner '{planner}'", highlight=False)
 
 

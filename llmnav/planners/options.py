@@ -8,6 +8,7 @@ this module is below every planner and names none.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -24,6 +25,25 @@ PLANNER_GROUP = "llmnav.planners"
 Information = Literal["map", "sensed", "oracle"]
 # How a model-driven choice is made: scored option texts, generated answers, or scores where the backend can.
 Decide = Literal["auto", "score", "generate"]
+
+
+@dataclass(frozen=True)
+class CliFlag:
+    """A named command-line flag for one option key, declared on the options model that owns the key.
+
+    `drive` takes one value (`--assist llm`, or `--self-check` for a `switch`); `ablate` takes the flag
+    too when `sweep` says how: "factor" (a comma-separated list of values, each a condition) or "fixed"
+    (one value for every episode). `llmnav.commands.common` builds both commands' flags from these, across
+    the installed planners, so a plug-in adds a flag by declaring it.
+    """
+
+    flag: str  # "--assist"
+    key: str  # the option key it sets ("assist")
+    help: str  # drive's help text
+    switch: bool = False  # an on/off flag (drive only) instead of one taking a value
+    sweep: Literal["factor", "fixed"] | None = None  # how `ablate` takes it; None: drive only
+    sweep_help: str | None = None  # ablate's help text (default: drive's)
+    also: tuple[str, ...] = ()  # option fields a before-validator fills from `key`: their errors name this flag
 
 
 class DriveOptions(BaseModel):
@@ -63,6 +83,8 @@ class DriveOptions(BaseModel):
 
     # Input keys beyond the fields that a before-validator maps onto fields (e.g. `ttl=auto`).
     input_aliases: ClassVar[frozenset[str]] = frozenset()
+    # Named flags of its own keys for `drive` and `ablate` (any key stays reachable as `-o KEY=VALUE`)
+    cli_flags: ClassVar[tuple[CliFlag, ...]] = ()
 
     @classmethod
     def input_keys(cls) -> frozenset[str]:

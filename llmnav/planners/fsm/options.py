@@ -12,7 +12,7 @@ from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import CliFlag, DriveOptions
 
 
 class FsmOptions(DriveOptions):
@@ -30,6 +30,13 @@ class FsmOptions(DriveOptions):
     )
     max_ticks: int = Field(default=15000, ge=1, description="[ticks] at 50 Hz before the episode fails")
     input_aliases: ClassVar[frozenset[str]] = frozenset({"ttl"})
+    cli_flags: ClassVar[tuple[CliFlag, ...]] = (
+        CliFlag("--assist", "assist", "Velocity assist: none | ema | llm.", sweep="factor",
+                sweep_help="none, ema, llm (comma-separated)."),
+        CliFlag("--model-latency", "model_latency", "Latency charged to sim time: MS | measured | recorded.",
+                sweep="fixed"),
+        CliFlag("--ttl", "ttl", "Suggestion TTL in ms, or auto.", sweep="fixed", also=("ttl_ms", "ttl_auto")),
+    )  # fmt: skip
 
     @model_validator(mode="before")
     @classmethod

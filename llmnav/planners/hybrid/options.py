@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field
 
-from llmnav.planners.base import ChoiceOptions
+from llmnav.planners.base import ChoiceOptions, CliFlag
 
 
 class HybridOptions(ChoiceOptions):
     """What `-o KEY=VALUE` (or the named flags) may set for the hybrid planner."""
 
+    cli_flags: ClassVar[tuple[CliFlag, ...]] = (
+        CliFlag("--menu-order", "menu_order", "Menu order: distance (neutral) | relevance."),
+    )
     menu_order: Literal["distance", "relevance"] = Field(
         default="distance", description="menu order: neutral by distance, or task-name matches first"
     )

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, field_validator
 
-from llmnav.planners.base import DriveOptions
+from llmnav.planners.base import CliFlag, DriveOptions
 from llmnav.prompting import stepwise_variants
 
 
@@ -24,6 +24,13 @@ class StepwiseOptions(DriveOptions):
     self_check: bool = Field(default=False, description="ask the model to confirm each answer")
     max_vetoes: int = Field(default=3, ge=0, description="[turns] safety-veto negotiation per step")
     max_step_m: float = Field(default=5.0, gt=0, description="[m] upper bound of a FRONT/BACK step")
+    cli_flags: ClassVar[tuple[CliFlag, ...]] = (
+        CliFlag("--prompt", "prompt", "Prompt variant (see prompts/) [default: full].", sweep="factor",
+                sweep_help="Prompt variants (comma-separated)."),
+        CliFlag("--history", "history", "Previous exchanges re-sent: all | 0 | 1 | 2 [default: all].",
+                sweep="factor", sweep_help="0, 1, 2, all (comma-separated)."),
+        CliFlag("--self-check", "self_check", "Ask the model to confirm each answer.", switch=True),
+    )  # fmt: skip
 
     @field_validator("prompt")
     @classmethod
