@@ -1,5 +1,6 @@
-"""The conformance kit (llmnav.testing) on every registered planner and backend, and on a third-party
-planner that adds its own option; plus the kit failing on planners and backends that break the contract."""
+"""The conformance kit (llmnav.testing) on every registered planner and backend, on a third-party
+planner that adds its own option, and on a whole plug-in (tests/plugin_fixture: its own prompt file, answer
+model, option flag and command); plus the kit failing on planners and backends that break the contract."""
 
 from __future__ import annotations
 
@@ -137,3 +138,65 @@ def test_the_kit_finds_a_raw_simulator_handle_behind_public_attributes() -> None
     holder.inner = {"handles": [raw]}
     holder._private = raw  # private names are the layer's own business
     assert [path for path, _ in testing._raw_handles(holder)] == ["ctx.inner['handles'][0]"]
+
+
+PLUGIN_FIXTURE = Path(__file__).parent / "plugin_fixture"  # the `tiltplug` package: see its README
+
+
+@pytest.fixture
+def tilt_installed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The `tiltplug` distribution installed for one test: its package and a dist-info naming its entry points."""
+    dist = tmp_path / "tiltplug-0.3.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: tiltplug\nVersion: 0.3\n")
+    (dist / "entry_points.txt").write_text(
+        "[llmnav.planners]\ntilt = tiltplug:TiltPlanner\n\n[llmnav.commands]\ntilt-report = tiltplug.command:report\n"
+    )
+    monkeypatch.syspath_prepend(str(PLUGIN_FIXTURE))
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+
+def test_a_third_party_planner_ships_its_prompts_answers_flag_and_command(
+    tilt_installed: None, tmp_path: Path
+) -> None:
+    """A plug-in llmnav never names runs through the kit, `drive --tilt`, `ablate --tilt` and its own command."""
+    from typer.testing import CliRunner
+
+    from llmnav import prompting
+    from llmnav.cli import make_app
+    from llmnav.runlog import read_run
+
+    tilt = planner_class("tilt")
+    check_planner(tilt, scenario=SMALL)
+    app = make_app()
+    out = tmp_path / "run"
+    drive = ["drive", "--scenario", SMALL, "--task-id", "T1", "--planner", "tilt", "--backend", "policy:first"]
+    result = CliRunner().invoke(app, [*drive, "--tilt", "30", "--out", str(out), "--quiet"])
+    assert result.exit_code in (0, 1), result.output
+    run = read_run(out)
+    # its own prompt file, from its own package: sent to the model and hashed into the config line
+    (call,) = run.of_type("llm_call")
+    system = call["request"]["messages"][0]["text"]
+    assert system.startswith("You steer a robot that can only turn in place (tilt plug-in).\nThe task: ")
+    assert run.config["prompt_hashes"] == {"tilt_system": prompting.template_hash("tilt_system", "tiltplug")}
+    # its answer model: the null policy's answer read through it; the flag reached its option
+    (turn,) = run.of_type("tilt")
+    assert turn["from_model"] is True and -45 <= turn["turn_deg"] <= 45
+    assert run.config["options"]["tilt_deg"] == 30.0
+    # its flag fails like a built-in one, naming the flag
+    bad = CliRunner().invoke(app, [*drive, "--tilt", "90", "--out", str(tmp_path / "bad")])
+    assert bad.exit_code == 2 and "--tilt" in bad.output and "45" in bad.output, bad.output
+    # ablate takes it as a factor
+    sweep = ["ablate", "--scenario", SMALL, "--planner", "tilt", "--tasks", "T1", "--poses", "1", "--tilt", "5,20"]
+    plan = CliRunner().invoke(app, [*sweep, "--dry-run", "--out", str(tmp_path / "sweep")])
+    assert plan.exit_code == 0, plan.output
+    assert "2 episodes (planner: 1, tilt_deg: 2; trials: 1)" in plan.output, plan.output
+    # its command
+    report = CliRunner().invoke(app, ["tilt-report", str(out)])
+    assert report.exit_code == 0 and report.output.startswith("turned "), report.output
+
+
+def test_nothing_in_llmnav_names_the_plugin() -> None:
+    package = Path(__file__).parents[1] / "llmnav"
+    named = [str(p) for p in package.rglob("*.py") if "tilt" in p.read_text(encoding="utf-8").lower()]
+    assert not named, named
