@@ -1,4 +1,4 @@
-"""The named flags of single planners (`--assist`, `--prompt`, ...), built for `drive` and `ablate` in one place.
+"""The named flags of single planners, built for `drive` and `ablate` in one place.
 
 A planner declares them on its options model (`DriveOptions.cli_flags`, a tuple of `CliFlag`), so no command
 names a planner or its keys, and a plug-in planner adds a flag by declaring one. Typer reads a command's
@@ -44,7 +44,7 @@ def declared_flags(*, sweep: bool) -> list[CliFlag]:
 
 
 def flag_of(key: str) -> str | None:
-    """The planner flag that sets option field `key` (`ttl_ms` → `--ttl`), None when no flag does."""
+    """The planner flag that sets option field `key` (its own key, or one in its `also`), None when none does."""
     for flag in declared_flags(sweep=False):
         if key == flag.key or key in flag.also:
             return flag.flag
