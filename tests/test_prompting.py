@@ -202,3 +202,17 @@ def test_a_package_without_prompts_is_one_clear_error(tmp_path: Path, monkeypatc
         prompting.render("x", "noprompts")
     with pytest.raises(PromptTemplateError, match="cannot read the prompts of package 'nosuchpackage_xyz'"):
         prompting.render("x", "nosuchpackage_xyz")
+
+
+def test_a_zipped_package_ships_its_prompts_too(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Read through importlib.resources, not the file system: a plug-in imported from a zip works alike."""
+    import zipfile
+
+    archive = tmp_path / "zipped.zip"
+    with zipfile.ZipFile(archive, "w") as zipped:
+        zipped.writestr("zippedprompts/__init__.py", "")
+        zipped.writestr("zippedprompts/prompts/hello.md", "<!-- include part -->\nHello $who\n")
+        zipped.writestr("zippedprompts/prompts/parts/part.md", "From a zip.\n")
+    monkeypatch.syspath_prepend(str(archive))
+    assert prompting.list_templates("zippedprompts") == ["hello"]
+    assert prompting.render("hello", "zippedprompts", who="robot") == "From a zip.\nHello robot\n"
