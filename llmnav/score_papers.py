@@ -455,7 +455,7 @@ PAPER_TABLES: dict[str, Callable[[Sequence[Run], Sequence[str]], Table | None]] 
     "fsm-compare": fsm_compare_table,
     "fsm-velocity": fsm_velocity_table,
 }
-# llmnav's own tables (`llmnav.score.build_tables`, `--compare`) whatever the planners declare
+# llmnav's own tables (`llmnav.score_tables.build_tables`, `--compare`) whatever the planners declare
 OWN_TABLES = ("runs", "episodes", "path", "null_policies", "ceiling", "wording", "wording_spread", "failures",
               "aborted", "cost", "comparison")  # fmt: skip
 
