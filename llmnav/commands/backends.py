@@ -122,6 +122,7 @@ def _check(spec: str, senses: tuple[str, ...] | None = None) -> int:
     from llmnav.backends.http import IMAGES_CHECK
 
     cls, arg = backend_class(spec)
+    cls.check_arg(arg)  # an argument no run could use (`openai:m@http://`) is bad input, not a failed check
     checks = cls.check(arg)
     if senses is not None and "image" not in senses:
         checks = [
