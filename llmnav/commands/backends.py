@@ -139,6 +139,7 @@ def _check(spec: str, senses: tuple[str, ...] | None = None, output_format: str 
     from llmnav.backends.http import IMAGES_CHECK
 
     cls, arg = backend_class(spec)
+    cls.check_arg(arg)  # an argument no run could use (`openai:m@http://`) is bad input, not a failed check
     checks = cls.check(arg)
     if senses is not None and "image" not in senses:
         checks = [

@@ -253,7 +253,7 @@ class AssistPipeline:
         if polled is None:
             return
         stamp, result, error, latency = polled
-        died = getattr(self.worker, "died", None)
+        died = self.worker.died
         if died is not None and self.stats.assist_failed is None:
             self._degrade(died)
         fixed = self.ctx.options.model_latency

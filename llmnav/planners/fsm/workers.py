@@ -125,6 +125,11 @@ class ProcessWorker:
         self._record(request, result, message)
         return stamp, result, message, latency
 
+    @property
+    def died(self) -> str | None:
+        """Why the model's process cannot answer any more (killed, crashed), once it cannot."""
+        return getattr(self._process, "dead", None)
+
     def close(self) -> None:
         """Stop the model's process."""
         self._process.close()
