@@ -26,8 +26,9 @@ MODULES = [
     "rl",
     "localize",
 ]
-# The 200-episode sweep (several minutes) runs in full only when named: `python -m bench protocol`.
-NAMED_ONLY = ["protocol"]
+# Long sweeps run in full only when named: `python -m bench protocol` (200 factory episodes, several
+# minutes), `python -m bench buildings` (100 generated flats x 3 tasks x 7 conditions, hours).
+NAMED_ONLY = ["protocol", "buildings"]
 USAGE = "usage: python -m bench [--quick] [NAME ...]   (names: " + ", ".join(MODULES + NAMED_ONLY) + ")"
 
 

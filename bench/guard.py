@@ -21,8 +21,8 @@ import numpy as np
 
 from bench import judged, quick_from_env
 from llmnav.guard.parse import parse_answer
-from llmnav.guard.schemas import ActionBounds, StepAction
 from llmnav.guard.veto import check_motion
+from llmnav.planners.stepwise.answers import ActionBounds, StepAction
 from llmnav.sim.sensors import LidarScan as Scan
 
 PARSE_TARGET_MS = 1.0

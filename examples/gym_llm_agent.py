@@ -25,7 +25,8 @@ from llmnav.backends.base import get_backend
 from llmnav.chat import ChatRequest, Message
 from llmnav.errors import LlmnavError
 from llmnav.guard.ask import CallContext, ask_guarded
-from llmnav.guard.schemas import ActionBounds, StepAction, response_schema
+from llmnav.guard.schemas import response_schema
+from llmnav.planners.stepwise.answers import ActionBounds, StepAction
 
 MAX_CORRECTIONS = 2  # guard correction turns per step
 

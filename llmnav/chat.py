@@ -108,10 +108,19 @@ class ScoreRequest:
 
     prefix: str
     continuations: tuple[str, ...]
+    # [m] where each continuation's place lies on the planner's map (frontiers): a model never reads it;
+    # oracle answers, which may read ground truth, judge a place by where it is, not by its words
+    places: tuple[tuple[float, float], ...] = ()
 
     def to_log(self) -> dict[str, Any]:
         """Log form: a run log keeps it like a chat request (one user message), so replay compares it alike."""
-        return {"messages": [{"role": "user", "text": self.prefix}], "continuations": list(self.continuations)}
+        logged: dict[str, Any] = {
+            "messages": [{"role": "user", "text": self.prefix}],
+            "continuations": list(self.continuations),
+        }
+        if self.places:
+            logged["places"] = [[round(x, 3), round(y, 3)] for x, y in self.places]
+        return logged
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,9 @@ class Column:
     source: Source = "metrics"
     path: str = ""  # where the value is read; "" = `key`
     per: str = ""  # share: the metric (in `source`) whose pooled total is the denominator
+    # mean_sd and median: a run whose planner metric at this path is true is left out (a failed plan drove
+    # nothing: its 0 s and 0 m are no execution); a group of such runs only shows `FAILED`
+    unless: str = ""
     bounds: tuple[float | None, float | None] = (None, None)  # the metric's range: its 95 % interval stays inside
 
     @property

@@ -10,6 +10,10 @@
   LiDAR map, its landmarks from detections. The default wherever no map is published (factory, maze).
 - `oracle`: ground truth (the oracle baseline; planners that read true positions for their own logic).
 
+A baseline that plans on the true map whatever it senses (`Planner.knows_map`: the oracle, frontier
+exploration's final leg) keeps the whole scenario under `sensed`; only its pose is then sensed (odometry
+corrected by scan matching), so its pose error can be measured like any planner's.
+
 Scoring always reads ground truth; this module only decides what the planner is handed.
 """
 
@@ -32,13 +36,11 @@ def planner_modes(planner: str) -> tuple[Information, ...]:
 
 
 def default_information(planner: str, scenario: Scenario) -> Information:
-    """`map` where the scenario publishes one and the planner reads it, else `sensed`, else its only mode."""
+    """`map` where the scenario publishes one and the planner reads it, else the planner's first mode."""
     modes = planner_modes(planner)
     published = scenario.default_information or ("map" if scenario.corridors else "sensed")
     if published == "map" and "map" in modes:
         return "map"
-    if "sensed" in modes:
-        return "sensed"
     return modes[0]
 
 
@@ -57,8 +59,11 @@ def resolve_information(planner: str, scenario: Scenario, requested: str | None)
     return mode
 
 
-def scenario_view(scenario: Scenario, information: Information) -> Scenario:
-    """The scenario as a planner with this information may see it (see the module docstring)."""
-    if information != "sensed":
+def scenario_view(scenario: Scenario, information: Information, *, knows_map: bool = False) -> Scenario:
+    """The scenario as a planner with this information may see it (see the module docstring).
+
+    `knows_map`: the planner is a baseline that plans on the true map in every mode (`Planner.knows_map`).
+    """
+    if information != "sensed" or knows_map:
         return scenario
     return scenario.model_copy(update={"walls": [], "obstacles": [], "objects": [], "corridors": [], "tasks": []})

@@ -32,6 +32,7 @@ from llmnav.failures import failure_cause
 from llmnav.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
 
 if TYPE_CHECKING:
+    from llmnav.backends.prices import PriceTable
     from llmnav.planners.base import EpisodeOutcome
     from llmnav.runlog import RunRecord
     from llmnav.scenario import Scenario
@@ -54,6 +55,7 @@ CONDITION_KEYS: tuple[str, ...] = (
     "self_check",
     "assist",
     "localize",  # hybrid, sensed: scan matching on or off
+    "explore",  # hybrid: nearest, utility or scored frontiers (as run: "utility (cannot score)" says a fallback)
 )
 
 
@@ -219,6 +221,16 @@ def condition_of(config: dict[str, Any]) -> dict[str, Any]:
     return condition
 
 
+def _as_run(planner_metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """Condition values the planner reports as it ran them, where they differ from the requested option.
+
+    The hybrid explores by utility when `-o explore=scored` meets a backend that cannot score: the
+    condition says "utility (cannot score)", so such a run is never grouped with scored ones.
+    """
+    explore = planner_metrics.get("explore")
+    return {"explore": explore} if isinstance(explore, str) else {}
+
+
 def _mean(values: Sequence[float]) -> float | None:
     return sum(values) / len(values) if values else None
 
@@ -245,6 +257,21 @@ def _added_obstacles(config: dict[str, Any]) -> list[Point]:
 
 
 # --- the summary -------------------------------------------------------------------------------
+
+
+def crashed(reason: object) -> bool:
+    """Whether an end reason says llmnav itself crashed or was interrupted (the runner's "crash: ..." reasons)."""
+    return isinstance(reason, str) and (reason.startswith("crash:") or reason == "interrupted")
+
+
+def aborted_without_result(summary: dict[str, Any]) -> bool:
+    """Whether a run ended with nothing to score: its backend or server failed, or llmnav crashed under it.
+
+    Such runs carry no score, are in no mean and are tabled apart with their cause (`llmnav score`).
+    """
+    return aborted_by_infrastructure(summary) or (
+        summary.get("outcome") == "aborted" and crashed(summary.get("reason"))
+    )
 
 
 def aborted_by_infrastructure(summary: dict[str, Any]) -> bool:
@@ -361,6 +388,7 @@ def summarize_run(
     outcome: EpisodeOutcome | None = None,
     *,
     success_radius_m: float = SUCCESS_RADIUS_M,
+    prices: PriceTable | None = None,
 ) -> dict[str, Any]:
     """Every metric of one episode, from its run log (complete or cut short) and its scenario.
 
@@ -368,8 +396,11 @@ def summarize_run(
     otherwise the `end` event is used, and a run without one counts as aborted ("cut short").
     `scenario` may be None when it cannot be loaded: targets logged as points still score.
     `success_radius_m` [m]: the radius success is judged at (`llmnav score --success-radius`); the score's
-    distance term keeps its own 2.5 m.
+    distance term keeps its own 2.5 m. `prices`: the table `cost_usd` is computed with (default: `$LLMNAV_PRICES`,
+    else the bundled one; see `llmnav.backends.prices`).
     """
+    from llmnav.backends.prices import load_prices, run_cost
+
     config = record.config
     events = record.events
     task, targets, faces = _task_info(config, scenario)
@@ -434,8 +465,8 @@ def summarize_run(
     else:  # a target task whose targets cannot be resolved: nothing to score against
         score, success = None, False
 
-    if result == "aborted" and planner_metrics.get("failure") == "backend":
-        # the server failed, not the model: nothing of the model's to score
+    if result == "aborted" and (planner_metrics.get("failure") == "backend" or crashed(reason)):
+        # the server failed, or llmnav crashed, not the model: nothing of the model's to score
         score, success = None, False
         reach = {**NO_REACH, "success_radius_m": success_radius_m}
 
@@ -454,11 +485,13 @@ def summarize_run(
         "backend": config.get("backend"),
         "start_pose_index": config.get("start_pose_index"),
         "seed": config.get("seed"),
-        "condition": condition_of(config),
+        "condition": condition_of(config) | _as_run(planner_metrics),
         "iterations": iterations,
         "latency_s_mean": _rounded(_mean(latencies)),
         "llm_calls": len(record.of_type("llm_call")),
         "new_prompt_tokens_median": new_prompt_tokens_median(record.of_type("llm_call")),
+        # cache_hits, tokens, cost_usd (None: unknown) and cost_note
+        **run_cost(config, record.of_type("llm_call"), prices or load_prices()),
         "json_errors": sum(1 for g in guards if g in GUARD_JSON_OUTCOMES),
         "safety_vetoes": sum(1 for g in guards if g == GUARD_VETO_OUTCOME),
         "final_pose": final.as_list() if final is not None else None,

@@ -15,16 +15,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from llmnav.chat import ChatRequest, ChatResult, Image, Message, ScoreRequest, ScoreResult
 from llmnav.errors import LlmnavError, one_line
 
 if TYPE_CHECKING:
+    from llmnav.backends.base import Backend
     from llmnav.geometry import Pose2D
     from llmnav.guard.view import PlannerWorld
     from llmnav.perception import LidarSummary
-    from llmnav.planners.base import DriveOptions, EpisodeContext
+    from llmnav.planners.options import DriveOptions
     from llmnav.runlog import RunLog
     from llmnav.sim.sensors import Detection, LidarScan
 
@@ -172,7 +173,26 @@ def _detection_log(det: Detection) -> dict[str, Any]:
     }
 
 
-def call_model(ctx: EpisodeContext, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
+class ModelLine(Protocol):
+    """What a model call needs of an episode (`llmnav.planners.base.EpisodeContext` is one)."""
+
+    @property
+    def backend(self) -> Backend | None:
+        """The model the episode asks, if any."""
+        ...
+
+    @property
+    def log(self) -> RunLog:
+        """Where the call is logged."""
+        ...
+
+    @property
+    def options(self) -> DriveOptions:
+        """The planner's options (its name, and whether the simulation runs beside the call)."""
+        ...
+
+
+def call_model(ctx: ModelLine, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
     """Send a request through `ctx.backend`, logging an `llm_call` event with the reply or the error.
 
     A backend failure (ModelError, ReplayDivergenceError, ...) is logged with its one-line message and
@@ -189,10 +209,26 @@ def call_model(ctx: EpisodeContext, request: ChatRequest, purpose: str, step: in
         with beside_simulation(ctx.options.realtime):
             result = ctx.backend.chat(request)
     except LlmnavError as err:
-        ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, error=err))
+        ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, error=err, caching=ctx.backend.caching))
         raise
-    ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, result))
+    ctx.log.event("llm_call", **llm_call_fields(request, purpose, step, result, caching=ctx.backend.caching))
     return result
+
+
+def cache_state(meta: dict[str, Any], caching: bool) -> str:
+    """What the reply cache did for a call: "hit", "miss" (asked the server), or "off" (no cache)."""
+    state = meta.get("cache")
+    if state in ("hit", "miss"):
+        return str(state)
+    return "miss" if caching else "off"
+
+
+def _reply_log(log: dict[str, Any]) -> dict[str, Any]:
+    """A reply's log form with the cache state lifted out of its meta (the event carries it, once)."""
+    meta = log.get("meta")
+    if isinstance(meta, dict) and "cache" in meta:
+        log["meta"] = {k: v for k, v in meta.items() if k != "cache"}
+    return log
 
 
 def llm_call_fields(
@@ -201,24 +237,32 @@ def llm_call_fields(
     step: int | None,
     result: ChatResult | None = None,
     error: BaseException | str | None = None,
+    caching: bool = False,
 ) -> dict[str, Any]:
     """The fields of the `llm_call` event for a chat call: its reply, or its error when it failed.
 
     For a caller that made the call by other means than `call_model` (the FSM's model process) and logs
-    it later, in the same form.
+    it later, in the same form. `caching`: the backend has a reply cache (a failed call was a miss).
     """
     if result is None:
-        return {"step": step, "purpose": purpose, "request": request.to_log(), "error": one_line(error or "")}
+        return {
+            "step": step,
+            "purpose": purpose,
+            "cache": cache_state({}, caching),
+            "request": request.to_log(),
+            "error": one_line(error or ""),
+        }
     return {
         "step": step,
         "purpose": purpose,
+        "cache": cache_state(result.meta, caching),
         "request": request.to_log(),
-        "reply": result.to_log(),
+        "reply": _reply_log(result.to_log()),
         "new_prompt_tokens": new_prompt_tokens(result),
     }
 
 
-def call_scorer(ctx: EpisodeContext, request: ScoreRequest, step: int | None) -> ScoreResult:
+def call_scorer(ctx: ModelLine, request: ScoreRequest, step: int | None) -> ScoreResult:
     """Score continuations through `ctx.backend`, logged as an `llm_call` event with purpose `score`.
 
     Failures are logged and re-raised like `call_model`'s; a reply with a different number of scores
@@ -236,9 +280,14 @@ def call_scorer(ctx: EpisodeContext, request: ScoreRequest, step: int | None) ->
             got, asked = len(result.scores), len(request.continuations)
             raise ModelError(f"{ctx.backend.spec} returned {got} scores for {asked} continuations")
     except LlmnavError as err:
-        ctx.log.event("llm_call", step=step, purpose="score", request=request.to_log(), error=one_line(err))
+        cache = cache_state({}, ctx.backend.caching)
+        ctx.log.event(
+            "llm_call", step=step, purpose="score", cache=cache, request=request.to_log(), error=one_line(err)
+        )
         raise
-    ctx.log.event("llm_call", step=step, purpose="score", request=request.to_log(), reply=result.to_log())
+    cache = cache_state(result.meta, ctx.backend.caching)
+    reply = _reply_log(result.to_log())
+    ctx.log.event("llm_call", step=step, purpose="score", cache=cache, request=request.to_log(), reply=reply)
     return result
 
 

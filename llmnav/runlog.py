@@ -6,13 +6,13 @@ Layout of a run folder: `run.jsonl` (first line the configuration, then one even
 `read_run` ignores a torn last line.
 
 Event vocabulary (field `type`; every event also has `t_wall` [s since start] and, when known, `t_sim` [s]):
-- `config`       first line: versions, scenario, task, start pose, planner, backend spec, options, seed,
-                 prompt-template hashes.
+- `config`       first line: versions, scenario, task, start pose, planner, backend spec, who bills it
+                 (`billing`, llmnav.backends.prices), options, seed, prompt-template hashes.
 - `observation`  what the planner saw: `step`, `pose`, `odom`, `lidar_front_m`, `lidar_text`, `detections`,
                  `image` (sha256 or absent).
 - `llm_call`     `step`, `purpose` (action | correction | veto | self_check | ground | waypoints |
-                 suggestion | choice), `request` (ChatRequest.to_log()), `reply` (ChatResult.to_log()) or
-                 `error` (one line).
+                 suggestion | choice), `cache` (hit | miss | off: the reply cache, `--cache`), `request`
+                 (ChatRequest.to_log()), `reply` (ChatResult.to_log()) or `error` (one line).
 - `guard`        `step`, `outcome` (ok | parse | schema | bounds | veto), `error`, `attempt`, and `value`
                  (the accepted answer as JSON data, or None).
 - `action`       `step`, `command`, `parameters`, `pose_before`, `pose_after`, `collided`, `collision_with`,

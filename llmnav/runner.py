@@ -46,6 +46,7 @@ if TYPE_CHECKING:
 
     from llmnav.backends.base import Backend
     from llmnav.backends.policy import PolicyBackend
+    from llmnav.backends.prices import PriceTable
     from llmnav.geometry import Pose2D
     from llmnav.planners.base import Planner
     from llmnav.runlog import RunLog, RunRecord
@@ -76,6 +77,9 @@ class EpisodeSpec(BaseModel):
     # [Hz] also log full scans, odometry and velocity at this rate (llmnav.ros.record)
     record_hz: float | None = Field(default=None, gt=0, le=50)
     foxglove_port: int | None = Field(default=None, ge=0, le=65535)  # live view on 127.0.0.1 (0: any free port)
+    # not part of the condition: where HTTP replies are cached (`--cache`), which prices cost the run
+    cache_dir: Path | None = None
+    prices: Path | None = None  # a price table (`--prices`); None: $LLMNAV_PRICES, else the bundled one
 
     @field_validator("options", mode="before")
     @classmethod
@@ -154,6 +158,8 @@ def build_config(
         "information": information,
         "answers": answers_information(backend),
         "backend": redact_userinfo(backend.spec) if backend is not None else None,
+        # who bills the model's calls (llmnav.backends.prices): {"free": why} or {"provider", "model"}
+        "billing": backend.billing() if backend is not None else None,
         # what the requests carried (replay asks the same): {"modality": "text" | "multimodal", "attachments"}
         **(request_modality(backend, camera) if backend is not None else {"modality": None, "attachments": []}),
         "options": spec.options.model_dump(mode="json"),
@@ -238,6 +244,13 @@ def run_episode(
         owns_backend = True
     if backend is not None and spec.options.drop_images:
         backend.drop_images = True
+    from llmnav.backends.prices import load_prices
+
+    prices = load_prices(spec.prices)  # a bad price file is bad input before any folder exists
+    if backend is not None and spec.cache_dir is not None:
+        from llmnav.backends.cache import ReplyCache
+
+        backend.use_cache(ReplyCache(spec.cache_dir))
     if backend is not None:
         try:
             planner.check_backend(backend, spec.options)
@@ -280,7 +293,9 @@ def run_episode(
                     shown = RedactedView(view or NullView(), getattr(backend, "secrets", ()))
                     if live is not None:
                         log.listeners.append(live.on_event)
-                    return _run_logged(planner, world, scenario, task, backend, log, spec, shown, information, later)
+                    return _run_logged(
+                        planner, world, scenario, task, backend, log, spec, shown, information, later, prices
+                    )
             finally:
                 if live is not None:
                     live.close()
@@ -300,6 +315,7 @@ def _run_logged(
     view: View,
     information: Information = "oracle",
     later: list[Callable[[], None]] | None = None,
+    prices: PriceTable | None = None,
 ) -> dict[str, Any]:
     """Run the planner inside an open log; always end the log, summary and plot (or leave the plot to `later`).
 
@@ -328,7 +344,7 @@ def _run_logged(
         recorder.sample(world.sim_time)
     from llmnav.guard.view import PlannerWorld
 
-    known = scenario_view(scenario, information)
+    known = scenario_view(scenario, information, knows_map=planner.knows_map)
     ctx = EpisodeContext(known, task, PlannerWorld(world, log), backend, log, spec.options, view, information)
     _attach_answer_key(planner, world, scenario, task, backend, spec.options)
     crash: BaseException | None = None
@@ -370,7 +386,7 @@ def _run_logged(
     record = read_run(log.run_dir)
     if crash is None:
         outcome.metrics = {**outcome.metrics, **planner.summarize(record, scenario, task)}
-    summary = summarize_run(record, scenario, outcome)
+    summary = summarize_run(record, scenario, outcome, prices=prices)
     summary["information"] = information
     summary["answers"] = answers_information(backend)
     summary["run_dir"] = str(log.run_dir)

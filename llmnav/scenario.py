@@ -162,6 +162,24 @@ class StartPose(_Strict):
         return Pose2D(self.x, self.y, math.radians(self.yaw_deg))
 
 
+# A sequence of commands as one task's text (`llmnav drive --task A --task B`, a route): its legs joined by this.
+SEQUENCE_JOIN = "; then "
+
+
+class RouteLeg(_Strict):
+    """One command of a route: its text and acceptable targets. It starts where the previous leg ended."""
+
+    text: Annotated[str, Field(min_length=1, max_length=MAX_TEXT_CHARS)]
+    targets: Annotated[list[Target], Field(min_length=1)]
+
+    @field_validator("text")
+    @classmethod
+    def _no_join(cls, text: str) -> str:
+        if SEQUENCE_JOIN in text:
+            raise ValueError(f"a leg's text may not contain {SEQUENCE_JOIN!r} (it joins the legs of a route)")
+        return text
+
+
 class Task(_Strict):
     """A task: its exact text, acceptable targets, kind, difficulty and start poses.
 
@@ -178,6 +196,7 @@ class Task(_Strict):
     start_poses: list[StartPose] = []
     paraphrases: list[Annotated[str, Field(min_length=1, max_length=MAX_TEXT_CHARS)]] = []
     wording: Annotated[str, Field(pattern=r"^(bundled|free|paraphrase:[1-9][0-9]*)$")] = "bundled"
+    legs: list[RouteLeg] = []  # a route's commands in order (`Route.as_task`); empty for a single command
 
     @model_validator(mode="after")
     def _targets(self) -> Task:
@@ -187,6 +206,33 @@ class Task(_Strict):
         if len(set(texts)) != len(texts):
             raise ValueError("a paraphrase repeats the task text or another paraphrase")
         return self
+
+
+class Route(_Strict):
+    """Commands driven one after another in one episode, each leg starting where the last one ended.
+
+    The waypoint source ran its environments this way (SP → window, window → room 105, ...) and reported
+    every leg as a row. `--task-id ID` runs a route like a task (`as_task`); each leg is scored on its own
+    (`llmnav score --table waypoints-legs`), the episode succeeds when the last leg's target is reached.
+    """
+
+    id: Annotated[str, Field(min_length=1, max_length=MAX_NAME_CHARS)]
+    description: Annotated[str, Field(max_length=MAX_TEXT_CHARS)] = ""
+    difficulty: Literal["easy", "medium", "hard"] = "medium"
+    start: StartPose
+    legs: Annotated[list[RouteLeg], Field(min_length=1, max_length=MAX_TASKS)]
+
+    def as_task(self) -> Task:
+        """The route as one task: its legs' texts joined, the last leg's targets, its start pose."""
+        return Task(
+            id=self.id,
+            text=SEQUENCE_JOIN.join(leg.text for leg in self.legs),
+            kind="target",
+            difficulty=self.difficulty,
+            targets=list(self.legs[-1].targets),
+            start_poses=[self.start],
+            legs=list(self.legs),
+        )
 
 
 class Corridor(_Strict):
@@ -369,6 +415,7 @@ class Scenario(_Strict):
     # Whether planners are handed the map (llmnav.knowledge); None: "map" where corridors are listed.
     default_information: Literal["map", "sensed"] | None = None
     tasks: Annotated[list[Task], Field(max_length=MAX_TASKS)] = []
+    routes: Annotated[list[Route], Field(max_length=MAX_TASKS)] = []
     default_start: StartPose = StartPose(x=0.0, y=0.0)
     sensors: SensorConfig = SensorConfig()
     waypoint_rules: WaypointRules = WaypointRules()
@@ -401,10 +448,13 @@ class Scenario(_Strict):
         raise KeyError(object_id)
 
     def task(self, task_id: str) -> Task:
-        """The task with this id (KeyError if absent)."""
+        """The task with this id, or the route with it as a task (KeyError if neither)."""
         for task in self.tasks:
             if task.id.lower() == task_id.lower():
                 return task
+        for route in self.routes:
+            if route.id.lower() == task_id.lower():
+                return route.as_task()
         raise KeyError(task_id)
 
     def solid_shapes(self) -> list[Shape]:
@@ -430,6 +480,15 @@ def _loc(loc: tuple[int | str, ...]) -> str:
     return out or "(top level)"
 
 
+def _start_problem(sc: Scenario, start: StartPose, radius_m: float, solids: Sequence[Shape]) -> str | None:
+    """Why a start pose is unusable (outside the bounds, the robot's footprint on something solid), or None."""
+    if not sc.bounds.contains(start.x, start.y):
+        return f"start pose ({start.x}, {start.y}) is outside bounds"
+    if any(s.contains(start.x, start.y, inflate=radius_m) for s in solids):
+        return f"start pose ({start.x}, {start.y}) overlaps an obstacle"
+    return None
+
+
 def _check_consistency(sc: Scenario) -> list[tuple[str, str]]:
     """Cross-field checks pydantic cannot express; returns (path, problem) pairs."""
     problems: list[tuple[str, str]] = []
@@ -450,11 +509,21 @@ def _check_consistency(sc: Scenario) -> list[tuple[str, str]]:
             if target.object is not None and target.object not in ids:
                 problems.append((f"tasks[{ti}].targets[{tj}].object", f"unknown target id '{target.object}'"))
         for si, start in enumerate(task.start_poses):
-            where = f"tasks[{ti}].start_poses[{si}]"
-            if not sc.bounds.contains(start.x, start.y):
-                problems.append((where, f"start pose ({start.x}, {start.y}) is outside bounds"))
-            elif any(s.contains(start.x, start.y, inflate=radius) for s in solids):
-                problems.append((where, f"start pose ({start.x}, {start.y}) overlaps an obstacle"))
+            problem = _start_problem(sc, start, radius, solids)
+            if problem:
+                problems.append((f"tasks[{ti}].start_poses[{si}]", problem))
+    task_ids = {t.id.lower() for t in sc.tasks}
+    for ri, route in enumerate(sc.routes):
+        if route.id.lower() in task_ids:
+            problems.append((f"routes[{ri}].id", f"route id '{route.id}' is also a task id"))
+        for li, leg in enumerate(route.legs):
+            for tj, target in enumerate(leg.targets):
+                if target.object is not None and target.object not in ids:
+                    where = f"routes[{ri}].legs[{li}].targets[{tj}].object"
+                    problems.append((where, f"unknown target id '{target.object}'"))
+        problem = _start_problem(sc, route.start, radius, solids)
+        if problem:
+            problems.append((f"routes[{ri}].start", problem))
     start = sc.default_start
     if any(s.contains(start.x, start.y, inflate=radius) for s in solids):
         problems.append(("default_start", f"start pose ({start.x}, {start.y}) overlaps an obstacle"))

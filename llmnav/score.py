@@ -21,6 +21,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.backends.base import answerer
 from llmnav.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
 from llmnav.errors import BadInputError
 from llmnav.failures import FAILURE_CAUSES
@@ -28,20 +29,25 @@ from llmnav.metrics import (
     CONDITION_KEYS,
     RESCORED_KEYS,
     SUCCESS_RADIUS_M,
-    aborted_by_infrastructure,
+    aborted_without_result,
     summarize_run,
 )
 from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, RunRecord, read_run
+from llmnav.scenario import SEQUENCE_JOIN
 from llmnav.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
 from llmnav.tasks import ADHOC_ID
 
 if TYPE_CHECKING:
+    from llmnav.backends.prices import PriceTable
+    from llmnav.geometry import Pose2D
     from llmnav.scenario import Scenario, Task
 
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
-ORACLE_BACKEND = "policy:oracle"  # answers computed from the ground truth: a ceiling, neither model nor null policy
 ORACLE_MARK = " (oracle answers)"
+START_POSE_KEY = "start_pose"  # `--by start_pose`: the stepwise source's Tables 3–7 report per start position
+FAILED = "failed"  # a failed plan's cell: the waypoint source leaves failed plans out of its averages
+CACHE_MARK = " (from cache)"  # a run some of whose model answers came from the reply cache (`--cache`)
 
 
 @dataclass
@@ -88,6 +94,12 @@ class Run:
             if key not in found:
                 found[key] = "+".join(map(str, value)) if isinstance(value, list) else value
         return found
+
+    def value(self, key: str) -> Any:
+        """A grouping key's value: a condition key, or `start_pose` (the 1-based start pose index)."""
+        if key == START_POSE_KEY:
+            return self.summary.get("start_pose_index")
+        return self.condition.get(key)
 
     @property
     def planner(self) -> str:
@@ -195,17 +207,20 @@ def scenario_of(config: dict[str, Any]) -> Scenario | None:
 _COLLISION_KEYS = ("collisions", "collided_with")
 
 
-def load_run(run_dir: Path, success_radius_m: float | None = None) -> Run:
+def load_run(run_dir: Path, success_radius_m: float | None = None, prices: PriceTable | None = None) -> Run:
     """A run's summary: summary.json when the run ended, else computed from its (cut-short) log.
 
     `success_radius_m` [m]: success, oracle success, SPL, Soft-SPL and the failure cause are recomputed from
     the log at this radius (`--success-radius`). A summary written before some of these keys existed gets
-    them computed from its log the same way (`llmnav.metrics.summarize_run`).
+    them computed from its log the same way (`llmnav.metrics.summarize_run`). `prices` (`--prices`): the
+    cost is recomputed from the log with this table instead of the one the run was priced with.
     """
-    return run_from_record(read_run(run_dir), success_radius_m)
+    return run_from_record(read_run(run_dir), success_radius_m, prices)
 
 
-def run_from_record(record: RunRecord, success_radius_m: float | None = None) -> Run:
+def run_from_record(
+    record: RunRecord, success_radius_m: float | None = None, prices: PriceTable | None = None
+) -> Run:
     """`load_run` of a log already read (the per-run table also sums the log's token counts)."""
     run_dir = record.run_dir
     summary = record.summary
@@ -226,8 +241,12 @@ def run_from_record(record: RunRecord, success_radius_m: float | None = None) ->
             summary = {**summary, **{k: fresh[k] for k in dict.fromkeys((*missing, *redo))}}
             if scenario is None and summary.get("task_kind") == "target":
                 problems.append(f"{why}; no SPL or Soft-SPL")
+    if "cost_usd" not in summary or prices is not None:  # a summary from before costs were: priced now
+        from llmnav.backends.prices import load_prices, run_cost
+
+        summary = {**summary, **run_cost(record.config, record.of_type("llm_call"), prices or load_prices())}
     # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
-    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_by_infrastructure(summary):
+    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_without_result(summary):
         problems.append("no score: the task's targets could not be resolved")
     return Run(Path(run_dir), summary, record.config, problems)
 
@@ -237,18 +256,20 @@ def load_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> l
     return [load_run(d, success_radius_m) for d in find_run_dirs(paths)]
 
 
-def read_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> tuple[list[Run], list[str]]:
+def read_runs(
+    paths: Sequence[Path], success_radius_m: float | None = None, prices: PriceTable | None = None
+) -> tuple[list[Run], list[str]]:
     """Every readable run below the given paths, and "folder: why" for each that is not.
 
     One damaged log among thousands must not cancel the tables of the rest; when none can be read, the
     first one's error is raised (a single broken run named on the command line is an error).
-    `success_radius_m`: as for `load_run`.
+    `success_radius_m` and `prices`: as for `load_run`.
     """
     runs: list[Run] = []
     broken: list[tuple[Path, BadInputError]] = []
     for run_dir in find_run_dirs(paths):
         try:
-            runs.append(load_run(run_dir, success_radius_m))
+            runs.append(load_run(run_dir, success_radius_m, prices))
         except BadInputError as err:
             broken.append((run_dir, err))
     if broken and not runs:
@@ -259,9 +280,9 @@ def read_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> t
 
 
 def split_aborted(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
-    """(the model's results, the runs aborted by a backend or server failure): the latter never enter a mean."""
-    results = [r for r in runs if not aborted_by_infrastructure(r.summary)]
-    return results, [r for r in runs if aborted_by_infrastructure(r.summary)]
+    """(the model's results, the runs aborted by a server failure or a crash): the latter never enter a mean."""
+    results = [r for r in runs if not aborted_without_result(r.summary)]
+    return results, [r for r in runs if aborted_without_result(r.summary)]
 
 
 # --- grouping -----------------------------------------------------------------------------------
@@ -282,25 +303,26 @@ def varying_keys(runs: Sequence[Run]) -> list[str]:
 
 def is_oracle(run: Run) -> bool:
     """Whether oracle answers (`policy:oracle`, computed from the ground truth) drove this run."""
-    backend = str(run.summary.get("backend") or "")
-    return backend == ORACLE_BACKEND or backend.startswith(f"{ORACLE_BACKEND}:")
+    return answerer(str(run.summary.get("backend") or "")) == "oracle"
 
 
 def condition_label(run: Run, keys: Sequence[str]) -> str:
     """`key=value, ...` over the varying keys ("all" when nothing varies); oracle runs are marked as such.
 
     The mark is part of the label even when the backend is not a grouping key, so oracle answers are never
-    pooled with a model's and a reader never takes them for one.
+    pooled with a model's and a reader never takes them for one. A run served (partly) from the reply cache
+    is marked too: its answers were not asked of the model in this run, and its latencies are the first run's.
     """
     oracle = is_oracle(run)
-    parts = [f"{k}={run.condition.get(k)}{ORACLE_MARK if oracle and k == 'backend' else ''}" for k in keys]
+    parts = [f"{k}={run.value(k)}{ORACLE_MARK if oracle and k == 'backend' else ''}" for k in keys]
     label = ", ".join(parts) or "all"
-    return label + ORACLE_MARK if oracle and "backend" not in keys else label
+    label = label + ORACLE_MARK if oracle and "backend" not in keys else label
+    return label + CACHE_MARK if run.summary.get("cache_hits") else label
 
 
 def condition_fields(run: Run, keys: Sequence[str]) -> dict[str, Any]:
     """The grouping keys' values as separate record fields (tidy CSV: one column per condition key)."""
-    return {k: run.condition.get(k) for k in keys}
+    return {k: run.value(k) for k in keys}
 
 
 def _task_sort_key(task: str) -> tuple[Any, ...]:
@@ -470,7 +492,6 @@ def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
     """Oracle shortest-path length per (task, start pose); None where unavailable (noted on the run)."""
     from llmnav.errors import one_line
     from llmnav.geometry import Pose2D
-    from llmnav.mapping.targets import oracle_length
 
     lengths: dict[tuple[str, Any], float | None] = {}
     for run in runs:
@@ -487,14 +508,53 @@ def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
             run.problem("no oracle path length: the config line has no start_pose")
             continue
         try:
-            task = run.task_record(scenario)
-            lengths[key] = _num(oracle_length(scenario, task, Pose2D.from_list(start)))
+            lengths[key] = _num(sequence_oracle_length(scenario, task_of_run(scenario, run), Pose2D.from_list(start)))
         except Exception as err:  # noqa: BLE001 — shown as "—" in the table and reported, never fatal
             run.problem(f"no oracle path length: {type(err).__name__}: {one_line(err)}")
             continue
         if lengths[key] is None and run.summary.get("task_kind") == "target":  # others have no target: N.A.
             run.problem("no oracle path length: the oracle found no path from this start pose")
     return lengths
+
+
+def task_of_run(scenario: Scenario, run: Run) -> Task:
+    """The task a run drove: the scenario's (a route too) by id, else its logged text resolved again.
+
+    A sequence of `--task` commands (id `SEQ`) and free text (id `adhoc`) are no scenario task: their text
+    is (`llmnav.tasks`), so they are resolved from it as `drive` did.
+    """
+    from llmnav.tasks import SEQUENCE_ID, sequence_task, task_from_text
+
+    try:
+        return scenario.task(run.task)
+    except KeyError:
+        if run.summary.get("task_id") != SEQUENCE_ID and isinstance(run.config.get("task"), dict):
+            return run.task_record(scenario)  # free text: the task as `drive` resolved it, targets included
+        text = run.summary.get("task_text")
+        if not isinstance(text, str) or not text:
+            raise
+    legs = text.split(SEQUENCE_JOIN) if run.task == SEQUENCE_ID else [text]
+    tasks = [task_from_text(scenario, leg) for leg in legs]
+    return tasks[0] if len(tasks) == 1 else sequence_task(scenario, tasks)
+
+
+def sequence_oracle_length(scenario: Scenario, task: Task, start: Pose2D) -> float | None:
+    """The oracle's path length [m]; for a route or sequence, summed over its legs (None if a leg has no path).
+
+    Each leg starts where the oracle's previous one ended, as the robot's did where the last leg ended.
+    """
+    from llmnav.geometry import Pose2D
+    from llmnav.mapping.targets import oracle_path
+    from llmnav.tasks import sequence_legs
+
+    total, here = 0.0, start
+    for leg in sequence_legs(scenario, task):
+        path = oracle_path(scenario, leg, here)
+        if path is None:
+            return None
+        total += path.length_m
+        here = Pose2D(path.approach[0], path.approach[1], 0.0)
+    return total
 
 
 def reference_paths(declared: Mapping[str, Declarations] | None = None) -> dict[str, ReferencePath]:
@@ -578,7 +638,14 @@ def _reader(source: str, where: Sequence[str]) -> Callable[[Run], Any]:
 
 
 def _column_values(group: Sequence[Run], column: Column) -> list[float]:
+    if column.unless:
+        group = [r for r in group if not _read(r, "metrics", column.unless.split("."))]
     return _values(group, _reader(column.source, column.where))
+
+
+def _all_left_out(group: Sequence[Run], column: Column) -> bool:
+    """Whether the column's `unless` leaves out every run of the group (shown as FAILED, not as missing)."""
+    return bool(column.unless) and all(_read(r, "metrics", column.unless.split(".")) for r in group)
 
 
 def _declared_row(spec: ScoreTable, group: Sequence[Run]) -> tuple[list[str], dict[str, Any]]:
@@ -609,7 +676,7 @@ def _declared_row(spec: ScoreTable, group: Sequence[Run]) -> tuple[list[str], di
             medians[column.key] = _stats_record(values, column.bounds)
         else:
             values = _column_values(group, column)
-            cells.append(_mean_sd(values, column.digits))
+            cells.append(FAILED if _all_left_out(group, column) else _mean_sd(values, column.digits))
             means[column.key] = _stats_record(values, column.bounds)
     return cells, counts | means | shares | medians
 
@@ -685,6 +752,9 @@ def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -
     policies = (null_policy_table, ceiling_table, wording_table, wording_spread_table)
     tables += [t for t in (b(results, keys) for b in policies) if t is not None]
     tables += [t for t in (failures_table(runs, keys), aborted_table(aborted, keys)) if t is not None]
+    from llmnav.score_cost import cost_table
+
+    tables += [t for t in (cost_table(runs, keys),) if t is not None]
     return tables
 
 
@@ -727,7 +797,7 @@ def collided_runs(runs: Sequence[Run]) -> list[str]:
 
 
 def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Per task and condition: the runs a backend or server failure ended, kept out of every mean above."""
+    """Per task and condition: the runs a backend or server failure or a crash ended, kept out of every mean."""
     if not aborted:
         return None
     rows, records = [], []
@@ -738,11 +808,11 @@ def aborted_table(aborted: Sequence[Run], keys: Sequence[str]) -> Table | None:
         records.append({"task": task, "condition": label, **condition_fields(group[0], keys), "n": len(group),
                         "reasons": reasons})  # fmt: skip
     return Table(
-        "Runs aborted by a backend or server failure (not in the means above)",
+        "Runs aborted by a backend or server failure or a crash (not in the means above)",
         ["Task", "Condition", "N", "Reason"],
         rows,
         records,
-        note="No answer came from the model's server: these runs say nothing about the model.",
+        note="No answer came from the model's server, or llmnav crashed: these runs say nothing about the model.",
         name="aborted",
     )
 
@@ -796,7 +866,7 @@ def parse_selector(text: str) -> tuple[str, str]:
     """`KEY=VALUE` of `--compare`; KEY a condition key or task/scenario."""
     key, sep, value = text.partition("=")
     key = key.strip().replace("-", "_")
-    allowed = (*CONDITION_KEYS, "task", "scenario")
+    allowed = (*CONDITION_KEYS, START_POSE_KEY, "task", "scenario")
     if not sep or not key or not value:
         raise BadInputError(f"--compare {text!r}: expected KEY=VALUE, e.g. lidar_sectors=8")
     if key not in allowed and not is_option_key(key):
@@ -810,7 +880,7 @@ def _selected(run: Run, key: str, value: str) -> bool:
     elif key == "scenario":
         actual = run.summary.get("scenario")
     else:
-        actual = run.condition.get(key)
+        actual = run.value(key)
     return str(actual).lower() == value.lower()
 
 

@@ -21,6 +21,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from llmnav.backends.base import answerer
 from llmnav.metrics import CONDITION_KEYS
 from llmnav.score import (
     COMMON_COLUMNS,
@@ -37,7 +38,6 @@ from llmnav.score import (
 )
 from llmnav.stats import mean_sd
 
-POLICY_PREFIX = "policy:"
 ALL_TASKS = "All tasks"
 GAP_EPSILON = 1e-9  # a ceiling no further above the floor than rounding leaves no gap to close
 
@@ -48,12 +48,13 @@ K = TypeVar("K", bound=tuple[Any, ...])
 
 def is_policy(run: Run) -> bool:
     """Whether a null policy answered this run (the oracle's answers are no null policy: they know the truth)."""
-    return str(run.summary.get("backend") or "").startswith(POLICY_PREFIX) and not is_oracle(run)
+    return answerer(str(run.summary.get("backend") or "")) == "policy"
 
 
 def is_model(run: Run) -> bool:
     """Whether a model answered this run: a backend that is neither a null policy nor the oracle."""
-    return bool(run.summary.get("backend")) and not str(run.summary.get("backend")).startswith(POLICY_PREFIX)
+    backend = str(run.summary.get("backend") or "")
+    return bool(backend) and answerer(backend) == "model"
 
 
 def _setting(run: Run) -> tuple[Any, ...]:

@@ -20,12 +20,21 @@ import re
 from dataclasses import dataclass
 
 from llmnav.errors import BadInputError
-from llmnav.scenario import LabelledObject, Scenario, StartPose, Target, Task, list_scenarios, load_scenario
+from llmnav.scenario import (
+    SEQUENCE_JOIN,
+    LabelledObject,
+    Scenario,
+    StartPose,
+    Target,
+    Task,
+    list_scenarios,
+    load_scenario,
+)
 
 DEFAULT_SCENARIO = "factory"
 ADHOC_ID = "adhoc"
 SEQUENCE_ID = "SEQ"
-SEQUENCE_JOIN = "; then "
+__all__ = ["SEQUENCE_ID", "SEQUENCE_JOIN"]  # SEQUENCE_JOIN is the scenario's: a route's legs join the same way
 
 
 def _normalise(text: str) -> str:
@@ -181,7 +190,17 @@ def sequence_task(scenario: Scenario, legs: list[Task]) -> Task:
 
 
 def sequence_legs(scenario: Scenario, task: Task) -> list[Task]:
-    """The legs of a task: itself, or each leg of a `SEQ` task resolved again."""
+    """The legs of a task: a route's legs (`Route`), each leg of a `SEQ` task resolved again, or itself.
+
+    A route's leg k is task `<route id>.<k>` with the leg's own targets (the scenario's ground truth, never
+    re-read from its text).
+    """
+    if task.legs:
+        return [
+            Task(id=f"{task.id}.{k}", text=leg.text, kind="target", difficulty=task.difficulty,
+                 targets=list(leg.targets))  # fmt: skip
+            for k, leg in enumerate(task.legs, start=1)
+        ]
     if task.id != SEQUENCE_ID:
         return [task]
     return [task_from_text(scenario, leg) for leg in task.text.split(SEQUENCE_JOIN)]

@@ -3,8 +3,13 @@
 - `check_planner(cls)` checks a planner registered under `cls.name`: its declarations (an `Options`
   model that forbids extras and gives a unit or meaning for every field of its own, information modes,
   grid factors), one short episode on a bundled scenario with a `policy:` backend, that nothing it is
-  handed reaches the raw simulator, that its log holds well-formed events, and that its `summarize`
-  and `figures` hooks survive a log cut short.
+  handed reaches the raw simulator, that every motion of the robot went through the guarded layer (no
+  pose change between guarded motions, no call of the raw motion outside one), that its log holds
+  well-formed events, and that its `summarize` and `figures` hooks survive a log cut short.
+
+A plug-in is trusted code running in llmnav's process: it can reach anything Python can. The kit cannot
+prevent raw access (a private attribute, `pybullet` itself); it detects its effects on the robot in the
+probe episode and fails the planner for them.
 - `check_backend(cls, arg)` checks a backend class: its spec round-trips, its options forbid extras, and
   bad input raises only llmnav's narrow error classes.
 
@@ -16,19 +21,26 @@ from __future__ import annotations
 import json
 import math
 import tempfile
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import fields, is_dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
+    from llmnav.geometry import Pose2D
     from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
 
 __all__ = ["check_backend", "check_planner"]
 
 # Objects a planner must never hold: the simulator, the robot and the unguarded motion below the layer.
 _RAW_MODULES = ("llmnav.sim.world", "llmnav.sim.robot", "llmnav.sim.motion", "pybullet")
+# The motions of both layers: the guarded one planners hold, and the raw one below it.
+_MOTIONS = ("drive", "rotate", "go_to", "velocity_tick")
+# How far the robot may seem to move between guarded motions (a resting body settles by far less).
+POSE_TOLERANCE_M = 0.01  # [m]
+YAW_TOLERANCE_RAD = 0.02  # [rad]
 
 
 def check_planner(
@@ -43,12 +55,13 @@ def check_planner(
     _check_declarations(cls)
     with tempfile.TemporaryDirectory(prefix="llmnav-check-") as folder:
         run_dir = Path(folder) / "run"
-        summary, seen = _run_probe(cls, scenario, task_id, backend, options or {}, run_dir)
+        summary, seen, bypasses = _run_probe(cls, scenario, task_id, backend, options or {}, run_dir)
         assert summary.get("outcome") in ("completed", "failed", "not_found", "aborted"), (
-        f"outcome {summary.get('outcome')!r}"
-    )
+            f"outcome {summary.get('outcome')!r}"
+        )
         raw = [path for path, kind in seen]
         assert not raw, f"{cls.name}: its context reaches the raw simulator: {', '.join(raw[:3])}"
+        assert not bypasses, f"{cls.name}: raw access to the simulator: {'; '.join(bypasses[:3])}"
         _check_log(cls, run_dir)
         _check_hooks_on_a_cut_log(cls, run_dir, Path(folder), scenario)
 
@@ -107,18 +120,22 @@ def _check_declarations(cls: type[Planner[Any]]) -> None:
 
 def _run_probe(
     cls: type[Planner[Any]], scenario: str, task_id: str | None, backend: str, options: dict[str, Any], run_dir: Path
-) -> tuple[dict[str, Any], list[tuple[str, str]]]:
-    """One short episode through the real runner, the context walked when the planner starts."""
+) -> tuple[dict[str, Any], list[tuple[str, str]], list[str]]:
+    """One short episode through the real runner: the context walked when the planner starts, its motions audited."""
     from llmnav.planners.base import drive_options
     from llmnav.runner import EpisodeSpec, run_episode
     from llmnav.scenario import load_scenario
 
     seen: list[tuple[str, str]] = []
+    bypasses: list[str] = []
 
     class Probe(cls):  # type: ignore[valid-type,misc]  # a subclass of the planner under test
         def run(self, ctx: EpisodeContext[Any]) -> EpisodeOutcome:
             seen.extend(_raw_handles(ctx))
-            return super().run(ctx)
+            # The kit looks below the layer on purpose: the body's pose in the engine, not the copy planners read.
+            robot = getattr(ctx.world.robot, "_RobotView__robot")  # noqa: B009 - a private name, reached on purpose
+            with _MotionAudit(robot.engine_pose, bypasses):
+                return super().run(ctx)
 
     task = task_id or load_scenario(scenario).tasks[0].id
     settings = {"max_iterations": 3, "seed": 0, **options}
@@ -126,7 +143,77 @@ def _run_probe(
         scenario=scenario, task_id=task, options=drive_options(cls.name, **settings), backend=backend,
         out_dir=run_dir, plots=False,
     )  # fmt: skip
-    return run_episode(spec, planner_obj=Probe()), seen
+    return run_episode(spec, planner_obj=Probe()), seen, bypasses
+
+
+class _MotionAudit:
+    """Watches a planner's episode for motion that bypassed the guarded layer, and lists each as a problem.
+
+    Between two guarded motions the robot rests, so any pose change there was made by something else (a
+    `pybullet.resetBasePositionAndOrientation` through a private handle); and the raw motion runs only
+    inside a guarded one, so a call of it outside one had no guard verdict. Both layers' motion methods
+    are wrapped for the episode (class attributes, restored on exit).
+    """
+
+    def __init__(self, pose: Callable[[], Pose2D], problems: list[str]) -> None:
+        self._pose = pose
+        self._last = pose()
+        self.problems = problems
+        self._depth = threading.local()  # per thread: (guarded calls, raw calls) in progress
+        self._saved: list[tuple[type, str, Any]] = []
+
+    def __enter__(self) -> _MotionAudit:
+        from llmnav.guard.motion import GuardedMotion
+        from llmnav.sim.motion import Motion
+
+        for name in _MOTIONS:
+            self._wrap(GuardedMotion, name, guarded=True)
+            self._wrap(Motion, name, guarded=False)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for owner, name, original in reversed(self._saved):
+            setattr(owner, name, original)
+        self._saved.clear()
+        if self._levels() == (0, 0):
+            self._check_rest("by the time the planner returned")
+
+    def _levels(self) -> tuple[int, int]:
+        return getattr(self._depth, "guarded", 0), getattr(self._depth, "raw", 0)
+
+    def _check_rest(self, when: str) -> None:
+        here, last = self._pose(), self._last
+        moved = math.hypot(here.x - last.x, here.y - last.y)
+        turned = abs(math.remainder(here.yaw - last.yaw, math.tau))
+        if moved > POSE_TOLERANCE_M or turned > YAW_TOLERANCE_RAD:
+            self.problems.append(
+                f"the robot moved {moved:.2f} m and turned {math.degrees(turned):.0f} deg with no guarded motion "
+                f"({last.x:.2f}, {last.y:.2f}) -> ({here.x:.2f}, {here.y:.2f}), {when}"
+            )
+        self._last = here
+
+    def _wrap(self, owner: type, name: str, *, guarded: bool) -> None:
+        original = owner.__dict__[name]
+        self._saved.append((owner, name, original))
+        audit = self
+
+        def watched(motion: Any, *args: Any, **kwargs: Any) -> Any:
+            guarded_calls, raw_calls = audit._levels()
+            if guarded and guarded_calls == 0:
+                audit._check_rest(f"before {name}")
+            if not guarded and guarded_calls == 0 and raw_calls == 0:
+                shown = ", ".join([*map(repr, args), *(f"{k}={v!r}" for k, v in kwargs.items())])
+                audit.problems.append(f"the raw motion {name}({shown}) ran with no guard verdict")
+            key = "guarded" if guarded else "raw"
+            setattr(audit._depth, key, getattr(audit._depth, key, 0) + 1)
+            try:
+                return original(motion, *args, **kwargs)
+            finally:
+                setattr(audit._depth, key, getattr(audit._depth, key) - 1)
+                if guarded and audit._levels()[0] == 0:
+                    audit._last = audit._pose()
+
+        setattr(owner, name, watched)
 
 
 def _raw_handles(root: Any, limit: int = 4000) -> Iterator[tuple[str, str]]:
@@ -192,8 +279,10 @@ def _check_hooks_on_a_cut_log(cls: type[Planner[Any]], run_dir: Path, folder: Pa
         metrics = planner.summarize(record, scenario, task)
         assert isinstance(metrics, dict), f"{cls.name}: summarize returned {type(metrics).__name__}"
         for key, value in metrics.items():
-            ok = value is None or isinstance(value, (str, bool, int, list, dict)) or (
-                isinstance(value, float) and math.isfinite(value)
+            ok = (
+                value is None
+                or isinstance(value, (str, bool, int, list, dict))
+                or (isinstance(value, float) and math.isfinite(value))
             )
             assert ok, f"{cls.name}: summarize gave {key}={value!r} on a cut log"
     figures = planner.figures(record, cut)

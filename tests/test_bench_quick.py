@@ -75,6 +75,18 @@ ROWS: dict[str, list[str]] = {
         rf"\s+CPU per scan \[ms\]\s+median {NUMBER}\s+p95 {NUMBER}\s+max {NUMBER}",
         rf"\s+pose error at the end \[m\]\s+median {NUMBER}\s+max {NUMBER}",
     ],
+    "buildings": [
+        r"bench\.buildings: 1 generated flats \(seeds 0-0\) x 1 task\(s\) = 1 episodes a condition, sensed",
+        *(
+            rf"{label}\s+1\s+\d/1 {NUMBER}%\s+\d+ \(\d ep\)\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}$"
+            for label in ("oracle planner", "frontier baseline", "hybrid · oracle answers", "hybrid · local model")
+        ),
+        *(rf"hybrid · policy:{name}\s+1\s+\d/1" for name in ("first", "keyword", "random")),
+        rf"\s+oracle planner\s+success {NUMBER}% vs ≥ 99%: ratio {NUMBER}",
+        rf"\s+hybrid · oracle answers\s+pose error median {NUMBER} vs ≤ 0.1 m: ratio {NUMBER}; max {NUMBER}",
+        rf"sweep: hybrid · local model, 2 workers, 2 episodes in {NUMBER} min",
+        rf"\s+300 episodes: {NUMBER} min \(extrapolated from 2 episodes\)",
+    ],
     "rl": [rf"\s+{name}\s+\d+\s+\d+\s+\d+\s+\d+$" for name in ("Factory-v0", "Corridor-v0", "Maze-v0")],
     "protocol": [
         rf"\s+wall time of the sweep\s+{NUMBER} min",

@@ -147,3 +147,28 @@ def test_hash_covers_included_parts(tmp_path: Path, monkeypatch: pytest.MonkeyPa
 def test_load_template_returns_template() -> None:
     template = prompting.load_template("waypoints_user")
     assert template.substitute(target_name="window", max_waypoints=3).count("window") == 1
+
+
+SPELLINGS = ["self_check", "self_check_variant", "full-noconstraints", "Full", "waypoints_system"]
+
+
+@pytest.mark.parametrize("spelling", SPELLINGS)
+def test_stepwise_prompt_has_one_name_per_variant(spelling: str) -> None:
+    """Another spelling of a variant is refused with the names, at the CLI: one line, exit 2, no run folder."""
+    from typer.testing import CliRunner
+
+    from llmnav.cli import app
+
+    res = CliRunner().invoke(app, ["drive", "--planner", "stepwise", "--task-id", "T1", "--prompt", spelling,
+                                   "--backend", "policy:first", "--out", "/nonexistent/never"])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and f"unknown prompt variant '{spelling}'" in lines[0]
+    assert ", ".join(prompting.stepwise_variants()) in lines[0]
+
+
+def test_every_variant_name_is_accepted() -> None:
+    from llmnav.planners.base import drive_options
+
+    for name in prompting.stepwise_variants():
+        assert drive_options("stepwise", prompt=name).prompt == name  # type: ignore[attr-defined]

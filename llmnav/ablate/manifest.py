@@ -55,11 +55,12 @@ class ManifestEntry:
     score: float | None = None
     error: str | None = None
     kept: list[str] = field(default_factory=list)  # earlier folders of this episode, kept: "dir: why"
+    cost_usd: float | None = None  # [USD] the run's model calls (None: unknown or not run)
 
     def reset(self, dir_name: str) -> None:
         """Pending, to be run into `dir_name`."""
         self.dir, self.status, self.error = dir_name, "pending", None
-        self.summary = self.outcome = self.success = self.score = None
+        self.summary = self.outcome = self.success = self.score = self.cost_usd = None
 
     def record(self, summary: dict[str, Any]) -> None:
         """Settle with the episode's summary: done, or an error when the run was aborted."""
@@ -67,6 +68,8 @@ class ManifestEntry:
         self.outcome = summary.get("outcome")
         self.success = bool(summary.get("success"))
         self.score = summary.get("score")
+        cost = summary.get("cost_usd", 0.0)  # summaries written before costs: runs of free backends then
+        self.cost_usd = float(cost) if isinstance(cost, (int, float)) else None
         if is_result(summary):
             self.status, self.error = "done", None
         else:

@@ -85,9 +85,10 @@ def forwarded_env(environ: dict[str, str] | None = None) -> dict[str, str]:
 
 def model_threads(backend: str, environ: dict[str, str] | None = None) -> int:
     """CPUs one task reserves: its local model's threads ($LLMNAV_LOCAL_THREADS, default 1), else 1."""
+    from llmnav.backends.base import parse_spec
     from llmnav.backends.local import THREADS_ENV
 
-    if backend.split(":", 1)[0].strip().lower() != "local":
+    if parse_spec(backend)[0] != "local":
         return 1
     value = (os.environ if environ is None else environ).get(THREADS_ENV, "")
     return int(value) if value.isdigit() and int(value) > 0 else 1

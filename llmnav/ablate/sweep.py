@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from llmnav.ablate.budget import Budget
 from llmnav.ablate.executors import Runner, default_runner, execute_episode, run_pool
 from llmnav.ablate.grid import Episode, GridSpec
 from llmnav.ablate.layout import Layout, choose
@@ -32,6 +33,9 @@ def run(
     on_layout: Callable[[Layout], None] | None = None,
     on_start: Callable[[int, int, int], None] | None = None,
     on_result: ProgressCallback | None = None,
+    cache_dir: Path | None = None,
+    prices: Path | None = None,
+    budget: Budget | None = None,
 ) -> Ablation:
     """Run every unfinished episode; the manifest is rewritten after each one.
 
@@ -42,6 +46,8 @@ def run(
     `llmnav.ablate.layout`); `on_layout(layout)` is told the one taken before any episode runs.
     `on_start(total, already_done, successes)` is called once before any episode runs, `on_result` after
     each. `runner` (default `llmnav.runner.run_episode`) must be picklable for `workers > 1` and Ray.
+    `cache_dir` and `prices` go to every episode (`EpisodeSpec`); `budget` refuses a sweep estimated above
+    its limit and stops one that reaches it (`llmnav.ablate.budget`).
     """
     default = runner is None
     runner = runner or default_runner()
@@ -50,7 +56,9 @@ def run(
     # One sweep per folder: a second process (same grid or not) stops here with the holder's pid.
     with FolderLock(root, "ablation folder"):
         check_out_folder(root, ablation)  # again: another sweep may have written it while we waited
-        settings = _Settings(workers, ray_address, plots, layout, default, on_layout, on_start, on_result)
+        settings = _Settings(
+            workers, ray_address, plots, layout, default, on_layout, on_start, on_result, cache_dir, prices, budget
+        )
         _run_locked(ablation, runner, settings)
     return ablation
 
@@ -67,6 +75,9 @@ class _Settings:
     on_layout: Callable[[Layout], None] | None
     on_start: Callable[[int, int, int], None] | None
     on_result: ProgressCallback | None
+    cache_dir: Path | None = None
+    prices: Path | None = None
+    budget: Budget | None = None
 
 
 def check_out_folder(root: Path, ablation: Ablation) -> None:
@@ -124,6 +135,7 @@ def _run_locked(ablation: Ablation, runner: Runner, settings: _Settings) -> None
     root = ablation.root
     pending: list[tuple[Episode, str]] = []
     ablation.kept = []
+    located = []
     for ep in ablation.episodes:
         entry = ablation.entries[ep.key]
         found = locate(ep, root)
@@ -133,8 +145,13 @@ def _run_locked(ablation: Ablation, runner: Runner, settings: _Settings) -> None
             entry.dir = found.dir_name
             entry.record(found.summary)
             continue
+        located.append((ep, found))
+    budget = settings.budget
+    if budget is not None:  # refused before any folder is set aside or the manifest rewritten
+        budget.check_start([ep for ep, _ in located], ablation)
+    for ep, found in located:
         set_aside(root, found.kept, ep.key, found.dir_name)
-        entry.reset(found.dir_name)
+        ablation.entries[ep.key].reset(found.dir_name)
         pending.append((ep, found.dir_name))
     workers = settings.workers if len(pending) > 1 else 1
     layout = choose(
@@ -164,10 +181,17 @@ def _run_locked(ablation: Ablation, runner: Runner, settings: _Settings) -> None
             settings.on_result(entry, ablation)
         if fatal:
             raise BadInputError(f"episode {ep.key}: {error}")
+        settled.add(ep.key)
+        why = budget.add(summary) if budget is not None else None
+        if why is not None and budget is not None and len(settled) < len(specs):
+            raise budget.stop(why, len(specs) - len(settled))
 
+    extra = {"cache_dir": settings.cache_dir, "prices": settings.prices}
     specs = [
-        (ep, ep.spec(root, ablation.grid.scenario, plots=settings.plots, dir_name=name)) for ep, name in pending
+        (ep, ep.spec(root, ablation.grid.scenario, plots=settings.plots, dir_name=name).model_copy(update=extra))
+        for ep, name in pending
     ]
+    settled: set[str] = set()
     if settings.ray_address is not None:
         from llmnav.ablate.ray_tasks import run_ray
 

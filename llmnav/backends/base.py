@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 from llmnav import plugins
 from llmnav.chat import (
@@ -126,6 +126,30 @@ class Backend(ABC):
         """The spec string that recreates this backend (never contains secrets)."""
         return f"{self.name}:{self.arg}" if self.arg else self.name
 
+    def billing(self) -> dict[str, Any]:
+        """Who bills this backend's calls, for the run's configuration line (`llmnav.backends.prices`).
+
+        {"free": why} or {"provider": backend name, "model": name}; a plugin llmnav does not know is
+        {"unknown": why}, so its runs cost "unknown", never 0.
+        """
+        from llmnav.backends.prices import FREE_BACKENDS
+
+        if self.name in FREE_BACKENDS:
+            return {"free": f"{self.name} backend"}
+        return {"unknown": f"{self.name}: a backend llmnav has no prices for"}
+
+    def use_cache(self, cache: Any) -> bool:
+        """Serve repeated requests from a reply cache (`llmnav.backends.cache.ReplyCache`); False: not cached.
+
+        Only backends that pay per request over HTTP cache; the others compute (or replay) every answer.
+        """
+        return False
+
+    @property
+    def caching(self) -> bool:
+        """Whether this backend's requests go through a reply cache."""
+        return getattr(self, "reply_cache", None) is not None
+
     def close(self) -> None:  # noqa: B027 - optional hook, most backends hold nothing
         """Release connections or model memory."""
 
@@ -185,6 +209,19 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
     """Split `NAME[:ARG]` into name and argument."""
     name, _, arg = spec.strip().partition(":")
     return name.lower(), (arg or None)
+
+
+Answerer = Literal["model", "policy", "oracle"]
+POLICY_BACKEND = "policy"  # null policies and oracle answers: no model behind them
+ORACLE_POLICY = "oracle"  # the policy that answers from the ground truth: a ceiling, not a floor
+
+
+def answerer(spec: str) -> Answerer:
+    """Who answers under a backend spec: a model, a null policy, or oracle answers (`policy:oracle[:...]`)."""
+    name, arg = parse_spec(spec)
+    if name != POLICY_BACKEND:
+        return "model"
+    return "oracle" if (arg or "").strip().lower().partition(":")[0] == ORACLE_POLICY else "policy"
 
 
 def backend_class(spec: str) -> tuple[type[Backend], str | None]:

@@ -225,7 +225,7 @@ class GeminiBackend(HttpBackend):
             model=text_or_none(data.get("modelVersion"), "gemini: reply's modelVersion") or str(self.arg),
             prompt_tokens=prompt_tokens,
             completion_tokens=completion_tokens,
-            meta={"attempts": reply.attempts, "finish_reason": finish},
+            meta={"attempts": reply.attempts, "cache": reply.cache, "finish_reason": finish},
         )
 
     @classmethod

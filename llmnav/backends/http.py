@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
+from llmnav.backends.cache import CacheState, ReplyCache
 from llmnav.errors import (
     BackendSpecError,
     ImagesRejectedError,
@@ -73,6 +74,10 @@ _IMAGES_REJECTED = re.compile(
     r"image input|does not support (?:images?|vision|multimodal)|not a multimodal|mmproj|vision is not",
     re.IGNORECASE,
 )
+
+# How servers say the model a request names is not theirs: OpenAI and `llmnav serve` ("The model `x`
+# does not exist"), vLLM ("The model `x` does not exist."), Ollama ("model 'x' not found").
+_MODEL_NOT_FOUND = re.compile(r"model\b.{0,200}\b(?:does not exist|not found)|model_not_found", re.IGNORECASE)
 
 IMAGES_CHECK = "accepts images"  # the probe a run needs only when its sensing includes the image
 
@@ -250,7 +255,8 @@ class HttpReply:
     data: dict[str, Any]
     status: int
     attempts: int
-    elapsed_s: float  # [s] wall time, retries and waits included
+    elapsed_s: float  # [s] wall time, retries and waits included (a cache hit: the original request's)
+    cache: CacheState = "off"  # served from the reply cache ("hit"), stored in it ("miss"), or no cache
 
 
 class JsonHttpClient:
@@ -277,6 +283,7 @@ class JsonHttpClient:
         self._lock = threading.Lock()
         timeout = httpx.Timeout(options.timeout_s, connect=options.connect_timeout_s)
         self._client = httpx.Client(timeout=timeout, headers=headers or {}, trust_env=False)
+        self.cache: ReplyCache | None = None  # POST replies are looked up and stored here when set
 
     def __repr__(self) -> str:
         return f"<JsonHttpClient {self.label} {self.redact(self.base_url)}>"
@@ -307,11 +314,32 @@ class JsonHttpClient:
         timeout_s: float | None = None,
         retries: bool = True,
     ) -> HttpReply:
-        """Send one request, retrying transient failures.
+        """Send one request, retrying transient failures; a POST goes through the reply cache when set.
 
         The ModelError is raised outside any `except` block, so no httpx exception (which may hold
         headers) rides along as its context.
         """
+        if self.cache is None or method != "POST" or body is None:
+            return self._request(method, path, body, timeout_s=timeout_s, retries=retries)
+        key = self.cache.key(self.label, self.base_url, path, body)
+        found = self.cache.get(key)
+        if found is not None:
+            return HttpReply(found.data, 200, 0, found.elapsed_s, "hit")
+        reply = self._request(method, path, body, timeout_s=timeout_s, retries=retries)
+        self.cache.put(key, reply.data, reply.elapsed_s, self._secrets)
+        reply.cache = "miss"
+        return reply
+
+    def _request(
+        self,
+        method: str,
+        path: str,
+        body: dict[str, Any] | None,
+        *,
+        timeout_s: float | None,
+        retries: bool,
+    ) -> HttpReply:
+        """`request` without the cache."""
         import httpx
 
         url = f"{self.base_url}{path}"
@@ -403,9 +431,7 @@ class JsonHttpClient:
                 if time.perf_counter() > deadline:
                     raise httpx.ReadTimeout("reply not complete in time", request=response.request)
                 if size > MAX_REPLY_BYTES:  # a reply is kilobytes; a server sending without end is broken
-                    raise httpx.RemoteProtocolError(
-                        f"reply over {MAX_REPLY_BYTES >> 20} MB", request=response.request
-                    )
+                    raise httpx.RemoteProtocolError(f"reply over {MAX_REPLY_BYTES >> 20} MB", request=response.request)
             response._content = b"".join(chunks)  # what Response.read() would store
         return response
 
@@ -510,8 +536,11 @@ class ChatPost:
     images_dropped: int = 0
 
     def meta(self) -> dict[str, Any]:
-        """What the run log records about the call (`images_dropped` only when images were dropped)."""
-        meta: dict[str, Any] = {"attempts": self.reply.attempts}
+        """What the run log records about the call (`images_dropped` only when images were dropped).
+
+        `cache` is lifted out of the reply's meta into the `llm_call` event (`llmnav.observe`).
+        """
+        meta: dict[str, Any] = {"attempts": self.reply.attempts, "cache": self.reply.cache}
         if self.images_dropped:
             meta["images_dropped"] = self.images_dropped
         return meta
@@ -549,6 +578,7 @@ class HttpBackend(Backend):
         self.drop_images = self.settings.drop_images
         self._client: JsonHttpClient | None = None
         self._client_lock = threading.Lock()  # the FSM assist may call chat from a worker thread
+        self.reply_cache: ReplyCache | None = None  # `use_cache`
 
     def _make_client(self) -> JsonHttpClient:
         """Build this backend's client (base URL, auth headers, secrets to redact)."""
@@ -576,6 +606,12 @@ class HttpBackend(Backend):
         try:
             return ChatPost(self.client.post(self.chat_path, self.build_body(request)))
         except HttpStatusError as err:
+            if err.status == 404 and _MODEL_NOT_FOUND.search(err.reason):  # a name in the spec: bad input
+                where = self.client.redact(self.client.base_url)
+                raise BackendSpecError(
+                    f"{self.name}: the server at {where} does not serve '{self.model_name}' "
+                    f"({one_line(err.reason, 160)}); name one it serves in --backend"
+                ) from None
             if not images or not images_rejected(err.reason):
                 raise
             with _TEXT_ONLY_LOCK:
@@ -603,7 +639,26 @@ class HttpBackend(Backend):
         with self._client_lock:
             if self._client is None:
                 self._client = self._make_client()
+                self._client.cache = self.reply_cache
             return self._client
+
+    def billing(self) -> dict[str, Any]:
+        """The provider (this backend's name), the model, and whether the server is local.
+
+        `local`: on this machine or a private network, where an unlisted model costs 0 (a listed one is
+        charged: a proxy on this machine may forward to a paid API).
+        """
+        from llmnav.backends.prices import local_server
+
+        return {"provider": self.name, "model": self.model_name, "local": local_server(self.client.base_url)}
+
+    def use_cache(self, cache: ReplyCache) -> bool:
+        """Look every POST up in `cache` first and store what the server answers (`--cache DIR`)."""
+        self.reply_cache = cache
+        with self._client_lock:
+            if self._client is not None:
+                self._client.cache = cache
+        return True
 
     def listed_models(self, data: dict[str, Any]) -> list[str]:
         """The model names in the server's reply to `models_path`."""

@@ -23,11 +23,10 @@ from llmnav.backends.base import (
     ChatRequest,
     ChatResult,
     Check,
-    ContinuationScore,
     ScoreRequest,
     ScoreResult,
 )
-from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request
+from llmnav.backends.forced import normalised, score_continuation
 from llmnav.backends.http import (
     HttpBackend,
     HttpOptions,
@@ -114,6 +113,7 @@ class OpenAIBackend(HttpBackend):
             root = self.base_url.removesuffix("/v1")
             headers, secrets = bearer(self.__key)
             self._root = JsonHttpClient(self.name, root, self.settings, headers=headers, secrets=secrets)
+            self._root.cache = self.reply_cache
         return self._root
 
     def _tokenize(self, text: str) -> list[int]:
@@ -155,15 +155,24 @@ class OpenAIBackend(HttpBackend):
         if not self.can_score:
             where = self.client.redact(self.base_url)
             raise ModelError(f"{self.spec.split('@')[0]} at {where} cannot score continuations")
-        prefix = self._tokenize(request.prefix)
-        scores: list[ContinuationScore] = []
         elapsed = 0.0
-        for text in request.continuations:
-            tail = continuation_tokens(prefix, self._tokenize(request.prefix + text), text)
-            reply = self.client.post("/completions", {"model": self.model, **forced_request(prefix, tail)})
+        states: set[str] = set()
+
+        def complete(body: dict[str, Any]) -> dict[str, Any]:
+            nonlocal elapsed
+            reply = self.client.post("/completions", {"model": self.model, **body})
             elapsed += reply.elapsed_s
-            scores.append(ContinuationScore(forced_logprob(reply.data, tail, text), len(tail)))
-        return ScoreResult(tuple(scores), elapsed, self.model, {"mode": "score", "prefix_tokens": len(prefix)})
+            states.add(reply.cache)
+            return reply.data
+
+        scores = tuple(
+            score_continuation(request.prefix, text, self._tokenize, complete) for text in request.continuations
+        )
+        # the call is a hit only when every continuation's reply came from the cache
+        cache = "off" if not self.caching else ("hit" if states == {"hit"} else "miss")
+        prefix_tokens = len(self._tokenize(normalised(request.prefix)))
+        meta = {"mode": "score", "prefix_tokens": prefix_tokens, "cache": cache}
+        return ScoreResult(scores, elapsed, self.model, meta)
 
     def check_server(self) -> list[Check]:
         """The shared probes, then whether the server scores continuations."""

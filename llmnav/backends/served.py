@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from llmnav.backends.local import LlamaCppEngine
+from llmnav.backends.llamacpp import LlamaCppEngine
 from llmnav.errors import ModelError, one_line
 
 SERVER_ENV = "LLMNAV_LOCAL_SERVER"

@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 import numpy as np
 
 from llmnav.baselines.drive import (
+    Belief,
     Drive,
     drive_planned,
     drive_waypoints,
@@ -52,7 +53,6 @@ from llmnav.mapping.astar import astar, densify, shortcut
 from llmnav.mapping.frontiers import frontier_clusters, goal_cells, sensed_grid
 from llmnav.mapping.grid import (
     GridConfig,
-    GridGeometry,
     LidarMap,
     OccupancyGrid,
     margins_from,
@@ -102,8 +102,10 @@ class _Explorer:
         self.config = config
         self.world = ctx.world
         self.robot = ctx.world.robot
-        self.geometry = GridGeometry.from_bounds(ctx.scenario.bounds, config.grid.resolution_m)
-        self.map = LidarMap(self.geometry)
+        self.belief = Belief(ctx, mapping=True, resolution_m=config.grid.resolution_m)
+        assert self.belief.map is not None  # asked for above
+        self.map = self.belief.map
+        self.geometry = self.map.geometry
         self.visited = np.zeros(self.geometry.shape, dtype=bool)
         self.inflation_m = self.robot.spec.radius_m + config.grid.margin_m  # [m]
         self.drive = Drive()
@@ -113,10 +115,8 @@ class _Explorer:
 
     # --- sensing ------------------------------------------------------------------------------
     def scan_now(self) -> None:
-        """Take one scan at the current pose and add it to the map, with what the low scanner hits."""
-        pose = self.robot.pose()
-        self.map.integrate(pose, self.world.lidar.scan())
-        self.map.mark_hits(pose, self.world.low_lidar.scan())
+        """One scan into the map at the believed pose (localized first, sensed), with the low scanner's."""
+        self.belief.sense()
 
     def detect(self) -> _Found | None:
         """An acceptable target in view (camera), or a point target already seen free in the map."""
@@ -129,7 +129,7 @@ class _Explorer:
                     object=detection.object_id,
                     distance_m=round(detection.distance_m, 3),
                     bearing_deg=round(detection.bearing_deg, 2),
-                    pose=self.robot.pose().as_list(),
+                    pose=self.belief.pose().as_list(),
                 )
                 return _Found(target, "camera")
         for target in self.ctx.task.targets:
@@ -200,7 +200,7 @@ class _Explorer:
         return None
 
     def _frontier_path(self, grid: OccupancyGrid) -> tuple[Point, list[Point]] | None:
-        pose = self.robot.pose()
+        pose = self.belief.pose()
         blocked = grid.blocked
         goals = self.frontier_goals(grid, pose)
         if not goals.any():
@@ -220,12 +220,17 @@ class _Explorer:
     def bump_recovery(self) -> None:
         """After touching something the LiDAR missed (lower than its mount): map it, then back off."""
         self.bumps += 1
-        pose = self.robot.pose()
+        pose = self.belief.pose()
         contacts = self.robot.contact_points()
         if contacts:  # the contact normal points from the obstacle at the robot
             _body, nx, ny, _dist = contacts[0]
             norm = math.hypot(nx, ny) or 1.0
             ux, uy = -nx / norm, -ny / norm
+            if self.belief.localizer is not None:
+                # The bumper senses the direction in the body frame (the simulator gives it in the world's):
+                # carried into the believed frame through the body.
+                turn = pose.yaw - self.robot.pose().yaw
+                ux, uy = ux * math.cos(turn) - uy * math.sin(turn), ux * math.sin(turn) + uy * math.cos(turn)
         else:
             ux, uy = math.cos(pose.yaw), math.sin(pose.yaw)
         reach = self.robot.spec.radius_m + self.config.bump_mark_radius_m
@@ -241,7 +246,7 @@ class _Explorer:
         """Drive towards a frontier; after each waypoint add a scan to the map and look for targets."""
         tol = self.config.oracle.waypoint_tol_m
         for waypoint in waypoints:
-            drive_waypoints(self.ctx, [waypoint], self.drive, tol_m=tol, final_tol_m=tol)
+            drive_waypoints(self.ctx, [waypoint], self.drive, self.belief, tol_m=tol, final_tol_m=tol)
             result = self.drive.last
             assert result is not None
             if result.collided:
@@ -325,11 +330,11 @@ class _Explorer:
 
         self.drive.last = None
         oracle = replace(self.config.oracle, grid=self.config.grid)  # the final leg plans on the explorer's grid rules
-        path = drive_planned(ctx, scenario, [found.target], oracle, self.drive, on_path=on_path)
+        path = drive_planned(ctx, scenario, [found.target], oracle, self.drive, self.belief, on_path=on_path)
         if path is None:
             return self.fail(f"target {found.target.object or found.target.point} detected but unreachable")
         if self.drive.ok:
-            face_point(ctx, path.target_point, self.drive)
+            face_point(ctx, path.target_point, self.drive, self.belief)
         if not self.drive.ok:
             return self.fail(failure_reason(self.drive.last), path.length_m)
         return EpisodeOutcome(
@@ -346,8 +351,10 @@ class FrontierPlanner(Planner):
 
     name: ClassVar[str] = "frontier"
     needs_backend: ClassVar[bool] = False
-    # explores its own map, then takes the true grid's path to the target
-    information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
+    # explores its own map, then takes the true grid's path to the target; sensed, its pose is odometry
+    # corrected by scan matching (the true map stays its final leg's)
+    information_modes: ClassVar[tuple[Information, ...]] = ("oracle", "sensed")
+    knows_map: ClassVar[bool] = True
     # Explores with no map and no model: the path table shows every other run's length against its own.
     declares: ClassVar[Declarations] = Declarations(reference_path=ReferencePath("frontier", "Frontier"))
 

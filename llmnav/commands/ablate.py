@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from llmnav.commands.common import cli_errors, console, err_console, esc, parse_option_pairs, path_option
+from llmnav.commands.common import cli_errors, console, err_console, esc, parse_option_pairs, path_option, print_table
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -95,6 +95,29 @@ def ablate(
     drop_images: Annotated[
         bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
     ] = False,
+    cache: Annotated[
+        str | None,
+        typer.Option("--cache", help="Reply cache folder for HTTP backends: a repeated request is not sent again."),
+    ] = None,
+    prices: Annotated[
+        str | None,
+        typer.Option("--prices", help="Price table (TOML) for cost_usd; default $LLMNAV_PRICES, else the bundled one."),
+    ] = None,
+    max_cost: Annotated[
+        float | None,
+        typer.Option(
+            "--max-cost",
+            help="US dollars: refuse a sweep estimated above this, stop one that reaches it (resumable).",
+        ),
+    ] = None,
+    episode_tokens: Annotated[
+        str | None,
+        typer.Option(
+            "--episode-tokens",
+            help="PROMPT,COMPLETION tokens one episode is assumed to use, for --max-cost's estimate "
+            "(default: the mean cost of the episodes already finished).",
+        ),
+    ] = None,
     plots: Annotated[
         bool, typer.Option("--plots", help="Write each run's trajectory.png (slower; off by default).")
     ] = False,
@@ -155,6 +178,9 @@ def ablate(
     if model_layout not in lib.LAYOUTS:
         raise BadInputError(f"--model-layout {model_layout!r}: choose one of {', '.join(lib.LAYOUTS)}")
     workers = _usable_workers(workers)
+    cache_dir = _absolute(path_option(cache, "--cache"))
+    prices_file = _absolute(path_option(prices, "--prices"))
+    budget = _budget(max_cost, episode_tokens, prices_file)
     for ablation in ablations:
         with _progress() as progress:
             lib.run(
@@ -166,6 +192,9 @@ def ablate(
                 on_layout=_say_layout,
                 on_start=lambda *_, ab=ablation: progress.start(ab),
                 on_result=progress.advance,
+                cache_dir=cache_dir,
+                prices=prices_file,
+                budget=budget,
             )
         _print_results(ablation)
         if export == "mcap":
@@ -184,6 +213,20 @@ def ablate(
     errors = ablation.counts()[2]
     if errors:  # a sweep with failed episodes is not a clean result, whatever the tables show
         raise typer.Exit(EXIT_EPISODE_ERRORS)
+
+
+def _budget(max_cost: float | None, episode_tokens: str | None, prices: Path | None) -> Any:
+    """The sweep's `Budget` for `--max-cost` (None without it); the price table is read and checked here."""
+    from llmnav.ablate.budget import Budget, check_limit, parse_episode_tokens
+    from llmnav.backends.prices import load_prices
+
+    table = load_prices(prices)  # a bad price file is refused before any episode, with or without a limit
+    if max_cost is None:
+        if episode_tokens is not None:
+            raise BadInputError("--episode-tokens only applies with --max-cost")
+        return None
+    tokens = parse_episode_tokens(episode_tokens) if episode_tokens is not None else None
+    return Budget(check_limit(max_cost), table, tokens)
 
 
 def _print_suite(ablations: list[Ablation]) -> None:
@@ -239,7 +282,7 @@ def _print_plan(ablation: Ablation) -> None:
         table.add_column(column)
     for row in describe_episodes(ablation.episodes):
         table.add_row(*(esc(cell) for cell in row))
-    console.print(table)
+    print_table(table)
     factors = ablation.grid.factors()
     detail = ", ".join(f"{k}: {len(v)}" for k, v in factors.items()) or "no factors"
     console.print(esc(f"{ablation.size} episodes ({detail}; trials: {ablation.grid.trials})"), highlight=False)
@@ -288,6 +331,19 @@ class _progress:
         self.bar.update(self.task_id, advance=1, finished=done, successes=successes, errors=errors)
 
 
+def _absolute(path: Path | None) -> Path | None:
+    """A path the workers (and Ray tasks, which may start elsewhere) find as this process does."""
+    return path.absolute() if path is not None else None
+
+
+def _cost_line(ablation: Ablation) -> str:
+    """", cost 0.0123 USD" over the finished episodes (", cost unknown for N" when some have none)."""
+    done = [e for e in ablation.entries.values() if e.status == "done"]
+    unknown = sum(1 for e in done if e.cost_usd is None)
+    total = sum(e.cost_usd or 0.0 for e in done)
+    return f", cost {total:.4f} USD" + (f" (+ unknown for {unknown} episode(s))" if unknown else "")
+
+
 def _print_results(ablation: Ablation) -> None:
     from llmnav.ablate import results_runs, table_keys
     from llmnav.reporting.tables import print_tables
@@ -298,7 +354,7 @@ def _print_results(ablation: Ablation) -> None:
     if runs:
         print_tables(console, build_tables(runs, table_keys(ablation)))
     console.print(
-        f"{len(runs)}/{ablation.size} episodes done, {len(errors)} error(s); "
+        f"{len(runs)}/{ablation.size} episodes done, {len(errors)} error(s){_cost_line(ablation)}; "
         f"manifest: {esc(ablation.root / 'manifest.json')}",
         highlight=False,
         soft_wrap=True,

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console, esc, parse_sensing
+from llmnav.commands.common import cli_errors, console, esc, listing_format, parse_sensing, print_listing
 from llmnav.errors import BadInputError
 
 GROUP = "llmnav.backends"
@@ -24,6 +24,17 @@ class BackendRow:
     example: str
     ready: bool | None  # None: the backend could not even be loaded
     detail: str
+
+    def record(self) -> dict[str, str | bool | None]:
+        """The row as data (`--format json|tsv`); `ready` is null for a backend that could not be loaded."""
+        return {
+            "name": self.name,
+            "ready": self.ready,
+            "broken": self.ready is None,
+            "spec_example": self.example,
+            "detail": self.detail,
+            "description": self.description,
+        }
 
 
 def _first_line(err: BaseException) -> str:
@@ -84,11 +95,15 @@ def backends(
             help="With --check: judge only what a run with this sensing needs (lidar alone needs no images).",
         ),
     ] = None,
+    output_format: Annotated[
+        str, typer.Option("--format", help="table | tsv | json (tsv and json: only data on stdout).")
+    ] = "table",
 ) -> None:
     """List the model backends, a spec example for each, and whether each is ready to use now."""
+    output_format = listing_format(output_format)
     senses = _senses(sensing) if sensing is not None else None
     if check is not None:
-        raise typer.Exit(_check(check, senses))
+        raise typer.Exit(_check(check, senses, output_format))
     if senses is not None:
         raise BadInputError("--sensing goes with --check SPEC")
     table = Table(title="llmnav backends", title_justify="left")
@@ -97,11 +112,12 @@ def backends(
     table.add_column("spec example", style="cyan", no_wrap=True)
     table.add_column("detail")
     table.add_column("description", style="dim")
-    for row in collect_rows():
+    rows = collect_rows()
+    for row in rows:
         mark = {True: "[green]yes[/]", False: "[yellow]no[/]", None: "[red]broken[/]"}[row.ready]
         # esc, not rich's escape alone: a detail may quote a server (model names with ESC sequences)
         table.add_row(esc(row.name), mark, esc(row.example), esc(row.detail), esc(row.description))
-    console.print(table)
+    print_listing(output_format, [row.record() for row in rows], table)
 
 
 def _senses(text: str) -> tuple[str, ...]:
@@ -112,11 +128,12 @@ def _senses(text: str) -> tuple[str, ...]:
     return senses
 
 
-def _check(spec: str, senses: tuple[str, ...] | None = None) -> int:
+def _check(spec: str, senses: tuple[str, ...] | None = None, output_format: str = "table") -> int:
     """Print one line per check of `spec`; 0 when all passed, 1 otherwise (unknown spec: exit 2).
 
     With `senses`, a check the run does not need (images, when the sensing has no image) is shown with
-    its result but marked "not needed" and does not fail.
+    its result but marked "not needed" and does not fail. `json`/`tsv`: one record per check, `ok` null
+    for one not needed.
     """
     from llmnav.backends.base import Check, backend_class
     from llmnav.backends.http import IMAGES_CHECK
@@ -130,7 +147,12 @@ def _check(spec: str, senses: tuple[str, ...] | None = None) -> int:
             else c
             for c in checks
         ]
+    passed = 0 if all(item.ok is not False for item in checks) else 1
+    if output_format != "table":
+        records = [{"check": item.name, "ok": item.ok, "detail": item.detail} for item in checks]
+        print_listing(output_format, records, None)
+        return passed
     for item in checks:
         mark = {True: "[green]ok[/]  ", False: "[red]no[/]  ", None: "[dim]–[/]   "}[item.ok]
         console.print(f"{mark}{esc(item.name)}: {esc(item.detail)}", highlight=False, soft_wrap=True)
-    return 0 if all(item.ok is not False for item in checks) else 1
+    return passed

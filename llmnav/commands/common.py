@@ -13,16 +13,17 @@ from __future__ import annotations
 import errno
 import functools
 import io
+import json
 import os
 import sys
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import ParamSpec, TypeVar
+from typing import Any, ParamSpec, TypeVar
 
 import typer
 from rich.console import Console
 
-from llmnav.errors import BadInputError, LlmnavError, one_line
+from llmnav.errors import BadInputError, LlmnavError, one_line, printable
 from llmnav.reporting.safe import esc
 
 __all__ = [
@@ -34,6 +35,9 @@ __all__ = [
     "err_console",
     "esc",
     "fail",
+    "listing_format",
+    "print_listing",
+    "print_table",
     "parse_option_pairs",
     "path_option",
     "plot_option",
@@ -138,6 +142,50 @@ def print_data(text: str) -> None:
     """Machine-readable output (JSON, CSV): written as is, a newline added, never wrapped or styled."""
     stdout.write(text if text.endswith("\n") else text + "\n")
     stdout.flush()
+
+
+LISTING_FORMATS = ("table", "tsv", "json")
+
+
+def listing_format(text: str) -> str:
+    """A listing's `--format`, checked before any work."""
+    if text not in LISTING_FORMATS:
+        raise BadInputError(f"--format {text!r}: expected {', '.join(LISTING_FORMATS[:-1])} or {LISTING_FORMATS[-1]}")
+    return text
+
+
+def _tsv_cell(value: Any) -> str:
+    """One TSV cell: lists joined by commas, None empty, tabs and line breaks made spaces (one line a row)."""
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, list | tuple):
+        return ",".join(_tsv_cell(v) for v in value)
+    return " ".join(printable(str(value)).replace("\t", " ").splitlines())
+
+
+def print_listing(output_format: str, records: Sequence[Mapping[str, Any]], table: Any) -> None:
+    """A listing on stdout: `table` (rich, never cut when piped), or only data as `json` or `tsv`.
+
+    `tsv` is a header line of the records' keys and one line per record, for `cut`, `awk` and `grep`.
+    """
+    if output_format == "json":
+        print_data(json.dumps(list(records), indent=2))
+    elif output_format == "tsv":
+        columns = list(dict.fromkeys(key for record in records for key in record))
+        lines = ["\t".join(columns)]
+        lines += ["\t".join(_tsv_cell(record.get(column)) for column in columns) for record in records]
+        print_data("\n".join(lines))
+    else:
+        print_table(table)
+
+
+def print_table(table: Any) -> None:
+    """A rich table on stdout: fitted to a terminal, at its full width in a pipe or file (never cut)."""
+    from llmnav.reporting.tables import print_unsqueezed
+
+    print_unsqueezed(console, table)
 
 
 def path_option(text: str | None, flag: str) -> Path | None:

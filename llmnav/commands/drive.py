@@ -160,6 +160,14 @@ def drive(
     drop_images: Annotated[
         bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
     ] = False,
+    cache: Annotated[
+        str | None,
+        typer.Option("--cache", help="Reply cache folder for HTTP backends: a repeated request is not sent again."),
+    ] = None,
+    prices: Annotated[
+        str | None,
+        typer.Option("--prices", help="Price table (TOML) for cost_usd; default $LLMNAV_PRICES, else the bundled one."),
+    ] = None,
     record_hz: Annotated[
         float | None,
         typer.Option(
@@ -246,6 +254,8 @@ def drive(
         quiet=quiet or json_output,
         record_hz=record_hz if record_hz is not None or foxglove is None else 4.0,
         foxglove_port=foxglove,
+        cache_dir=path_option(cache, "--cache"),
+        prices=path_option(prices, "--prices"),
     )
     if foxglove is not None:
         err_console.print(f"Foxglove live view: ws://127.0.0.1:{foxglove}", highlight=False)

@@ -8,8 +8,8 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from llmnav.commands.common import cli_errors, console, esc, print_data
-from llmnav.errors import BadInputError, one_line
+from llmnav.commands.common import cli_errors, esc, listing_format, print_data, print_listing, print_table
+from llmnav.errors import one_line
 
 
 def _default(value: Any) -> str:
@@ -47,7 +47,9 @@ def describe(name: str) -> dict[str, Any]:
 @cli_errors
 def planners(
     name: Annotated[str | None, typer.Argument(help="Show this planner's options (default: list all).")] = None,
-    output_format: Annotated[str, typer.Option("--format", help="table | json")] = "table",
+    output_format: Annotated[
+        str, typer.Option("--format", help="table | tsv | json (tsv and json: only data on stdout).")
+    ] = "table",
 ) -> None:
     """List the registered planners, or one planner's options (what `drive -o KEY=VALUE` may set).
 
@@ -56,13 +58,15 @@ def planners(
     """
     from llmnav.planners.base import broken_planners, usable_planner_names
 
-    if output_format not in ("table", "json"):
-        raise BadInputError(f"--format {output_format!r}: expected table or json")
+    output_format = listing_format(output_format)
     described = [describe(n) for n in ([name] if name else usable_planner_names())]
     broken = broken_planners() if name is None else {}
     if output_format == "json":
         rows = described + [{"planner": n, "broken": reason} for n, reason in broken.items()]
         print_data(json.dumps(rows if name is None else described[0]))
+        return
+    if output_format == "tsv":
+        print_listing("tsv", _tsv_records(described, broken, listing=name is None), None)
         return
     if name is None:
         table = Table(title="Registered planners (llmnav.planners entry points)")
@@ -74,7 +78,7 @@ def planners(
             table.add_row(esc(d["planner"]), ", ".join(d["information"]), esc(own), oracle)
         for planner, reason in broken.items():
             table.add_row(esc(planner), "[red]broken[/]", esc(one_line(reason, 200)), "-")
-        console.print(table)
+        print_table(table)
         return
     d = described[0]
     table = Table(title=esc(f"{d['planner']}: options (-o KEY=VALUE); information: {', '.join(d['information'])}"))
@@ -82,4 +86,22 @@ def planners(
         table.add_column(column)
     for o in sorted(d["options"], key=lambda o: (not o["own"], o["key"])):
         table.add_row(esc(o["key"]) + ("" if o["own"] else " (shared)"), esc(o["default"]), esc(o["description"]))
-    console.print(table)
+    print_table(table)
+
+
+def _tsv_records(described: list[dict[str, Any]], broken: dict[str, str], *, listing: bool) -> list[dict[str, Any]]:
+    """A line per planner (the listing), or a line per option of the one planner asked for."""
+    if not listing:
+        return [{"planner": described[0]["planner"], **option} for option in described[0]["options"]]
+    rows: list[dict[str, Any]] = [
+        {
+            "planner": d["planner"],
+            "model": d["model"],
+            "information": d["information"],
+            "own_options": [o["key"] for o in d["options"] if o["own"]],
+            "oracle_answers": d["oracle_answers"],
+            "broken": "",
+        }
+        for d in described
+    ]
+    return rows + [{"planner": planner, "broken": one_line(reason, 200)} for planner, reason in broken.items()]

@@ -15,8 +15,11 @@ from llmnav.commands.common import (
     console,
     err_console,
     esc,
+    listing_format,
     path_option,
     plot_option,
+    print_listing,
+    print_table,
 )
 from llmnav.errors import BadInputError, one_line
 
@@ -48,22 +51,33 @@ def _targets(scenario: Scenario, task: Task) -> str:
     return ", ".join(parts) or "-"
 
 
+FORMAT_HELP = "table | tsv | json (tsv and json: only data on stdout)."
+
+
 @app.callback(invoke_without_command=True)
-def scenarios(ctx: typer.Context) -> None:
+@cli_errors
+def scenarios(
+    ctx: typer.Context,
+    output_format: Annotated[str, typer.Option("--format", help=FORMAT_HELP)] = "table",
+) -> None:
     """List the bundled scenarios (the default when no subcommand is given)."""
     if ctx.invoked_subcommand is None:
-        list_command()
+        list_command(output_format)
+    elif output_format != "table":
+        raise BadInputError(f"--format goes after the subcommand: scenarios {ctx.invoked_subcommand} --format ...")
 
 
 @app.command("list")
 @cli_errors
-def list_command() -> None:
+def list_command(output_format: Annotated[str, typer.Option("--format", help=FORMAT_HELP)] = "table") -> None:
     """Table of the bundled scenarios: name, robot, size, objects, tasks."""
+    output_format = listing_format(output_format)
     table = Table(title="Bundled scenarios")
     for column in ("name", "robot", "size", "objects", "tasks", "description"):
         table.add_column(column, justify="right" if column in ("objects", "tasks") else "left")
     from llmnav.scenario import list_scenarios, load_scenario
 
+    records = []
     for name in list_scenarios():
         scenario = load_scenario(name)
         table.add_row(
@@ -74,7 +88,17 @@ def list_command() -> None:
             str(len(scenario.tasks)),
             esc(scenario.description),
         )
-    console.print(table)
+        (x0, x1), (y0, y1) = scenario.bounds.x, scenario.bounds.y
+        records.append({
+            "name": name,
+            "robot": scenario.robot,
+            "width_m": round(x1 - x0, 3),
+            "depth_m": round(y1 - y0, 3),
+            "objects": len(scenario.objects),
+            "tasks": len(scenario.tasks),
+            "description": scenario.description,
+        })  # fmt: skip
+    print_listing(output_format, records, table)
 
 
 @app.command("show")
@@ -94,21 +118,23 @@ def show(
         try:
             chosen = scenario.task(task)
         except KeyError:
-            known = ", ".join(t.id for t in scenario.tasks) or "none"
+            known = ", ".join([t.id for t in scenario.tasks] + [r.id for r in scenario.routes]) or "none"
             raise BadInputError(f"scenario '{scenario.name}' has no task '{task}' (tasks: {known})") from None
     console.print(
         f"[bold]{esc(scenario.name)}[/] ({esc(scenario.robot)}, {_size(scenario)}, "
         f"{len(scenario.objects)} objects)" + (f": {esc(scenario.description)}" if scenario.description else ""),
         highlight=False,
+        soft_wrap=True,
     )
     table = Table()
     for column in ("id", "kind", "difficulty", "text", "targets"):
         table.add_column(column, no_wrap=column in ("id", "kind"))
     table.add_column("start poses x, y @ yaw", no_wrap=True)
-    for t in [chosen] if chosen is not None else scenario.tasks:
+    # routes (legs driven one after another, `--task-id ID`) are listed as the tasks they run as
+    for t in [chosen] if chosen is not None else [*scenario.tasks, *(r.as_task() for r in scenario.routes)]:
         starts = "\n".join(f"{s.x:g}, {s.y:g} @ {s.yaw_deg:g}°" for s in scenario.start_poses(t))
         table.add_row(esc(t.id), t.kind, t.difficulty, esc(t.text), esc(_targets(scenario, t)), starts)
-    console.print(table)
+    print_table(table)
     if plot_path is not None:
         from llmnav.reporting.topview import plot_scenario  # matplotlib only when a plot is asked for
 

@@ -15,6 +15,7 @@ from llmnav.errors import BadInputError
 from llmnav.safefiles import write_text
 
 if TYPE_CHECKING:
+    from llmnav.backends.prices import PriceTable
     from llmnav.score import Table
 
 
@@ -36,7 +37,10 @@ def score(
     ] = None,
     by: Annotated[
         str | None,
-        typer.Option("--by", help="Group by these condition keys (comma-separated); default: all that vary."),
+        typer.Option(
+            "--by",
+            help="Group by these condition keys or start_pose (comma-separated); default: all keys that vary.",
+        ),
     ] = None,
     fmt: Annotated[
         OutputFormat, typer.Option("--format", help="rich (terminal), md, csv (one table) or json.")
@@ -46,13 +50,17 @@ def score(
         typer.Option(
             "--table",
             help="Only this table: runs (one row per run, streamed), episodes, path, null_policies, ceiling, "
-            "wording, wording_spread, failures, aborted, "
-            "comparison, or one a planner declares (its name is in the JSON). CSV writes one table (default: "
-            "the first).",
+            "wording, wording_spread, failures, aborted, cost, comparison, one a planner declares (its name is in "
+            "the JSON), or a source paper's in its own layout: stepwise-1, stepwise-position, waypoints-legs, "
+            "fsm-compare, fsm-velocity (docs/paper-tables.md). CSV writes one table (default: the first).",
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the tables to this file.")] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="Write bar charts of score and success here.")] = None,
+    prices: Annotated[
+        Path | None,
+        typer.Option("--prices", help="Reprice every run's model calls with this price table (TOML) from its log."),
+    ] = None,
     success_radius: Annotated[
         float | None,
         typer.Option(
@@ -76,27 +84,35 @@ def score(
         split_aborted,
         varying_keys,
     )
+    from llmnav.score_papers import PAPER_TABLES, check_table_name, paper_table
 
+    if table is not None:
+        check_table_name(table)  # before any run is read: a typo costs nothing
     if out is not None:
         check_output_path(out, "--out", paths)
     chart_folder_option(plot)
     if success_radius is not None and not (math.isfinite(success_radius) and success_radius > 0):
         raise BadInputError(f"--success-radius {success_radius}: expected a distance in metres above 0")
+    from llmnav.backends.prices import load_prices
+
+    checked = load_prices(prices)  # a bad $LLMNAV_PRICES is one line here, not a skipped run per old summary
+    table_of_prices = checked if prices is not None else None
     if table == "runs":
         for flag, given in (("--compare", compare), ("--by", by), ("--plot", plot)):
             if given:
                 raise BadInputError(f"--table runs: {flag} does not apply (it lists every run, ungrouped)")
-        runs_table(paths, fmt, out, success_radius)
+        runs_table(paths, fmt, out, success_radius, table_of_prices)
         return
-    runs, broken = read_runs(paths, success_radius)
+    runs, broken = read_runs(paths, success_radius, table_of_prices)
     keys = varying_keys(runs) if by is None else parse_keys(by)
-    tables = build_tables(runs, keys)
     results, aborted = split_aborted(runs)
+    # a paper's table alone: llmnav's own tables are not built (their oracle paths cost time)
+    tables = [paper_table(table, results, keys)] if table in PAPER_TABLES else build_tables(runs, keys)
     if compare:
         if len(compare) != 2:
             raise BadInputError("--compare needs exactly two selections: --compare KEY=A --compare KEY=B")
         tables.append(compare_groups(results, compare[0], compare[1])[0])
-    if table is not None:
+    if table is not None and table not in PAPER_TABLES:
         tables = [select_table(tables, table)]
     elif fmt is OutputFormat.csv and tables:
         rest = ", ".join(t.name for t in tables[1:])
@@ -118,7 +134,7 @@ def score(
     if aborted:
         err_console.print(
             f"[yellow]left out of the means:[/] {len(aborted)} run(s) aborted by a backend or server failure "
-            "(table 'aborted' lists them per condition)",
+            "or a crash (table 'aborted' lists them per condition)",
             highlight=False,
             soft_wrap=True,
         )
@@ -126,14 +142,16 @@ def score(
     err_console.print(f"[dim]{len(runs)} run(s) read{f', {cut} cut short' if cut else ''}[/]", highlight=False)
 
 
-def runs_table(paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None) -> None:
+def runs_table(
+    paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None, prices: PriceTable | None
+) -> None:
     """`--table runs`: a row per run, streamed through a spool file (see `llmnav.score_runs`)."""
     import contextlib
 
     from llmnav.safefiles import atomic_text
     from llmnav.score_runs import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
 
-    spool = spool_rows(paths, success_radius)
+    spool = spool_rows(paths, success_radius, prices=prices)
     with spool.file, contextlib.ExitStack() as stack:
         if fmt is OutputFormat.rich and out is None and spool.count <= RICH_ROWS:
             _print_runs(spool, DISPLAY_COLUMNS)
@@ -183,13 +201,14 @@ def _short(value: object) -> str:
 def parse_keys(text: str) -> list[str]:
     """`--by lidar_sectors,prompt` → validated condition keys."""
     from llmnav.metrics import CONDITION_KEYS
-    from llmnav.score import is_option_key
+    from llmnav.score import START_POSE_KEY, is_option_key
 
     keys = [k.strip().replace("-", "_") for k in text.split(",") if k.strip()]
-    unknown = [k for k in keys if k not in CONDITION_KEYS and not is_option_key(k)]
+    unknown = [k for k in keys if k not in (*CONDITION_KEYS, START_POSE_KEY) and not is_option_key(k)]
     if unknown:
         raise BadInputError(
-            f"--by: unknown key '{unknown[0]}' (one of: {', '.join(CONDITION_KEYS)}, or any planner option)"
+            f"--by: unknown key '{unknown[0]}' (one of: {', '.join(CONDITION_KEYS)}, {START_POSE_KEY}, "
+            "or any planner option)"
         )
     return keys
 

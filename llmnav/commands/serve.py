@@ -40,7 +40,14 @@ def serve(
         str | None,
         typer.Option("--api-key", help="Key clients must send as a Bearer token (default $LLMNAV_API_KEY)."),
     ] = None,
-    alias: Annotated[str, typer.Option("--alias", help="Model name clients use.")] = "local",
+    aliases: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--alias",
+            metavar="NAME",
+            help="Another model name clients may use (repeatable); besides 'local', any other name gets 404.",
+        ),
+    ] = None,
     verbose: Annotated[bool, typer.Option("--verbose", help="Let llama.cpp log to stderr.")] = False,
 ) -> None:
     """Serve a model over HTTP (OpenAI-compatible) so runs and sweep workers can share one loaded copy."""
@@ -51,10 +58,13 @@ def serve(
 
     key = api_key or os.environ.get(KEY_VARIABLE, "").strip() or None
     host = check_host(host, key)  # before the model loads: an empty host, or one off loopback with no key
+    for name in aliases or ():
+        if not name.strip() or name != name.strip():
+            raise BadInputError(f"--alias {name!r}: give a model name, without spaces around it")
     try:
         options = ServeOptions(
             model=model, host=host, port=port, parallel=parallel, n_ctx=n_ctx, threads=threads, api_key=key,
-            alias=alias, verbose=verbose,
+            aliases=tuple(aliases or ()), verbose=verbose,
         )  # fmt: skip
     except ValidationError as err:
         raise BadInputError(f"--{validation_message(err)}") from None
@@ -65,9 +75,10 @@ def serve(
             signal.signal(signal.SIGTERM, _stop_on_sigterm)
         typer.echo(info.url)
         typer.echo(f"--backend {info.backend_spec}")
+        names = ", ".join((info.name, *info.aliases))
         err_console.print(
             f"serving {info.model_path.name} on {info.url} — {info.parallel} slot(s) of {info.n_ctx} tokens, "
-            f"{info.threads} thread(s); Ctrl-C stops it",
+            f"{info.threads} thread(s), as {names}; Ctrl-C stops it",
             highlight=False,
             soft_wrap=True,
         )

@@ -78,6 +78,12 @@ class Match:
     points: int  # returns used
     reason: str  # "matched", or why the match was not believed
 
+    def fields(self) -> dict[str, object]:
+        """What a `localize` event records of the match (beside the believed pose)."""
+        return {"accepted": self.accepted, "matched": round(self.matched, 3), "points": self.points} | {
+            "reason": self.reason
+        }
+
 
 def compose(a: Pose2D, b: Pose2D) -> Pose2D:
     """The pose `b` (given in `a`'s frame) in the frame `a` is given in."""

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol
 from llmnav import plugins
 from llmnav.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
+from llmnav.observe import call_model, call_scorer
 from llmnav.planners.options import (
     COMMON_OPTIONS,
     DEFAULT_PLANNER,
@@ -219,14 +220,10 @@ class EpisodeContext(Generic[OptionsT]):
 
     def chat(self, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
         """Send `request` to the backend, logged as an `llm_call` event (see `llmnav.observe.call_model`)."""
-        from llmnav.observe import call_model
-
         return call_model(self, request, purpose, step)
 
     def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
         """Score continuations with the backend, logged as an `llm_call` event (`llmnav.observe.call_scorer`)."""
-        from llmnav.observe import call_scorer
-
         return call_scorer(self, request, step)
 
     def event(self, kind: str, **fields: Any) -> None:
@@ -280,6 +277,8 @@ class Planner(ABC, Generic[OptionsT]):
     options: ClassVar[frozenset[str]] = frozenset()  # the shared DriveOptions fields it reads, beyond COMMON_OPTIONS
     # What it can run with (llmnav.knowledge); the first is its default where no map is published.
     information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
+    # A baseline that plans on the true map in every information mode: `sensed` then senses only its pose
+    knows_map: ClassVar[bool] = False
     grid_factors: ClassVar[tuple[str, ...]] = ()  # option keys worth varying in an ablation (its own first)
     # its score tables, decision noun and view sections (llmnav.declarations): read above it, never by name
     declares: ClassVar[Declarations] = NOTHING_DECLARED

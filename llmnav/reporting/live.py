@@ -115,6 +115,16 @@ class ProgressView:
         self._live.stop()
 
 
+def cost_text(summary: dict[str, Any]) -> str:
+    """"cost 0.0048 USD (2 model calls, 1 from the cache)", or "cost unknown (why)"."""
+    cost, calls, hits = summary.get("cost_usd"), summary.get("llm_calls"), summary.get("cache_hits") or 0
+    cached = f", {hits} from the cache" if hits else ""
+    if isinstance(cost, (int, float)):
+        return f"cost {cost:.4f} USD ({calls} model call(s){cached})"
+    note = str(summary.get("cost_note") or "").removeprefix("unknown: ")
+    return f"cost unknown ({note}; {calls} model call(s){cached})"
+
+
 def print_result(console: Console, summary: dict[str, Any]) -> None:
     """The end of a drive: outcome and reason, score, path length, run folder, plot."""
     outcome = str(summary.get("outcome"))
@@ -136,6 +146,8 @@ def print_result(console: Console, summary: dict[str, Any]) -> None:
     if summary.get("distance_m") is not None and outcome != "aborted":
         parts.append(f"distance to target {summary['distance_m']:.2f} m")
     console.print("  ".join(parts), highlight=False)
+    if summary.get("llm_calls"):
+        console.print(esc(cost_text(summary)), highlight=False, soft_wrap=True)
     console.print(f"run folder: {esc(summary.get('run_dir'))}", highlight=False, soft_wrap=True)
     if summary.get("trajectory"):
         console.print(f"trajectory: {esc(summary['trajectory'])}", highlight=False, soft_wrap=True)

@@ -40,24 +40,36 @@ def to_rich(table: Table) -> RichTable:
     return out
 
 
-PIPE_WIDTH = 240  # [characters] width of tables written to a pipe or file: never squeezed to 80 columns
+UNBOUNDED = 1 << 16  # [characters] a width no table reaches: measure at this to get its natural width
+
+
+def print_unsqueezed(console: Console, renderable: Any) -> None:
+    """Print fitted to a terminal; to a pipe or file at its natural width, however wide.
+
+    Rich fits output to 80 columns when it is not writing to a terminal, which cuts table cells with
+    ellipses ("policy:ora…") and wraps the rest: `llmnav backends | grep oracle` found nothing. Piped,
+    a table is as wide as its longest cells need, one line per row.
+    """
+    if console.is_terminal:
+        console.print(renderable)
+        return
+    from rich.measure import Measurement
+
+    natural = Measurement.get(console, console.options.update_width(UNBOUNDED), renderable).maximum
+    # print(width=...) is capped at the console's width: widen it for a moment. Restore the setting itself
+    # (None: follow COLUMNS and the terminal), not the width it gave then, which would pin it for good.
+    previous = console._width
+    console.width = max(console.width, natural)
+    try:
+        console.print(renderable)
+    finally:
+        console._width = previous
 
 
 def print_tables(console: Console, tables: Sequence[Table]) -> None:
     """Print rich tables: fitted to a terminal, at their natural width when piped."""
-    if console.is_terminal:
-        for table in tables:
-            console.print(to_rich(table))
-        return
-    # print(width=...) is capped at the console's width: widen it for a moment. Restore the setting itself
-    # (None: follow COLUMNS and the terminal), not the width it gave then, which would pin it for good.
-    previous = console._width
-    console.width = max(console.width, PIPE_WIDTH)
-    try:
-        for table in tables:
-            console.print(to_rich(table))
-    finally:
-        console._width = previous
+    for table in tables:
+        print_unsqueezed(console, to_rich(table))
 
 
 def _md_cell(text: str) -> str:

@@ -9,8 +9,9 @@ llama.cpp's server installs its own SIGINT/SIGTERM handlers when it starts, whic
 nothing in the Python process; `LlamaServer.start` puts Python's handlers back.
 
 Clients talk to llmnav's front (`llmnav.serve.front`), which relays to llama.cpp on a private loopback
-port: it lets `stop` cut in-flight responses at once (llama.cpp alone would finish them first) and
-answers `GET /v1/models/{id}`.
+port: it lets `stop` cut in-flight responses at once (llama.cpp alone would finish them first), answers
+`GET /v1/models/{id}`, refuses model names other than the served one and its aliases, and gives OpenAI's
+formats where llama.cpp's differ (docs/serve-api.md).
 """
 
 from __future__ import annotations
@@ -21,13 +22,14 @@ import socket
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from llmnav.backends.local import DEFAULT_N_CTX, PROMPT_CACHE_RAM, default_model_path, default_threads
+from llmnav.backends.llamacpp import PROMPT_CACHE_RAM, _import_xllamacpp
+from llmnav.backends.local import DEFAULT_N_CTX, default_model_path, default_threads
 from llmnav.backends.local import _gguf_path as gguf_path  # the one check of a model path (exists, GGUF)
-from llmnav.errors import BadInputError, ModelUnavailableError
+from llmnav.errors import BadInputError
 
 LOOPBACK = "127.0.0.1"
 DEFAULT_PORT = 8080
@@ -48,7 +50,8 @@ class ServeOptions(BaseModel):
     n_ctx: int = Field(default=DEFAULT_N_CTX, ge=256)  # [tokens] context per slot
     threads: int | None = Field(default=None, ge=1)  # None = the usable cores but one
     api_key: str | None = None
-    alias: str = Field(default=DEFAULT_ALIAS, min_length=1)
+    name: str = Field(default=DEFAULT_ALIAS, min_length=1)  # the model's name in /v1/models and replies
+    aliases: tuple[Annotated[str, Field(min_length=1)], ...] = ()  # more names requests may give; others: 404
     verbose: bool = False  # let llama.cpp log every request and timing to stderr
 
 
@@ -59,7 +62,8 @@ class ServerInfo:
     model_path: Path
     host: str
     port: int
-    alias: str
+    name: str
+    aliases: tuple[str, ...]
     parallel: int
     n_ctx: int
     threads: int
@@ -74,7 +78,12 @@ class ServerInfo:
     @property
     def backend_spec(self) -> str:
         """The `--backend` value that reaches this server."""
-        return f"openai:{self.alias}@{self.url}"
+        return f"openai:{self.name}@{self.url}"
+
+
+def served_names(options: ServeOptions) -> tuple[str, ...]:
+    """The names requests may give: the served name first, then each alias once."""
+    return tuple(dict.fromkeys((options.name, *options.aliases)))
 
 
 def free_port(host: str = LOOPBACK) -> int:
@@ -128,16 +137,6 @@ def check_port(host: str, port: int) -> None:
             raise BadInputError(f"cannot listen on {host}:{port}: {reason}") from None
 
 
-def _import_xllamacpp() -> Any:
-    try:
-        import xllamacpp
-    except ImportError:
-        raise ModelUnavailableError(
-            "serving needs the xllamacpp engine: run `make install` or `pip install xllamacpp`"
-        ) from None
-    return xllamacpp
-
-
 class LlamaServer:
     """llama.cpp's HTTP server holding one model; a context manager (`with LlamaServer(opts) as info:`)."""
 
@@ -162,7 +161,7 @@ class LlamaServer:
         threads = opts.threads or default_threads()
         params = xllamacpp.CommonParams()
         params.model.path = str(path)
-        params.model_alias = {opts.alias}
+        params.model_alias = {opts.name}  # one name: llama.cpp lists the first of a set as the id
         params.hostnames = [LOOPBACK]  # only the front talks to llama.cpp
         params.port = free_port(LOOPBACK)
         params.n_parallel = opts.parallel
@@ -187,13 +186,21 @@ class LlamaServer:
         from llmnav.serve.front import Front
 
         try:
-            self._front = Front(opts.host, port, params.port, api_key=opts.api_key)
+            self._front = Front(opts.host, port, params.port, api_key=opts.api_key, names=served_names(opts))
         except OSError as err:
             self._server = None
             raise BadInputError(f"cannot listen on {opts.host}:{port}: {err.strerror or err}") from None
         self._front.start()
         self.info = ServerInfo(
-            path, opts.host, port, opts.alias, opts.parallel, opts.n_ctx, threads, bool(opts.api_key)
+            path,
+            opts.host,
+            port,
+            opts.name,
+            served_names(opts)[1:],
+            opts.parallel,
+            opts.n_ctx,
+            threads,
+            bool(opts.api_key),
         )
         return self.info
 

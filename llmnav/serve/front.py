@@ -16,8 +16,10 @@ Every request is bounded before it reaches llama.cpp (the limits are `Limits`, s
 - connections beyond `max_connections` are closed at once (each holds a thread).
 
 It also answers `GET /v1/models/{id}` (the OpenAI SDK's `models.retrieve`), which llama.cpp lacks, from
-llama.cpp's own model list (with the caller's key, so a missing key is still refused). Every other
-path, header and body is relayed unchanged, streamed chunk by chunk.
+llama.cpp's own model list (with the caller's key, so a missing key is still refused), and lists each
+alias as a model. What it changes so that OpenAI's SDKs get OpenAI's answers (unknown model names, legacy
+completion log-probabilities, the Responses API's `text.format`, error texts) is in `llmnav.serve.compat`.
+Every other path, header and body is relayed unchanged, streamed chunk by chunk.
 """
 
 from __future__ import annotations
@@ -29,15 +31,20 @@ import re
 import socket
 import sys
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
+from urllib.parse import unquote
+
+from llmnav.serve.compat import Adapted, Refusal, adapt_request, error_body, true_error, unknown_model
 
 # Headers of one connection, never relayed (RFC 9110 §7.6.1), plus those the front sets itself.
 _HOP_BY_HOP = frozenset(
     {"connection", "keep-alive", "proxy-connection", "te", "trailer", "transfer-encoding", "upgrade", "host"}
 )
-_RETRIEVE = re.compile(r"^/(?:v1/)?models/(?P<id>[^/?#]+)/?$")
+_RETRIEVE = re.compile(r"^/(?:v1/)?models/(?P<id>[^?#]+?)/?(?:[?#].*)?$")  # ids may hold "/" (org/name)
+_LIST = re.compile(r"^/(?:v1/)?models/?(?:[?#].*)?$")
 _CHUNK = 65536
 _LENGTH = re.compile(r"[0-9]{1,18}")  # one decimal Content-Length (18 digits: no overflow, far over any cap)
 STOPPING = "the server is stopping"
@@ -99,6 +106,39 @@ class _Exchange:
                 pass
 
 
+class _Events:
+    """A server-sent event stream whose `data:` JSON objects are changed by an adapter as they pass."""
+
+    def __init__(self, adapted: Adapted) -> None:
+        self._adapted = adapted
+        self._pending = b""
+        self.open = True  # False once the upstream ended and the rest was given back
+
+    def feed(self, data: bytes) -> bytes:
+        """The complete events in what arrived so far, changed; an unfinished one waits for more."""
+        self._pending += data
+        head, separator, self._pending = self._pending.rpartition(b"\n\n")
+        return b"".join(self._event(e) + b"\n\n" for e in head.split(b"\n\n")) if separator else b""
+
+    def rest(self) -> bytes:
+        """What is left when the upstream ends (an event cut short is passed on as it came)."""
+        rest, self._pending, self.open = self._pending, b"", False
+        return rest
+
+    def _event(self, event: bytes) -> bytes:
+        lines = []
+        for line in event.split(b"\n"):
+            if line.startswith(b"data: ") and line[6:].strip() != b"[DONE]":
+                try:
+                    data = json.loads(line[6:])
+                except ValueError:
+                    data = None
+                if isinstance(data, dict) and "error" not in data:
+                    line = b"data: " + json.dumps(self._adapted.reply(data)).encode()
+            lines.append(line)
+        return b"\n".join(lines)
+
+
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = True
@@ -129,10 +169,17 @@ class Front:
     """Listen on `host:port` and relay to llama.cpp on 127.0.0.1:`upstream_port`."""
 
     def __init__(
-        self, host: str, port: int, upstream_port: int, api_key: str | None = None, limits: Limits | None = None
+        self,
+        host: str,
+        port: int,
+        upstream_port: int,
+        api_key: str | None = None,
+        limits: Limits | None = None,
+        names: Sequence[str] = (),
     ) -> None:
         self.upstream_port = upstream_port
         self.api_key = api_key
+        self.names = tuple(names)  # the served model name, then its aliases; empty: any name is relayed
         self.limits = limits or Limits()
         self._lock = threading.Lock()
         self._exchanges: set[_Exchange] = set()
@@ -279,9 +326,10 @@ class _Handler(BaseHTTPRequestHandler):
 
     def do_GET(self) -> None:  # noqa: N802 - the stdlib's naming
         match = _RETRIEVE.match(self.path)
-        if match:
+        listing = _LIST.match(self.path)
+        if match or listing:
             if self._body() is not None:  # checked and dropped: the list is asked for without one
-                self._retrieve(match["id"])
+                self._models(unquote(match["id"]) if match else None)
         else:
             self._relay()
 
@@ -290,23 +338,32 @@ class _Handler(BaseHTTPRequestHandler):
         body = self._body()
         if body is None:
             return
+        adapted = adapt_request(self.command, self.path, body, front.names)
+        if isinstance(adapted, Refusal):
+            self._json(adapted.status, adapted.body)
+            return
         headers = {k: v for k, v in self.headers.items() if k.lower() not in _HOP_BY_HOP | {"content-length"}}
         exchange = front._open()
         try:
             try:
-                exchange.upstream.request(self.command, path or self.path, body=body or None, headers=headers)
+                exchange.upstream.request(self.command, path or self.path, body=adapted.body or None, headers=headers)
                 reply = exchange.upstream.getresponse()
             except (OSError, http.client.HTTPException):
                 cut = exchange.cut
                 self._error(503 if cut else 502, STOPPING if cut else "llama.cpp's server did not answer")
                 return
-            self._copy(reply, exchange)
+            self._copy(reply, exchange, adapted)
         finally:
             front._close(exchange)
 
-    def _copy(self, reply: http.client.HTTPResponse, exchange: _Exchange) -> None:
-        self.send_response(reply.status, reply.reason)
+    def _copy(self, reply: http.client.HTTPResponse, exchange: _Exchange, adapted: Adapted) -> None:
         streamed = reply.getheader("Content-Length") is None and self.command != "HEAD"
+        json_reply = "application/json" in (reply.getheader("Content-Type") or "")
+        rewrite = reply.status >= 400 or adapted.changes_replies
+        if not streamed and json_reply and rewrite and self.command != "HEAD":
+            self._rewrite(reply, exchange, adapted)  # a whole JSON reply, small: read, change, send
+            return
+        self.send_response(reply.status, reply.reason)
         for key, value in reply.getheaders():
             if key.lower() not in _HOP_BY_HOP:
                 self.send_header(key, value)
@@ -314,13 +371,19 @@ class _Handler(BaseHTTPRequestHandler):
             self.send_header("Transfer-Encoding", "chunked")
         self.end_headers()
         event_stream = "text/event-stream" in (reply.getheader("Content-Type") or "")
+        events = _Events(adapted) if streamed and event_stream and adapted.changes_replies else None
         try:
             while True:
                 data = reply.read1(_CHUNK) if streamed else reply.read(_CHUNK)
-                if not data:
+                if events is not None:
+                    data = events.feed(data) if data else events.rest()
+                    if not data and not events.open:
+                        break
+                elif not data:
                     break
-                self.wfile.write(b"%x\r\n%s\r\n" % (len(data), data) if streamed else data)
-                self.wfile.flush()
+                if data:
+                    self.wfile.write(b"%x\r\n%s\r\n" % (len(data), data) if streamed else data)
+                    self.wfile.flush()
         except (OSError, http.client.HTTPException):  # a cut upstream ends mid-chunk
             if not exchange.cut:
                 raise
@@ -333,8 +396,31 @@ class _Handler(BaseHTTPRequestHandler):
             self.wfile.write(b"0\r\n\r\n")
         self.wfile.flush()
 
-    def _retrieve(self, model_id: str) -> None:
-        """`GET /v1/models/{id}`: the entry of llama.cpp's model list, or OpenAI's 404."""
+    def _rewrite(self, reply: http.client.HTTPResponse, exchange: _Exchange, adapted: Adapted) -> None:
+        """Send a whole JSON reply changed as OpenAI would answer (an error's true text, legacy logprobs)."""
+        try:
+            raw = reply.read()
+        except (OSError, http.client.HTTPException):
+            self._error(503 if exchange.cut else 502, STOPPING if exchange.cut else "llama.cpp's reply was cut")
+            return
+        try:
+            data = json.loads(raw)
+        except ValueError:
+            data = None
+        if isinstance(data, dict):
+            data = true_error(data) if reply.status >= 400 else adapted.reply(data)
+            raw = json.dumps(data).encode()
+        self.send_response(reply.status, reply.reason)
+        for key, value in reply.getheaders():
+            if key.lower() not in _HOP_BY_HOP | {"content-length"}:
+                self.send_header(key, value)
+        self.send_header("Content-Length", str(len(raw)))
+        self.end_headers()
+        self.wfile.write(raw)
+        self.wfile.flush()
+
+    def _models(self, model_id: str | None) -> None:
+        """`GET /v1/models` with an entry per alias, or `GET /v1/models/{id}`: one entry, or OpenAI's 404."""
         front = self.server.front
         headers = {k: v for k, v in self.headers.items() if k.lower() in ("authorization", "x-api-key")}
         exchange = front._open()
@@ -349,13 +435,19 @@ class _Handler(BaseHTTPRequestHandler):
             if reply.status != 200:
                 self._json(reply.status, json.loads(raw or b"{}"))
                 return
-            listed = json.loads(raw).get("data") or []
-            found = next((m for m in listed if isinstance(m, dict) and m.get("id") == model_id), None)
+            reply_body = json.loads(raw)
+            listed = [m for m in reply_body.get("data") or [] if isinstance(m, dict)]
+            if front.names and listed:  # llama.cpp lists the served name; each alias is an entry of its own
+                served = listed[0]
+                aliases = [{**served, "id": name} for name in front.names if name != served.get("id")]
+                listed = [served, *aliases, *listed[1:]]
+            if model_id is None:
+                self._json(200, {**reply_body, "data": listed})
+                return
+            found = next((m for m in listed if m.get("id") == model_id), None)
             if found is None:
-                names = ", ".join(str(m.get("id")) for m in listed if isinstance(m, dict))
-                message = f"The model '{model_id}' does not exist (served: {names})"
-                body = {"error": {"message": message, "type": "invalid_request_error", "code": "model_not_found"}}
-                self._json(404, body)
+                names = front.names or tuple(str(m.get("id")) for m in listed)
+                self._json(404, unknown_model(model_id, names).body)
                 return
             self._json(200, {"object": "model", "owned_by": "llmnav", **found})
         finally:
@@ -363,7 +455,7 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _error(self, status: int, message: str, kind: str = "server_error") -> None:
         self.close_connection = True
-        self._json(status, {"error": {"message": message, "type": kind, "code": status}})
+        self._json(status, error_body(message, kind, status))
 
     def _json(self, status: int, body: dict[str, Any]) -> None:
         data = json.dumps(body).encode()

@@ -23,8 +23,27 @@ from typing import TYPE_CHECKING, Any, Protocol
 from llmnav.geometry import Pose2D, wrap_angle
 
 if TYPE_CHECKING:
-    from llmnav.sim.sensors import LidarScan
-    from llmnav.sim.world import World
+    from llmnav.sim.robot import Robot
+    from llmnav.sim.sensors import Lidar, LidarScan
+
+
+class MotionWorld(Protocol):
+    """What motions need of a world (`llmnav.sim.world.World`), so this module does not import it back."""
+
+    robot: Robot
+    lidar: Lidar
+    body_names: dict[int, str]
+    dt: float  # [s] one physics step
+
+    @property
+    def sim_time(self) -> float:
+        """Simulated time since the world started [s]."""
+        ...
+
+    def step(self, n: int = 1) -> None:
+        """Advance the physics by n steps."""
+        ...
+
 
 class CommandMonitor(Protocol):
     """What judges every command before the wheels get it (`llmnav.nav.monitor.CollisionMonitor`)."""
@@ -98,7 +117,7 @@ class _Track:
 class Motion:
     """Runs motions on a world's robot; `collisions` counts contacts since the last world reset."""
 
-    def __init__(self, world: World) -> None:
+    def __init__(self, world: MotionWorld) -> None:
         self._world = world
         self.on_pose: PoseCallback | None = None
         self.collisions = 0

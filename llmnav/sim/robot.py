@@ -118,6 +118,11 @@ class Robot:
         """Ground-truth pose (link frame = centre of mass for this body)."""
         return self._pose
 
+    def engine_pose(self) -> Pose2D:
+        """The body's pose as the physics engine holds it now (`pose` is the copy refreshed after each step)."""
+        (x, y, _z), q = self._p.getBasePositionAndOrientation(self.body, physicsClientId=self._client)
+        return Pose2D(x, y, _yaw_of(q))
+
     def odom(self) -> Pose2D:
         """Odometry pose: integrated from the measured wheel motion since the last reset."""
         return self._odom

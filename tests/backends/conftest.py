@@ -33,14 +33,10 @@ def fast() -> dict[str, Any]:
     }
 
 
-@pytest.fixture
-def serve_process() -> Iterator[tuple[subprocess.Popen[str], str, str]]:
-    """`llmnav serve --port 0` (the bundled model, on 127.0.0.1, with a key): (process, base URL, key).
-
-    Killed at the end if the test did not stop it.
-    """
+def start_serve(*args: str) -> tuple[subprocess.Popen[str], str, str]:
+    """Start `llmnav serve --port 0 ARGS` (the bundled model, on 127.0.0.1, with a key): (process, base URL, key)."""
     process = subprocess.Popen(
-        [LLMNAV, "serve", "--port", "0"],
+        [LLMNAV, "serve", "--port", "0", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -52,9 +48,24 @@ def serve_process() -> Iterator[tuple[subprocess.Popen[str], str, str]]:
     if not url.startswith("http://127.0.0.1:"):
         process.kill()
         raise AssertionError(f"llmnav serve did not start: {url!r} {process.communicate(timeout=30)[1][-2000:]}")
+    return process, url, SERVE_KEY
+
+
+def end_serve(process: subprocess.Popen[str]) -> None:
+    """Kill a server the test did not stop itself."""
+    if process.poll() is None:
+        process.kill()
+        process.wait(timeout=30)
+
+
+@pytest.fixture
+def serve_process() -> Iterator[tuple[subprocess.Popen[str], str, str]]:
+    """`llmnav serve --port 0` (the bundled model, on 127.0.0.1, with a key): (process, base URL, key).
+
+    Killed at the end if the test did not stop it.
+    """
+    process, url, key = start_serve()
     try:
-        yield process, url, SERVE_KEY
+        yield process, url, key
     finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait(timeout=30)
+        end_serve(process)

@@ -16,7 +16,7 @@ import pytest
 from llmnav.backends.base import ChatRequest, Message, get_backend
 from llmnav.backends.isolated import ModelProcess
 from llmnav.errors import ModelError, ModelUnavailableError
-from llmnav.guard.schemas import velocity_schema
+from llmnav.planners.fsm.answers import velocity_schema
 
 REQUEST = ChatRequest((Message("user", "stop 1.00 +0.00 45 -150"),), json_schema=velocity_schema(0.0, 0.06, 0.8))
 

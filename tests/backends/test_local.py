@@ -12,11 +12,15 @@ from typing import Any
 import pytest
 from pydantic import BaseModel
 
+from llmnav.backends import llamacpp
 from llmnav.backends import local as local_mod
 from llmnav.backends.base import ChatRequest, Image, Message, get_backend
 from llmnav.backends.local import LocalBackend, default_model_path
 from llmnav.errors import ModelError, ModelUnavailableError
-from llmnav.guard.schemas import StepAction, VelocitySuggestion, WaypointList, response_schema
+from llmnav.guard.schemas import response_schema
+from llmnav.planners.fsm.answers import VelocitySuggestion
+from llmnav.planners.stepwise.answers import StepAction
+from llmnav.planners.waypoints.answers import WaypointList
 
 SYSTEM = (
     "You control a small wheeled robot in a factory. Answer with one JSON object only. "
@@ -224,7 +228,7 @@ def test_corrupt_model_file_is_one_line(tmp_path: Any) -> None:
 def test_grammar_holds_the_kinematic_box_and_drops_whitespace(backend: LocalBackend) -> None:
     """llama.cpp's schema-to-grammar honours integer minimum/maximum: prompts that beg for values far
     outside a narrow box still get answers inside it, written without any whitespace."""
-    from llmnav.guard.schemas import VelocityMilli, velocity_schema
+    from llmnav.planners.fsm.answers import VelocityMilli, velocity_schema
 
     schema = velocity_schema(0.003, 0.007, 0.011)  # v in [3, 7] mm/s, w in [-11, 11] mrad/s
     asks = [
@@ -242,7 +246,7 @@ def test_grammar_holds_the_kinematic_box_and_drops_whitespace(backend: LocalBack
 
 
 def test_uncompilable_schema_is_reported_before_use(backend: LocalBackend) -> None:
-    from llmnav.guard.schemas import velocity_schema
+    from llmnav.planners.fsm.answers import velocity_schema
 
     backend.check_schema(velocity_schema(0.0, 0.06, 0.8))  # compiles: no error
     for bad in (
@@ -309,7 +313,7 @@ def test_free_text_is_capped_and_field_order_kept(backend: LocalBackend) -> None
     )
     result = backend.chat(request)
     answer = json.loads(result.text)  # complete JSON: the cap ended the string before max_tokens did
-    assert len(answer["story"]) <= local_mod.TEXT_CAP_CHARS
+    assert len(answer["story"]) <= llamacpp.TEXT_CAP_CHARS
     assert result.text.startswith('{"story":')  # written in the schema's order, not sorted
 
 

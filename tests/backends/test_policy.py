@@ -12,14 +12,11 @@ from llmnav.backends.policy import PolicyBackend
 from llmnav.cli import app
 from llmnav.errors import BackendSpecError
 from llmnav.guard.parse import parse_answer
-from llmnav.guard.schemas import (
-    StepAction,
-    VelocitySuggestion,
-    WaypointList,
-    hybrid_choice_model,
-    response_schema,
-    target_choice_model,
-)
+from llmnav.guard.schemas import response_schema
+from llmnav.planners.fsm.answers import VelocitySuggestion
+from llmnav.planners.hybrid.answers import hybrid_choice_model
+from llmnav.planners.stepwise.answers import StepAction
+from llmnav.planners.waypoints.answers import WaypointList, target_choice_model
 from llmnav.prompting import render
 
 MENU = [

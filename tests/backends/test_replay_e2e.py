@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import json
 
-from llmnav.guard.schemas import step_answer
 from llmnav.planners.base import DriveOptions, drive_options
+from llmnav.planners.stepwise.answers import step_answer
 from llmnav.runner import EpisodeSpec, run_episode
 
 ANSWERS = [
@@ -17,7 +17,8 @@ ANSWERS = [
     {"command": "FRONT", "parameters": 0.5},
     {"command": "COMPLETE", "parameters": 0},
 ]
-RUN_SPECIFIC = {"backend", "condition", "wall_time_s", "run_dir", "trajectory"}
+# what the run's own backend decides: a replay asks no server, so it costs nothing
+RUN_SPECIFIC = {"backend", "condition", "wall_time_s", "run_dir", "trajectory", "cost_usd", "cost_note"}
 
 
 def options(**changes: object) -> DriveOptions:

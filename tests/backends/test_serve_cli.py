@@ -31,3 +31,10 @@ def test_port_in_use_before_loading():
         result = CliRunner().invoke(app, ["serve", "--port", str(port)])
     assert result.exit_code == 2
     assert result.stderr.strip() == f"error: port {port} on 127.0.0.1 is already in use: choose another with --port"
+
+
+def test_blank_or_padded_alias_is_refused_before_loading():
+    for name in ("", "  ", " gpt-4o"):
+        result = CliRunner().invoke(app, ["serve", "--alias", name, "--port", "0"])
+        assert result.exit_code == 2 and result.stdout == "", (name, result.output)
+        assert result.stderr.strip().count("\n") == 0 and f"--alias {name!r}: give a model name" in result.stderr

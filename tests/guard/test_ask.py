@@ -9,7 +9,8 @@ from typing import Any
 from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.guard.ask import MAX_VALUE_CHARS, CallContext, ask_guarded
 from llmnav.guard.parse import correction_message, parse_answer
-from llmnav.guard.schemas import ActionBounds, StepAction, response_schema, step_answer
+from llmnav.guard.schemas import response_schema
+from llmnav.planners.stepwise.answers import ActionBounds, StepAction, step_answer
 
 
 def step(command: str, parameters: float) -> str:

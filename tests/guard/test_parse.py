@@ -10,19 +10,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from llmnav.guard.parse import MAX_ANSWER_CHARS, GuardResult, correction_message, parse_answer
-from llmnav.guard.schemas import (
-    ActionBounds,
-    ActionCommand,
-    StepAction,
-    VelocitySuggestion,
-    Waypoint,
-    WaypointBounds,
-    WaypointList,
-    hybrid_choice_model,
-    response_schema,
-    step_answer,
-    target_choice_model,
-)
+from llmnav.guard.schemas import response_schema
+from llmnav.planners.fsm.answers import VelocitySuggestion
+from llmnav.planners.hybrid.answers import hybrid_choice_model
+from llmnav.planners.stepwise.answers import ActionBounds, ActionCommand, StepAction, step_answer
+from llmnav.planners.waypoints.answers import Waypoint, WaypointBounds, WaypointList, target_choice_model
 
 BOUNDS = ActionBounds(max_step_m=5.0)
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from llmnav.guard.parse import parse_answer
-from llmnav.guard.schemas import ActionBounds, StepAction
 from llmnav.guard.veto import VetoResult, check_motion, veto_message
+from llmnav.planners.stepwise.answers import ActionBounds, StepAction
 from llmnav.sim.sensors import LidarScan as Scan
 
 WIDTH = 0.72  # [m] PR2-like footprint, radius 0.36

@@ -8,8 +8,9 @@ from pathlib import Path
 from llmnav.chat import ChatRequest, Message, ScoreRequest
 from llmnav.geometry import Pose2D
 from llmnav.guard.parse import parse_answer
-from llmnav.guard.schemas import hybrid_choice_model, response_schema
+from llmnav.guard.schemas import response_schema
 from llmnav.planners.base import GroundTruth, drive_options
+from llmnav.planners.hybrid.answers import hybrid_choice_model
 from llmnav.planners.hybrid.oracle import HybridAnswerKey
 from llmnav.planners.hybrid.scoring import INTENT_PROMPT
 from llmnav.relevance import TARGET_PROMPT

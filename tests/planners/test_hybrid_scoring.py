@@ -82,6 +82,17 @@ def test_an_unsure_target_is_taken_once_the_exploration_budget_is_spent() -> Non
     assert choose.choose(MENU, turned=True, step=3).number == 2
 
 
+def test_with_nothing_worth_taking_the_search_goes_on_past_the_budget() -> None:
+    """The budget bounds exploring before an unsure target is taken; below min_pmi there is none to take."""
+    choose, _ = chooser({"drive to something": 0.0, "stairs": -5.0 - 2.0, "table": -5.0 - 1.0})
+    choose.cfg = ScoringConfig(explore_budget=1)
+    for step in (2, 3, 4):
+        decision = choose.choose(MENU, turned=True, step=step)
+        assert decision.number == 3 and not decision.not_found, decision
+    without_frontier = [c for c in MENU if c.kind != "frontier"]
+    assert choose.choose(without_frontier, turned=True, step=5).number == 4  # then a look where none was made
+
+
 def test_equal_relevance_goes_to_the_nearer_landmark() -> None:
     menu = [Candidate(1, "landmark", ("oil barrel",), 7.0), Candidate(2, "landmark", ("oil barrel",), 2.0), MENU[4]]
     choose, _ = chooser({"drive to something": 0.0, "oil barrel": 9.0}, mapped=True)

@@ -65,11 +65,13 @@ def test_defaults_follow_whether_a_map_is_published() -> None:
     assert resolve_information("hybrid", maze, None) == "sensed"
     assert resolve_information("hybrid", corridor, None) == "map"
     assert resolve_information("hybrid", factory, "oracle") == "oracle"
-    assert resolve_information("oracle", factory, None) == "oracle"
+    assert resolve_information("oracle", factory, None) == "oracle"  # a baseline's first mode, sensed or not
+    assert resolve_information("frontier", maze, None) == "oracle"
+    assert resolve_information("oracle", factory, "sensed") == "sensed"
     declared = {name: planner_modes(name) for name in ("stepwise", "waypoints", "fsm", "hybrid", "oracle", "frontier")}
     assert declared == {
         "stepwise": ("sensed",), "waypoints": ("map",), "fsm": ("oracle",), "hybrid": ("sensed", "map", "oracle"),
-        "oracle": ("oracle",), "frontier": ("oracle",),
+        "oracle": ("oracle", "sensed"), "frontier": ("oracle", "sensed"),
     }  # fmt: skip
     with pytest.raises(BadInputError, match="unknown planner 'teleport'"):
         planner_modes("teleport")  # once silently "oracle"
@@ -95,6 +97,8 @@ def test_the_sensed_view_holds_no_positions() -> None:
     assert (view.objects, view.walls, view.obstacles, view.corridors, view.tasks) == ([], [], [], [], [])
     assert view.bounds == factory.bounds and view.robot == factory.robot
     assert factory.objects and scenario_view(factory, "oracle") is factory
+    # a baseline that plans on the true map keeps it when only its pose is sensed
+    assert scenario_view(factory, "sensed", knows_map=True) is factory
 
 
 def _t8_policy(options: dict[int, str], index: int) -> int:

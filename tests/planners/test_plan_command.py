@@ -215,3 +215,18 @@ def test_execute_puts_the_figure_into_the_run_folder(tmp_path: Path) -> None:
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
     assert (out / "plan.png").read_bytes()[:4] == b"\x89PNG" and (out / "run.jsonl").is_file()
+
+
+@pytest.mark.parametrize(("scenario", "task", "target"), [("corridor_a", "Go to room 105", "R105"),
+                                                           ("corridor_c", "Go to room 107", "R107")])  # fmt: skip
+def test_plan_with_oracle_answers(tmp_path: Path, scenario: str, task: str, target: str) -> None:
+    """`policy:oracle` answers `plan` from the true map: a valid plan on the first attempt, ending on the target."""
+    from llmnav.scenario import load_scenario
+
+    res = runner.invoke(app, ["plan", "--task", task, "--scenario", scenario, "--backend", "policy:oracle",
+                              "--plot", str(tmp_path / "p.png"), "--json"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    plan = json.loads(res.stdout)
+    assert plan["target"] == target and plan["wgsr"] == 100.0 and len(plan["attempts"]) == 1
+    goal = load_scenario(scenario).object(target).goal_point
+    assert np.allclose(plan["waypoints"][-1], goal, atol=0.05)

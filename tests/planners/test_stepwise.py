@@ -17,9 +17,10 @@ import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
-from llmnav.guard.schemas import ActionBounds, StepAction, response_schema, step_answer
+from llmnav.guard.schemas import response_schema
 from llmnav.metrics import summarize_run
 from llmnav.planners.base import drive_options
+from llmnav.planners.stepwise.answers import ActionBounds, StepAction, step_answer
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
 from llmnav.scenario import load_scenario

@@ -13,8 +13,9 @@ import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
-from llmnav.guard.schemas import WaypointList, response_schema, target_choice_model
+from llmnav.guard.schemas import response_schema
 from llmnav.planners.base import drive_options
+from llmnav.planners.waypoints.answers import WaypointList, target_choice_model
 from llmnav.prompting import render
 from llmnav.runlog import RunRecord, read_run
 from llmnav.runner import EpisodeSpec, exit_code, run_episode
@@ -23,6 +24,11 @@ from llmnav.tasks import SEQUENCE_JOIN
 ROOM_105 = (6.5, 1.1)  # [m] goal point of room 105 in corridor_a
 BOX = 0.5  # [m] side of a box dropped with --obstacle
 BURGER_RADIUS = 0.105  # [m]
+
+
+def brief(legs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each leg record's target, whether it was reached and its replans."""
+    return [{k: leg[k] for k in ("target", "reached", "replans")} for leg in legs]
 
 
 def plan_text(*points: tuple[float, float]) -> str:
@@ -138,7 +144,13 @@ def test_invalid_plan_named_point_by_point_then_valid_plan_executed(tmp_path: Pa
     assert path - 0.25 < summary["path_length_m"] < path + 0.1
     assert summary["path_length_m"] / 0.4 <= metrics["execution_time_s"] <= summary["sim_time_s"] + 1e-6
     assert (metrics["collision_events"], metrics["replans"], metrics["replanning_rate"]) == (0, 0, 0.0)
-    assert metrics["legs"] == [{"target": "R105", "reached": True, "replans": 0}]
+    assert brief(metrics["legs"]) == [{"target": "R105", "reached": True, "replans": 0}]
+    (leg,) = metrics["legs"]  # the whole command is one leg: its numbers are the episode's
+    assert (leg["generations"], leg["valid_generations"], leg["wgsr"], leg["plan_failed"]) == (2, 1, 50.0, False)
+    assert leg["planning_time_s"] == pytest.approx(metrics["planning_time_s"])
+    assert leg["execution_time_s"] == pytest.approx(metrics["execution_time_s"], abs=1e-3)
+    assert leg["path_length_m"] == pytest.approx(summary["path_length_m"], abs=0.02)
+    assert leg["start"] == [0.0, 0.0, 0.0] and math.dist(leg["end"][:2], ROOM_105) <= 0.11
     assert summary["json_errors"] == 1 and summary["collisions"] == 0
 
 
@@ -162,7 +174,8 @@ def test_regeneration_stops_at_max_generations_with_the_reason(tmp_path: Path) -
     assert record.of_type("action") == []
     metrics = summary["planner_metrics"]
     assert (metrics["generations"], metrics["valid_generations"], metrics["wgsr"]) == (3, 0, 0.0)
-    assert metrics["legs"] == [{"target": "R105", "reached": False, "replans": 0}]
+    assert brief(metrics["legs"]) == [{"target": "R105", "reached": False, "replans": 0}]
+    assert metrics["plan_failed"] and metrics["legs"][0]["plan_failed"] and metrics["legs"][0]["path_length_m"] == 0
 
 
 def test_a_segment_through_an_unexpected_obstacle_is_vetoed_then_replanned(tmp_path: Path) -> None:
@@ -259,7 +272,7 @@ def test_replans_are_bounded_and_spaced_by_the_cooldown(tmp_path: Path) -> None:
     metrics = summary["planner_metrics"]
     assert (metrics["collision_events"], metrics["vetoed_segments"], metrics["replans"]) == (0, 3, 2)
     assert metrics["replanning_rate"] == pytest.approx(2 / metrics["execution_time_s"])
-    assert metrics["legs"] == [{"target": "R105", "reached": False, "replans": 2}]
+    assert brief(metrics["legs"]) == [{"target": "R105", "reached": False, "replans": 2}]
     assert summary["collisions"] == 0
 
 
@@ -286,10 +299,13 @@ def test_a_sequence_of_targets_is_driven_leg_by_leg(tmp_path: Path) -> None:
     assert f"Robot: x = {at_window[0]:.2f}, y = {at_window[1]:.2f}" in systems[1]
     assert summary["distance_m"] <= 0.11
     metrics = summary["planner_metrics"]
-    assert metrics["legs"] == [
+    assert brief(metrics["legs"]) == [
         {"target": "WIN", "reached": True, "replans": 0},
         {"target": "R105", "reached": True, "replans": 0},
     ]
+    first, second = metrics["legs"]
+    assert second["start"] == first["end"]  # each leg starts where the last one ended
+    assert first["path_length_m"] + second["path_length_m"] == pytest.approx(summary["path_length_m"], abs=0.02)
     assert (metrics["generations"], metrics["wgsr"]) == (2, 100.0)
 
 

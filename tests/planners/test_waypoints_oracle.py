@@ -12,10 +12,11 @@ import pytest
 
 from llmnav.chat import ChatRequest, ChatResult, Message, ScoreRequest
 from llmnav.geometry import Pose2D
-from llmnav.guard.schemas import response_schema, target_choice_model
+from llmnav.guard.schemas import response_schema
 from llmnav.mapping.grid import build_grid
 from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.waypoints import WaypointPlanner, generate_plan
+from llmnav.planners.waypoints.answers import target_choice_model
 from llmnav.planners.waypoints.oracle import OTHER_LOGPROB, WaypointAnswerKey
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode
@@ -40,6 +41,7 @@ PLANS = {
     ("corridor_c", "C4"): [(6.5, -3.0), (8.1, 21.8)],
     ("corridor_c", "C5"): [(0.0, -4.6)],
     ("corridor_c", "C6"): [(6.5, -3.0), (6.5, 23.1)],
+    ("corridor_c", "C7"): [(-6.5, -3.0), (-8.1, 11.4)],
 }
 
 

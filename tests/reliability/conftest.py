@@ -39,6 +39,9 @@ CATEGORIES = {
     "test_serve_bounds": "serve bounds",
     "test_hostile_plugins": "hostile plugins",
     "test_honest_accounting": "honest accounting",
+    "test_scripts": "scoring scripts",
+    "test_raw_access": "raw access",
+    "test_crashed_runs": "crashed runs",
 }
 
 

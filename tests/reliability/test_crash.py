@@ -23,8 +23,8 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.guard.schemas import step_answer
 from llmnav.metrics import summarize_run
+from llmnav.planners.stepwise.answers import step_answer
 from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, RunLog, read_run
 from llmnav.scenario import load_scenario
 

@@ -25,10 +25,10 @@ import pytest
 
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.guard.parse import parse_answer
-from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, step_answer
 from llmnav.guard.veto import check_motion
 from llmnav.metrics import summarize_run
 from llmnav.planners.base import drive_options
+from llmnav.planners.stepwise.answers import ActionBounds, ActionCommand, StepAction, step_answer
 from llmnav.robot_specs import PR2
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode

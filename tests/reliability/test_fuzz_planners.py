@@ -24,12 +24,14 @@ import pytest
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.geometry import Pose2D
 from llmnav.guard.parse import parse_answer
-from llmnav.guard.schemas import VelocitySuggestion, WaypointList, hybrid_choice_model
 from llmnav.guard.view import PlannerWorld
 from llmnav.mapping.grid import build_grid
 from llmnav.mapping.targets import with_added_obstacles
 from llmnav.planners.base import drive_options
+from llmnav.planners.fsm.answers import VelocitySuggestion
+from llmnav.planners.hybrid.answers import hybrid_choice_model
 from llmnav.planners.waypoints import PlanRules
+from llmnav.planners.waypoints.answers import WaypointList
 from llmnav.robot_specs import ROBOT_SPECS
 from llmnav.runlog import read_run
 from llmnav.runner import EpisodeSpec, run_episode

@@ -138,5 +138,5 @@ def test_drive_command_exit_codes_and_json(tmp_path: Path) -> None:
             str(tmp_path / "never"),
         ],
     )
-    assert res.exit_code == 2 and "unknown prompt template 'nonsense'" in res.output
+    assert res.exit_code == 2 and "unknown prompt variant 'nonsense'" in res.output
     assert not (tmp_path / "never").exists()

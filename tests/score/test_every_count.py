@@ -78,12 +78,13 @@ def test_path_table_shows_every_length(column: str) -> None:
 
 
 WAYPOINT_METRICS = {
-    "planning_time_s": 1.5, "execution_time_s": 20.0, "wgsr": 80.0, "collision_events": 1, "replanning_rate": 0.05,
+    "planning_time_s": 1.5, "execution_time_s": 20.0, "wgsr": 80.0, "collision_events": 1, "replans": 1,
+    "replanning_rate": 0.05,
 }  # fmt: skip
 
 
 @pytest.mark.parametrize("column", ["N", "Planning (s)", "Execution (s)", "Path (m)", "WGSR (%)",
-                                    "Collision events", "Replanning (1/s)", "Success"])  # fmt: skip
+                                    "Collision events", "Replans", "Success"])  # fmt: skip
 def test_waypoint_table_shows_every_metric(column: str) -> None:
     run = _run("waypoints", {"path_length_m": 10.0}, WAYPOINT_METRICS)
     cells = {k.split(":", 1)[1]: v for k, v in _cells(declared_table(WAYPOINT_TABLE, [run], ["planner"])).items()}

@@ -25,8 +25,8 @@ from llmnav.cli import app
 from llmnav.declarations import Column, ScoreTable
 from llmnav.errors import LlmnavError
 from llmnav.failures import FAILURE_CAUSES, failure_cause
-from llmnav.guard.schemas import step_answer
 from llmnav.planners.base import drive_options
+from llmnav.planners.stepwise.answers import step_answer
 from llmnav.runner import EpisodeSpec, run_episode
 from llmnav.score import declared_table, load_runs
 

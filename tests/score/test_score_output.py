@@ -159,7 +159,7 @@ def test_what_cannot_be_computed_is_named_with_its_run(tmp_path: Path, monkeypat
     def broken(*args: Any, **kwargs: Any) -> float:
         raise RuntimeError("grid exploded")
 
-    monkeypatch.setattr(oracle, "oracle_length", broken)
+    monkeypatch.setattr(oracle, "oracle_path", broken)
     result = _invoke(str(root), "--format", "json")
     assert result.exit_code == 0, result.output
     json.loads(result.stdout)  # the data still parses

@@ -32,7 +32,7 @@ import numpy as np
 
 from llmnav.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
-from llmnav.guard.schemas import VelocityBox, velocity_schema
+from llmnav.planners.fsm.answers import VelocityBox, velocity_schema
 from llmnav.planners.fsm.control import FsmConfig
 from llmnav.planners.fsm.workers import ProcessWorker, ThreadWorker
 
@@ -134,7 +134,7 @@ def judge(text: str, box: VelocityBox, request: ChatRequest | None = None) -> Ju
     write once the tick that uses it has published its command.
     """
     from llmnav.guard.ask import CallContext, ask_guarded
-    from llmnav.guard.schemas import VelocityMilli
+    from llmnav.planners.fsm.answers import VelocityMilli
 
     events: list[Event] = []
 
@@ -334,7 +334,8 @@ class AssistPipeline:
         """The model process's call, logged as `call_model` logs one."""
         from llmnav.observe import llm_call_fields
 
-        self.outbox.append(("llm_call", llm_call_fields(request, "suggestion", None, result, error)))
+        caching = bool(self.ctx.backend and self.ctx.backend.caching)
+        self.outbox.append(("llm_call", llm_call_fields(request, "suggestion", None, result, error, caching)))
 
     def _call_virtual(self, request: ChatRequest, now: float) -> Suggestion:
         """Call between ticks with the simulation frozen; charge the latency to simulation time."""

@@ -78,7 +78,7 @@ class FsmPlanner(Planner):
         final = ctx.world.robot.pose()
         ctx.log.event("pose", pose=final.as_list())
         stop = stop_point(ctx.scenario, ctx.task, self.cfg.d_goal)
-        outcome.metrics = run_metrics(stats, ctx.options.assist, final, start, stop, ctx.scenario)
+        outcome.metrics = run_metrics(stats, ctx.options.assist, final, stop)
         outcome.metrics["ttl_ms"] = round((assist.ttl_s if assist else ctx.options.ttl_ms / 1000.0) * 1000.0, 1)
         return outcome
 
@@ -181,7 +181,7 @@ class FsmPlanner(Planner):
     # --- hooks --------------------------------------------------------------------------------
     def summarize(self, record: RunRecord, scenario: Scenario, task: Task) -> dict[str, Any]:
         """The driven length and eta, from the closed log's pose samples (`stats.log_metrics`)."""
-        return log_metrics(record)
+        return log_metrics(record, scenario)
 
     def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
         """The velocity a perfect assistant would suggest to each state line (`llmnav.planners.fsm_oracle`)."""

@@ -32,19 +32,15 @@ class FsmStats:
     model_in: str = "loop"  # where the model runs: called between ticks, a worker "thread" or a "process"
 
 
-def run_metrics(
-    stats: FsmStats, assist: str, final: Pose2D, start: Pose2D, stop: tuple[float, float] | None, scenario: Scenario
-) -> dict[str, Any]:
-    """The episode's metrics known when `run` ends: e_pos to the stop point, L_opt, ticks and suggestions."""
+def run_metrics(stats: FsmStats, assist: str, final: Pose2D, stop: tuple[float, float] | None) -> dict[str, Any]:
+    """The episode's metrics known when `run` ends: e_pos to the stop point, ticks and suggestions."""
     e_pos = final.distance_to(*stop) if stop is not None else None
-    optimal = _shortest_length(scenario, start, stop) if stop is not None else None
     ticks = max(len(stats.tick_latency_ms), 1)
     lat = np.asarray(stats.tick_latency_ms or [0.0])
     model = np.asarray(stats.model_latency_ms) if stats.model_latency_ms else None
     return {
         "assist": assist,
         "e_pos_m": e_pos,
-        "optimal_length_m": optimal,
         "ticks": len(stats.tick_latency_ms),
         "missed_deadlines": stats.missed_deadlines,
         "scheduling": stats.scheduling,
@@ -70,27 +66,36 @@ def run_metrics(
     }
 
 
-def log_metrics(record: RunRecord) -> dict[str, Any]:
-    """The metrics of the closed log: the driven length and eta = L_opt / L_real (L_opt from the `end` event).
+def log_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
+    """The metrics of the closed log: the driven length L_real and eta = L_opt / L_real.
 
-    Nothing for an episode whose `end` event carries no FSM metrics (one aborted before its first tick).
+    L_opt joins the same two points as the driven path, its first and its last pose sample: so eta <= 1 by
+    definition, also for an episode that stopped short of the sign (L_opt to the sign, as before, gave a
+    robot that stopped early an eta above 1). L_opt is the A* length on the true map, capped by L_real,
+    because the driven path is itself a collision-free path between the two points (the grid's corners
+    can make A* a little longer than a path that hugs a wall). Nothing for an episode whose `end` event
+    carries no FSM metrics (one aborted before its first tick); eta is None when A* finds no path.
     """
     from llmnav.geometry import path_length
 
     ends = record.of_type("end")
     metrics = ends[-1].get("metrics") if ends else None
-    if not isinstance(metrics, dict) or "optimal_length_m" not in metrics:
+    if not isinstance(metrics, dict) or "e_pos_m" not in metrics:
         return {}
-    optimal = metrics["optimal_length_m"]
-    real = path_length(record.poses())
-    return {"eta": (optimal / real) if optimal and real > 0 else None, "real_length_m": real}
+    poses = record.poses()
+    real = path_length(poses)  # [m]
+    if len(poses) < 2 or real <= 0:
+        return {"eta": None, "real_length_m": real, "optimal_length_m": None}
+    shortest = _shortest_length(scenario, (poses[0][0], poses[0][1]), (poses[-1][0], poses[-1][1]))
+    optimal = None if shortest is None else min(shortest, real)  # [m]
+    return {"eta": None if optimal is None else optimal / real, "real_length_m": real, "optimal_length_m": optimal}
 
 
-def _shortest_length(scenario: Scenario, start: Pose2D, target: tuple[float, float]) -> float | None:
-    """L_opt for the trajectory efficiency: the A* length from the start to the target point."""
+def _shortest_length(scenario: Scenario, start: tuple[float, float], stop: tuple[float, float]) -> float | None:
+    """L_opt [m]: the A* length on the scenario's true map between the driven path's two ends."""
     from llmnav.mapping.paths import shortest_path_length
 
-    return shortest_path_length(scenario, (start.x, start.y), target)
+    return shortest_path_length(scenario, start, stop)
 
 
 def stop_point(scenario: Scenario, task: Task, d_goal: float) -> tuple[float, float] | None:

@@ -5,6 +5,7 @@ is the decision by scored option texts (how a small model chooses well), `execut
 out through the shared leg driver, `memory` keeps the landmarks.
 """
 
-from llmnav.planners.hybrid.planner import HybridConfig, HybridPlanner
+from llmnav.planners.hybrid.config import HybridConfig
+from llmnav.planners.hybrid.planner import HybridPlanner
 
 __all__ = ["HybridConfig", "HybridPlanner"]

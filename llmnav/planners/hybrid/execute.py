@@ -24,8 +24,8 @@ if TYPE_CHECKING:
     from llmnav.mapping.grid import LidarMap, OccupancyGrid
     from llmnav.nav.localize import Match
     from llmnav.planners.base import EpisodeContext
+    from llmnav.planners.hybrid.config import HybridConfig
     from llmnav.planners.hybrid.menu import Option
-    from llmnav.planners.hybrid.planner import HybridConfig
     from llmnav.sim.motion import MotionResult
     from llmnav.sim.sensors import LidarScan
 
@@ -98,8 +98,7 @@ class Executor:
             return
         fields: dict[str, Any] = {"pose": self._believed().as_list()}
         if match is not None:
-            fields |= {"accepted": match.accepted, "matched": round(match.matched, 3), "points": match.points}
-            fields |= {"reason": match.reason}
+            fields |= match.fields()
         self.ctx.event("localize", **fields)
 
     def _believed(self) -> Pose2D:
@@ -147,6 +146,9 @@ class Executor:
             memory.visited.add(option.landmark_id)
         if option.kind == "frontier" and option.goal is not None:
             memory.explored.append(option.goal)
+            # The map grew: a landmark that had no path before may have one now (seen through a doorway
+            # whose floor was still unknown).
+            memory.unreachable.clear()
         after = self._believed()
         self._log(step, option, before, None)
         if option.goal is not None and after.distance_to(*option.goal) > self.cfg.arrived_m:

@@ -35,7 +35,8 @@ class Memory:
     # id -> [m] the closest spot to a landmark the motion layer let the robot reach (it refused the rest)
     closest: dict[str, Point] = field(default_factory=dict)
     refused: dict[str, Point] = field(default_factory=dict)  # id -> [m] where a trip was refused
-    unreachable: set[str] = field(default_factory=set)  # refused twice from the same spot, far from it
+    # refused twice from the same spot, far from it, or no path on the map: until the next frontier is explored
+    unreachable: set[str] = field(default_factory=set)
     last_result: str = "nothing yet"
     # sensed: corrects odometry by matching scans to the LiDAR map (None: odometry is believed as it is)
     localizer: Localizer | None = None

@@ -31,7 +31,7 @@ from llmnav.planners.hybrid.memory import Memory, relevance_order
 if TYPE_CHECKING:
     from llmnav.mapping.grid import GridGeometry, LidarMap, OccupancyGrid
     from llmnav.planners.base import EpisodeContext
-    from llmnav.planners.hybrid.planner import HybridConfig
+    from llmnav.planners.hybrid.config import HybridConfig
 
 OptionKind = Literal["landmark", "frontier", "scan", "complete"]
 
@@ -58,6 +58,7 @@ class Option:
     distance_m: float = 0.0  # [m] from the robot to `goal`
     standing: bool = False  # landmark: the robot is there (at its stand point, or as close as is safe)
     utility: float = 0.0  # frontier: what exploring it is worth (`frontier_utility`)
+    near: tuple[str, ...] = ()  # frontier: names of the known landmarks near it, nearest first (`landmarks_near`)
 
     @property
     def goal_name(self) -> str:
@@ -84,7 +85,7 @@ class MenuInputs:
 
 def build_menu(inputs: MenuInputs, *, scored: bool = False) -> list[Option]:
     """The numbered menu (`scored`: no cap on landmarks)."""
-    places = landmark_options(inputs, scored=scored) + frontier_options(inputs)
+    places = landmark_options(inputs, scored=scored) + frontier_options(inputs, scored=scored)
     memory, pose, cfg = inputs.memory, inputs.pose, inputs.cfg
     scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < cfg.rescan_m
     # A second full turn on the same spot shows nothing new (the world is static): not offered. The words
@@ -161,12 +162,14 @@ def landmark_option(inputs: MenuInputs, object_id: str, position: Point) -> Opti
     )
 
 
-def frontier_options(inputs: MenuInputs) -> list[Option]:
-    """The nearest frontier clusters worth exploring; none with a published map.
+def frontier_options(inputs: MenuInputs, *, scored: bool = False) -> list[Option]:
+    """The frontier clusters worth exploring, the first `max_frontiers` by `-o explore`; none with a published map.
 
-    With a published map every landmark is listed already: exploring would only distract the model. A
-    frontier the robot stands at, or one it has reached before, shows nothing new from there (its unknown
-    side cannot be seen from the free cells): offering it again only wastes decisions.
+    `nearest` ranks them by distance, `utility` and `scored` by `frontier_utility` (a scored decision reads
+    no prompt: it gets up to `max_frontiers_scored` and weighs their descriptions itself). With a published
+    map every landmark is listed already: exploring would only distract the model. A frontier the robot
+    stands at, or one it has reached before, shows nothing new from there (its unknown side cannot be seen
+    from the free cells): offering it again only wastes decisions.
     """
     if inputs.ctx.scenario.corridors:
         return []
@@ -178,7 +181,10 @@ def frontier_options(inputs: MenuInputs) -> list[Option]:
         and all(math.dist(centre, seen) > cfg.rescan_m for seen in memory.explored)
     ]
     worth = [(frontier_utility(length, pose.distance_to(*c), cfg.frontier_decay_per_m), c) for c, length in found]
-    ranked = sorted(worth, key=lambda item: -item[0])  # stable: among equals the nearer (found is nearest first)
+    explore = inputs.ctx.options.explore
+    if explore != "nearest":  # (found is nearest first)
+        worth.sort(key=lambda item: -item[0])  # stable: among equals the nearer
+    count = cfg.max_frontiers_scored if scored and explore == "scored" else cfg.max_frontiers
     return [
         Option(
             0,
@@ -187,9 +193,24 @@ def frontier_options(inputs: MenuInputs) -> list[Option]:
             goal=centre,
             distance_m=pose.distance_to(*centre),
             utility=utility,
+            near=landmarks_near(memory, centre, cfg.describe_radius_m, cfg.describe_max),
         )
-        for utility, centre in ranked[: cfg.max_frontiers]
+        for utility, centre in worth[:count]
     ]
+
+
+def landmarks_near(memory: Memory, point: Point, radius_m: float, most: int) -> tuple[str, ...]:
+    """Names of the known landmarks within `radius_m` [m] of `point`, nearest first, each name once, at most `most`.
+
+    What the robot has seen near a frontier says what the unknown beyond it may hold (a wardrobe and a
+    bed: a bedroom). Known positions only: the planner's own estimates, never the scenario's.
+    """
+    near = sorted(
+        (math.dist(point, position), memory.label(object_id))
+        for object_id, position in memory.landmarks.items()
+        if math.dist(point, position) <= radius_m
+    )
+    return tuple(dict.fromkeys(name for _, name in near))[:most]
 
 
 def frontier_utility(length_m: float, distance_m: float, decay_per_m: float) -> float:

@@ -29,3 +29,11 @@ class HybridOptions(ChoiceOptions):
             "far (llmnav.nav.localize); false believes odometry alone"
         ),
     )
+    explore: Literal["nearest", "utility", "scored"] = Field(
+        default="utility",
+        description=(
+            "which frontier to explore: the nearest, the most useful (length x exp(-0.2/m x distance)), or "
+            "scored by what has been seen near it (docs/frontier-values.md; a backend that cannot score "
+            "explores by utility, and the run records it)"
+        ),
+    )

@@ -7,6 +7,13 @@ The hybrid asks two kinds of question, and a perfect model answers both from the
   `MISMATCH` otherwise; every name after the content-free task scores `NEUTRAL`. The PMI is then
   +10 nats for a target and -10 for anything else, beyond the rule's "sure" threshold either way. The
   intent is "turn" for the rotate and explore tasks, "go" for the others.
+- **Frontier descriptions** (`-o explore=scored`): the frontier that leads toward the target scores
+  `MATCH` after the task, every other `NEUTRAL`: PMI +10 for it and 0 for the rest, whatever their words
+  say. "Leads toward" is judged by where the frontier lies (`ScoreRequest.places`), not by its words: the
+  one with the shortest collision-free path on the true map to within the success radius of an
+  acceptable target (the `oracle` planner's geometry, `llmnav.mapping.targets.goal_distance`), which is
+  the way into the target's room. The room a set of landmarks suggests is not the oracle's business:
+  every room word scores `NEUTRAL`.
 - **An option number** (`--decide generate`): Finish where the robot stands at an acceptable target;
   else the option that drives to one; for a rotate or explore task the full turn, then Finish; else the
   full turn when offered (look before choosing); else the frontier whose direction is closest to the
@@ -25,7 +32,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from llmnav.planners.hybrid.menu import SECTORS
-from llmnav.planners.hybrid.scoring import INTENT_PROMPT, INTENTS
+from llmnav.planners.hybrid.scoring import FRONTIER_PROMPT, INTENT_PROMPT, INTENTS, ROOM_PROMPT
 from llmnav.relevance import CONTENT_FREE_TASK, TARGET_PROMPT
 
 if TYPE_CHECKING:
@@ -33,6 +40,7 @@ if TYPE_CHECKING:
     from llmnav.planners.base import GroundTruth
 
 MATCH, MISMATCH, NEUTRAL = 0.0, -20.0, -10.0  # [nats] see the module docstring
+TOWARD_RADIUS_M = 2.5  # [m] a frontier leads toward the target that its path reaches within this (full credit)
 _MENU_LINE = re.compile(r"^\s*(\d+)\.\s+(.+?)\s*$", re.MULTILINE)
 _GO_TO = re.compile(r"^Go to (.+?)(?:,|$)")
 _FINISH_AT = re.compile(r"^Finish \(at (.+)\)$")
@@ -66,12 +74,32 @@ class HybridAnswerKey:
         if request.prefix in (
             TARGET_PROMPT.format(task=CONTENT_FREE_TASK),
             INTENT_PROMPT.format(task=CONTENT_FREE_TASK),
+            FRONTIER_PROMPT.format(task=CONTENT_FREE_TASK),
         ):
+            return (NEUTRAL,) * n
+        if request.prefix == FRONTIER_PROMPT.format(task=task):
+            return self._frontier_scores(request)
+        if request.prefix.startswith(ROOM_PROMPT.split("{task}", 1)[0]):
             return (NEUTRAL,) * n
         if request.prefix == INTENT_PROMPT.format(task=task):
             wanted = dict(INTENTS)["go" if self.truth.task.kind == "target" else "turn"]
             return tuple(MATCH if c.strip() == wanted.strip() else MISMATCH for c in request.continuations)
         return tuple(MATCH if self._is_target(c) else MISMATCH for c in request.continuations)
+
+    def _frontier_scores(self, request: ScoreRequest) -> tuple[float, ...]:
+        """MATCH for the frontier nearest an acceptable target by path on the true map, NEUTRAL for the others."""
+        from llmnav.mapping.targets import goal_distance
+
+        n = len(request.continuations)
+        points = self.truth.scenario.target_points(self.truth.task)
+        if len(request.places) != n or not points:
+            return (NEUTRAL,) * n
+        lengths = [goal_distance(self.truth.scenario, points, place, TOWARD_RADIUS_M) for place in request.places]
+        reachable = [(length, index) for index, length in enumerate(lengths) if length is not None]
+        if not reachable:
+            return (NEUTRAL,) * n
+        best = min(reachable)[1]
+        return tuple(MATCH if index == best else NEUTRAL for index in range(n))
 
     def answer(self, request: ChatRequest) -> str:
         """The option number a perfect model would choose from the menu of the latest user turn."""

@@ -46,7 +46,6 @@ this module is the decide-execute loop.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from llmnav.declarations import Declarations
@@ -63,6 +62,7 @@ from llmnav.planners.base import (
     StepInfo,
     decides_by_scores,
 )
+from llmnav.planners.hybrid.config import HybridConfig
 from llmnav.planners.hybrid.execute import Executor, with_seen_obstacles
 from llmnav.planners.hybrid.memory import Memory, believed_pose, look, remember, start_memory
 from llmnav.planners.hybrid.menu import MenuInputs, build_menu
@@ -76,39 +76,6 @@ if TYPE_CHECKING:
     from llmnav.mapping.grid import OccupancyGrid
     from llmnav.planners.base import GroundTruth
     from llmnav.planners.hybrid.menu import Option
-
-
-@dataclass(frozen=True)
-class HybridConfig:
-    """Numbers of the hybrid planner."""
-
-    approach_min_m: float = 0.8  # [m] closest stand-off to an object without a goal point
-    approach_max_m: float = 1.8  # [m] farthest stand-off (inside the score's 2.5 m full-credit radius)
-    # [m] a landmark the motion layer will not let the robot approach further counts as reached within
-    # this: the stepwise source's instruction to stop 1.5-2.5 m from the target
-    stop_within_m: float = 2.5
-    leg_max_m: float = 1.5  # [m] longest straight leg between veto checks and detector looks
-    # Options offered per decision: a short menu keeps every decision within ~120 new prompt tokens and
-    # is an easier choice; farther landmarks come back into the menu as the robot moves.
-    max_landmarks: int = 4
-    max_frontiers: int = 2  # frontiers offered, the most useful first (`menu.frontier_utility`)
-    min_hop_m: float = 1.0  # [m] a frontier nearer than this shows next to nothing new: not offered
-    frontier_decay_per_m: float = 0.2  # [1/m] how fast a frontier's worth falls with the drive to it
-    frontier_min_cells: int = 12  # smaller frontier clusters are noise
-    # [m] the preferred planning grid keeps the robot's corners this far off walls both ways (a clearance
-    # of hypot(r + c, r + c) - r plus a cell beyond a robot of radius r); the plain grid's 0.10 m is the
-    # fallback where it has no path or stand point
-    roomy_corner_m: float = 0.05
-    turn_first_rad: float = 0.087  # [rad] a leg further off the heading is turned toward before it is checked
-    unexpected_m: float = 0.10  # [m] LiDAR hits farther than this from every known solid are obstacles
-    # [m] extra clearance around such hits: the LiDAR sees only an obstacle's near face, not its depth
-    unseen_depth_m: float = 0.25
-    obstacle_stop_m: float = 0.35  # [m] go_to stops when something is this close ahead
-    # [tokens] the option number comes first and is complete after ~6 tokens; the cap keeps the reasoning
-    # short (the guard closes a cut-off string), which on a loaded CPU saves seconds per decision
-    max_tokens: int = 16
-    arrived_m: float = 0.3  # [m] within this of a visited landmark's stand point the robot is "there"
-    rescan_m: float = 1.0  # [m] a full turn within this of the last one shows nothing new: not offered
 
 
 class HybridPlanner(Planner):
@@ -157,6 +124,17 @@ class HybridPlanner(Planner):
         """`score` or `generate`: what `--decide` means with this episode's backend."""
         return "score" if decides_by_scores(ctx.options, ctx.backend) else "generate"
 
+    def explore_mode(self, ctx: EpisodeContext) -> str:
+        """How this episode explores: `-o explore`, except that scored frontiers need scored decisions.
+
+        A backend that cannot score (or `--decide generate`) explores by utility; the run's summary and
+        condition say so ("utility (cannot score)"), so it is never taken for a scored run.
+        """
+        requested = ctx.options.explore
+        if requested == "scored" and self.decision_mode(ctx) != "score":
+            return "utility (cannot score)"
+        return requested
+
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Decide, execute, repeat until the model finishes or the iteration budget runs out."""
         maps = _Maps(ctx, self.cfg)
@@ -177,12 +155,17 @@ class HybridPlanner(Planner):
         world, scenario = ctx.world, ctx.scenario
         json_errors = vetoes = 0
         mode = self.decision_mode(ctx)
-        ctx.event("planner", decide=mode, requested=ctx.options.decide)
         bounds = scenario.bounds  # the extent the explorer may know: a bigger world gets more looks
         area = (bounds.x[1] - bounds.x[0]) * (bounds.y[1] - bounds.y[0])  # [m^2]
         mapped = bool(scenario.corridors)
-        chooser = ScoredChooser(ctx, ctx.task.text, mapped=mapped, area_m2=area) if mode == "score" else None
-        done = {"json_errors": 0, "vetoes": 0, "decide": mode}
+        explore = self.explore_mode(ctx)
+        ctx.event("planner", decide=mode, requested=ctx.options.decide, explore=explore)
+        chooser = (
+            ScoredChooser(ctx, ctx.task.text, mapped=mapped, area_m2=area, explore=ctx.options.explore)
+            if mode == "score"
+            else None
+        )
+        done = {"json_errors": 0, "vetoes": 0, "decide": mode, "explore": explore}
         # Render the camera image only for a request that carries it (scored decisions send none),
         # unless the user keeps every frame for the viewer.
         frames = (mode == "generate" and sends_image(ctx)) or ctx.options.frames == "always"

@@ -15,9 +15,9 @@ from typing import TYPE_CHECKING, Any
 from llmnav.chat import ChatRequest, Message
 
 if TYPE_CHECKING:
-    from llmnav.guard.schemas import HybridChoice
     from llmnav.observe import Observation
     from llmnav.planners.base import EpisodeContext
+    from llmnav.planners.hybrid.answers import HybridChoice
     from llmnav.planners.hybrid.memory import Memory
     from llmnav.planners.hybrid.menu import Option
     from llmnav.planners.hybrid.scoring import Decision, ScoredChooser
@@ -29,7 +29,8 @@ def choice_schema(options: list[Option]) -> tuple[Any, dict[str, Any]]:
     A small model that rambles in `reasoning` until the token cap has then still chosen, and the guard's
     repair closes the cut-off string.
     """
-    from llmnav.guard.schemas import hybrid_choice_model, response_schema
+    from llmnav.guard.schemas import response_schema
+    from llmnav.planners.hybrid.answers import hybrid_choice_model
 
     model = hybrid_choice_model(tuple(o.number for o in options))
     schema = response_schema(model)
@@ -88,9 +89,10 @@ def scored_choice(
         Candidate(
             o.number,
             o.kind,
-            (o.name,) if o.kind == "landmark" and o.name else o.at,
+            (o.name,) if o.kind == "landmark" and o.name else (o.near if o.kind == "frontier" else o.at),
             o.distance_m,
             o.utility,
+            o.goal if o.kind == "frontier" else None,
         )
         for o in options
     ]

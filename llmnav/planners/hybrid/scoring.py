@@ -23,10 +23,11 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
    see: explore the frontier worth the most first (its length discounted by the drive to it), at most
    max(`explore_budget`, the world's area / `explore_area_m2`) times in an episode. Exploring
    ends early when something new comes into view, and the decision is made again.
-5. With nothing left to explore, a target whose PMI reaches `min_pmi` (the task makes it e times
-   likelier) is taken; below that, look around where the robot has not yet, else the episode ends
-   `not_found`: a place the scores reject is never driven to or finished at, and neither is anything
-   when nothing was seen at all.
+5. Once the budget is spent (or nothing is left to explore), a target whose PMI reaches `min_pmi` (the
+   task makes it e times likelier) is taken. Below that there is nothing to take: explore on while
+   frontiers remain (the budget only bounds the search before an unsure target is taken), then look
+   around where the robot has not yet, else the episode ends `not_found`: a place the scores reject is
+   never driven to or finished at, and neither is anything when nothing was seen at all.
 6. At the target: an unsure one gets one more look around from there (a better match may come into
    view), then Finish. Otherwise go to the target.
 
@@ -43,17 +44,61 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
+from llmnav.chat import ScoreRequest
 from llmnav.relevance import CONTENT_FREE_TASK, TARGET_PROMPT, TextRelevance
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeContext
 
 INTENT_PROMPT = "A mobile robot carries out the user's task.\nTask: {task}\nTo do this, the robot will"
-__all__ = ["CONTENT_FREE_TASK", "INTENT_PROMPT", "TARGET_PROMPT", "Candidate", "Decision", "ScoredChooser"]
+# A frontier's description after the task, against the content-free task (`frontier_value`).
+FRONTIER_PROMPT = "A mobile robot carries out the user's task.\nTask: {task}\nTo do this, the robot explores toward"
+# The room a set of landmarks suggests: the room word the landmarks make likeliest (PMI against "N/A").
+ROOM_PROMPT = "In a building, the room with {task} is the"
+# Common rooms of homes, offices and industrial buildings: a fixed, general list, not read from any scenario.
+ROOM_WORDS = (
+    "kitchen",
+    "bedroom",
+    "bathroom",
+    "living room",
+    "dining room",
+    "office",
+    "meeting room",
+    "hallway",
+    "storage room",
+    "workshop",
+    "garage",
+    "laundry room",
+)
+UNDESCRIBED = "unexplored space"  # a frontier with no known landmark near it
+__all__ = [
+    "CONTENT_FREE_TASK",
+    "FRONTIER_PROMPT",
+    "INTENT_PROMPT",
+    "TARGET_PROMPT",
+    "Candidate",
+    "Decision",
+    "ScoredChooser",
+    "frontier_value",
+]
 INTENTS: tuple[tuple[str, str], ...] = (("go", " drive to something"), ("turn", " turn around on the spot"))
 
 CandidateKind = Literal["landmark", "frontier", "scan", "complete"]
 Intent = Literal["go", "turn"]
+Explore = Literal["nearest", "utility", "scored"]
+
+
+def frontier_value(utility: float, pmi: float) -> float:
+    """A scored frontier's value: log(utility) + PMI, i.e. the utility times the likelihood ratio e^PMI.
+
+    `utility` (`menu.frontier_utility`: length [m] x exp(-decay x distance)) is what exploring the frontier
+    is worth with no idea where the target is; the PMI [nats] of its description says how many times
+    likelier the task makes heading toward what lies near it. Multiplying the two weighs them without a
+    tuned weight: one nat of relevance is worth a factor e of utility (a frontier 5 m farther at the
+    default decay of 0.2/m). A description the task neither favours nor disfavours (PMI 0) leaves the
+    utility as it was, so with no evidence the explorer is the utility explorer.
+    """
+    return math.log(max(utility, 1e-9)) + pmi
 
 
 @dataclass(frozen=True)
@@ -73,9 +118,11 @@ class Candidate:
 
     number: int
     kind: CandidateKind
-    names: tuple[str, ...] = ()  # landmark: its name; complete: the names of the landmarks the robot is at
+    # landmark: its name; complete: the names of the landmarks the robot is at; frontier: the landmarks near it
+    names: tuple[str, ...] = ()
     distance_m: float = 0.0  # [m] from the robot to where the option drives
     utility: float = 0.0  # frontier: what exploring it is worth (`llmnav.planners.hybrid.menu.frontier_utility`)
+    place: tuple[float, float] | None = None  # [m] frontier: where it drives (for oracle answers' geometry)
 
 
 @dataclass
@@ -87,6 +134,8 @@ class Decision:
     intent: Intent
     scores: dict[str, float] = field(default_factory=dict)  # landmark name -> PMI [nats]
     not_found: bool = False  # nothing fits the task and nothing is left to look at: the episode ends so
+    # every frontier on the menu: option, description, utility, PMI and value (`frontier_value`)
+    frontiers: list[dict[str, Any]] = field(default_factory=list)
 
     def to_log(self) -> dict[str, Any]:
         """Event fields."""
@@ -96,6 +145,8 @@ class Decision:
             "intent": self.intent,
             "pmi": {name: round(value, 3) for name, value in self.scores.items()},
         }
+        if self.frontiers:
+            out["frontiers"] = self.frontiers
         return out | ({"not_found": True} if self.not_found else {})
 
 
@@ -110,12 +161,21 @@ class ScoredChooser:
         mapped: bool,
         config: ScoringConfig | None = None,
         area_m2: float = 0.0,
+        explore: Explore = "utility",
     ) -> None:
-        """`area_m2` [m^2]: the world's extent (what the explorer may know): a bigger building gets more looks."""
+        """`area_m2` [m^2]: the world's extent (what the explorer may know): a bigger building gets more looks.
+
+        `explore`: which frontier to explore: the nearest, the most useful (`Candidate.utility`), or the
+        most valuable by its description's scores (`frontier_value`).
+        """
         self.cfg = config or ScoringConfig()
         self.area_m2 = area_m2
+        self.explore = explore
         self.step: int | None = None  # the decision the scores are logged with
-        self.scorer = TextRelevance(lambda request: ctx.score(request, self.step), task)
+        self._score = lambda request: ctx.score(request, self.step)
+        self.task = task
+        self.scorer = TextRelevance(self._score, task)
+        self._rooms: dict[str, str] = {}  # landmark list -> the room it suggests ("" for none)
         self.mapped = mapped  # a published map lists every landmark: no need to look before choosing
         self.intent: Intent | None = None
         self.explored = 0  # decisions that chose to explore
@@ -138,7 +198,21 @@ class ScoredChooser:
         return self.intent
 
     def choose(self, candidates: list[Candidate], *, turned: bool, step: int | None) -> Decision:
-        """The option to take now; `turned`: a full turn has been made in this episode."""
+        """The option to take now; `turned`: a full turn has been made in this episode.
+
+        The decision lists every frontier on the menu with what is known near it and its utility (and,
+        where it chose by scores, each one's description, PMI and value).
+        """
+        decision = self._choose(candidates, turned=turned, step=step)
+        if not decision.frontiers:
+            decision.frontiers = [
+                {"option": c.number, "near": list(c.names), "utility": round(c.utility, 3)}
+                for c in candidates
+                if c.kind == "frontier"
+            ]
+        return decision
+
+    def _choose(self, candidates: list[Candidate], *, turned: bool, step: int | None) -> Decision:
         by_kind: dict[str, list[Candidate]] = {}
         for candidate in candidates:
             by_kind.setdefault(candidate.kind, []).append(candidate)
@@ -172,6 +246,11 @@ class ScoredChooser:
             self.explored += 1
             return self._frontier(by_kind, intent, scores, f"{name} {scores[name]:+.1f} is unsure")
         if scores[name] < self.cfg.min_pmi:
+            # The budget bounds exploring before an unsure target is taken; with no known place worth
+            # taking there is nothing to take yet, so the search goes on while anything is left to explore.
+            if by_kind.get("frontier"):
+                self.explored += 1
+                return self._frontier(by_kind, intent, scores, f"no known place fits ({name} {scores[name]:+.1f})")
             if scan is not None:
                 why = f"no known place fits ({name} {scores[name]:+.1f}): look around"
                 return Decision(scan.number, why, intent, scores)
@@ -184,8 +263,71 @@ class ScoredChooser:
             return Decision(finish.number, f"at {name}", intent, scores)
         return Decision(best.number, f"go to {name}", intent, scores)
 
-    @staticmethod
-    def _frontier(by_kind: dict[str, list[Candidate]], intent: Intent, scores: dict[str, float], why: str) -> Decision:
-        """Explore the frontier worth the most (ties: the nearer)."""
-        best = max(by_kind["frontier"], key=lambda c: (c.utility, -c.distance_m))
-        return Decision(best.number, f"{why}: explore", intent, scores)
+    def _frontier(
+        self, by_kind: dict[str, list[Candidate]], intent: Intent, scores: dict[str, float], why: str
+    ) -> Decision:
+        """Explore the frontier `explore` ranks first (ties: the nearer)."""
+        frontiers = by_kind["frontier"]
+        rows: list[dict[str, Any]] = []
+        if self.explore == "nearest":
+            best = min(frontiers, key=lambda c: c.distance_m)
+        elif self.explore == "utility":
+            best = max(frontiers, key=lambda c: (c.utility, -c.distance_m))
+        else:
+            texts = [self.describe(c.names) for c in frontiers]
+            pmi = self.frontier_pmi(texts, [c.place or (0.0, 0.0) for c in frontiers])
+            values = [frontier_value(c.utility, p) for c, p in zip(frontiers, pmi, strict=True)]
+            best = max(zip(values, frontiers, strict=True), key=lambda item: (item[0], -item[1].distance_m))[1]
+            rows = [
+                {
+                    "option": c.number,
+                    "near": list(c.names),
+                    "description": text,
+                    "utility": round(c.utility, 3),
+                    "pmi": round(p, 3),
+                    "value": round(v, 3),
+                }
+                for c, text, p, v in zip(frontiers, texts, pmi, values, strict=True)
+            ]
+        decision = Decision(best.number, f"{why}: explore", intent, scores)
+        decision.frontiers = rows
+        return decision
+
+    # --- frontier descriptions ----------------------------------------------------------------------
+    def describe(self, names: tuple[str, ...]) -> str:
+        """A frontier's description: the room its nearby landmarks suggest and the landmarks themselves.
+
+        "the living room with the sofa and the armchair"; without a room that the landmarks make at least
+        `min_pmi` likelier, just "the sofa and the armchair"; with no landmark near, UNDESCRIBED.
+        """
+        if not names:
+            return UNDESCRIBED
+        things = _listed(names)
+        room = self.room(things)
+        return f"the {room} with {things}" if room else things
+
+    def room(self, things: str) -> str:
+        """The room `things` suggest: the room word they make likeliest, if by at least `min_pmi` [nats]."""
+        if things not in self._rooms:
+            scores = TextRelevance(self._score, things).pmi(ROOM_PROMPT, list(ROOM_WORDS))
+            best = max(ROOM_WORDS, key=lambda word: scores[word])  # ties: the first
+            self._rooms[things] = best if scores[best] >= self.cfg.min_pmi else ""
+        return self._rooms[things]
+
+    def frontier_pmi(self, texts: list[str], places: list[tuple[float, float]]) -> list[float]:
+        """PMI [nats] of each frontier description with the task, against the content-free task.
+
+        One request pair for the menu's frontiers, never cached: oracle answers judge each by where it
+        lies (`ScoreRequest.places`), and the same words may describe two frontiers.
+        """
+        continuations = tuple(" " + text for text in texts)
+        where = tuple((round(x, 3), round(y, 3)) for x, y in places)
+        with_task = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=self.task), continuations, where))
+        free = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=CONTENT_FREE_TASK), continuations, where))
+        return [a.logprob - b.logprob for a, b in zip(with_task.scores, free.scores, strict=True)]
+
+
+def _listed(names: tuple[str, ...]) -> str:
+    """'the sofa', 'the sofa and the armchair', 'the sofa, the rug and the armchair'."""
+    items = [f"the {name}" for name in names]
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"

@@ -25,11 +25,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from llmnav.geometry import wrap_angle
-from llmnav.guard.schemas import ActionCommand, step_answer
 from llmnav.guard.veto import VETO_PREFIX
 from llmnav.mapping.grid import GridConfig
 from llmnav.mapping.targets import OracleConfig, oracle_path
 from llmnav.planners.base import GeneratedAnswers
+from llmnav.planners.stepwise.answers import ActionCommand, step_answer
 
 if TYPE_CHECKING:
     from llmnav.chat import ChatRequest

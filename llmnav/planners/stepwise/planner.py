@@ -28,10 +28,11 @@ from llmnav.chat import ChatRequest, Message
 from llmnav.declarations import Declarations
 from llmnav.guard.ask import GuardedAnswer, ask_guarded
 from llmnav.guard.legs import Action
-from llmnav.guard.schemas import ActionBounds, ActionCommand, StepAction, response_schema
+from llmnav.guard.schemas import response_schema
 from llmnav.guard.veto import VetoResult, veto_message
 from llmnav.observe import Observation, observe
 from llmnav.planners.base import MODEL_OPTIONS, EpisodeContext, EpisodeOutcome, Information, Outcome, Planner, StepInfo
+from llmnav.planners.stepwise.answers import ActionBounds, ActionCommand, StepAction
 from llmnav.planners.stepwise.options import StepwiseOptions
 
 if TYPE_CHECKING:
@@ -102,7 +103,7 @@ class StepwisePlanner(Planner[StepwiseOptions]):
 
 
 def _self_check_on(options: StepwiseOptions) -> bool:
-    return options.self_check or options.prompt in ("self-check", "self_check")
+    return options.self_check or options.prompt == "self-check"
 
 
 def history_window(exchanges: list[tuple[Message, Message]], history: str) -> list[Message]:

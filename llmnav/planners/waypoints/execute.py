@@ -47,23 +47,41 @@ class WaypointConfig:
     obstacle_margin_m: float = 0.1  # [m] clearance kept from it beyond the robot's radius
 
 
-# Source B, Tables 1–3: a row per command and one averaged over them.
+# Source B, Tables 1–3: a row per command and one averaged over them. A run whose plan failed drove nothing:
+# its execution time and path are left out of the means (the source leaves failed plans out of its averages),
+# not counted as 0 s and 0 m. Replans are counts, as the source gives them. `llmnav score --table
+# waypoints-legs` has one row per leg of a route (`legs` below).
 WAYPOINT_TABLE = ScoreTable(
     name="waypoints",
     title="Waypoint planner (waypoint source, Tables 1–3 style)",
     columns=(
         Column("planning_time_s", "Planning (s)", bounds=(0.0, None)),
-        Column("execution_time_s", "Execution (s)", bounds=(0.0, None)),
-        Column("path_length_m", "Path (m)", source="summary", bounds=(0.0, None)),
+        Column("execution_time_s", "Execution (s)", unless="plan_failed", bounds=(0.0, None)),
+        Column("path_length_m", "Path (m)", source="summary", unless="plan_failed", bounds=(0.0, None)),
         Column("wgsr", "WGSR (%)", digits=1, bounds=(0.0, 100.0)),
         Column("collision_events", "Collision events", digits=1, bounds=(0.0, None)),
-        Column("replanning_rate", "Replanning (1/s)", digits=3, bounds=(0.0, None)),
+        Column("replans", "Replans", digits=1, bounds=(0.0, None)),
         Column("successes", "Success", aggregate="rate", source="summary", path="success"),
     ),
     marker="wgsr",
     rows="command",
     average_row=True,
+    note="Execution and Path leave out runs whose plan failed ('failed' when every run's did); Replans: count",
 )
+
+# What a leg record (`legs` in the planner metrics) counts from the episode's running totals.
+LEG_COUNTERS = ("planning_time_s", "generations", "valid_generations", "execution_time_s", "driven_m",
+                "collision_events")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _LegStart:
+    """Where a leg of the command began: its command, target, true pose and the running totals then."""
+
+    command: str
+    target_id: str
+    pose: Pose2D
+    counters: dict[str, float]
 
 
 def map_to_odom(point: Point, start_map: Pose2D, start_odom: Pose2D) -> Point:
@@ -133,6 +151,8 @@ class WaypointPlanner(Planner):
             "collision_events": 0,
             "vetoed_segments": 0,
             "replans": 0,
+            "driven_m": 0.0,  # [m] ground truth, summed over the executed segments (source B's path length)
+            "plan_failed": False,  # a leg ended without a valid plan: nothing was driven for it
             "legs": [],
         }
 
@@ -176,6 +196,7 @@ class WaypointPlanner(Planner):
             note("grounding", command=leg.text, target=target.id)
             seen: list[Point] = []
             replans = 0
+            opened = _LegStart(leg.text, target.id, world.robot.pose(), {k: metrics[k] for k in LEG_COUNTERS})
             while True:
                 start = world.robot.pose()
                 if preset:  # `llmnav plan --execute`: the plan was made already; it is validated again
@@ -209,12 +230,15 @@ class WaypointPlanner(Planner):
                 self._count(metrics, plan)
                 waypoints = plan.waypoints
                 if waypoints is None:
+                    metrics["plan_failed"] = True
                     return self._leg_failed(
+                        ctx,
                         metrics,
-                        target.id,
+                        opened,
                         replans,
                         f"no valid waypoints for {target.label} after {len(plan.attempts)} generations",
                         step,
+                        plan_failed=True,
                     )
                 ctx.view.on_step(
                     StepInfo(
@@ -228,7 +252,9 @@ class WaypointPlanner(Planner):
                 if stop is None:
                     break
                 if stop == "collision":
-                    return self._leg_failed(metrics, target.id, replans, "collided while following waypoints", step)
+                    return self._leg_failed(
+                        ctx, metrics, opened, replans, "collided while following waypoints", step, collided=True
+                    )
                 obstacle: Point | None = None
                 if stop in ("obstacle", "emergency"):  # a LiDAR reading below the stop distance
                     metrics["collision_events"] += 1
@@ -240,8 +266,9 @@ class WaypointPlanner(Planner):
                     seen.append(obstacle)
                 if replans >= opts.max_replans:
                     return self._leg_failed(
+                        ctx,
                         metrics,
-                        target.id,
+                        opened,
                         replans,
                         f"path to {target.label} still blocked ({stop}) after {replans} replans",
                         step,
@@ -261,7 +288,7 @@ class WaypointPlanner(Planner):
                     obstacle=None if obstacle is None else [round(obstacle[0], 3), round(obstacle[1], 3)],
                     waited_s=round(max(wait, 0.0), 3),
                 )
-            metrics["legs"].append({"target": target.id, "reached": True, "replans": replans})
+            metrics["legs"].append(self._leg_record(ctx, metrics, opened, replans, reached=True))
         return self._end(metrics, "completed", "reached every target", step)
 
     def _execute(
@@ -300,6 +327,7 @@ class WaypointPlanner(Planner):
                     obstacle_stop_m=cfg.critical_m,
                     emergency_stop_m=cfg.emergency_m,
                 )
+                metrics["driven_m"] += result.distance_m
                 if result.collided:
                     return "collision", result
                 if result.stopped_reason is not None:
@@ -341,9 +369,54 @@ class WaypointPlanner(Planner):
         metrics["valid_generations"] += sum(a.valid for a in plan.attempts)
 
     @staticmethod
-    def _leg_failed(metrics: dict[str, Any], target_id: str, replans: int, reason: str, step: int) -> EpisodeOutcome:
+    def _leg_record(
+        ctx: EpisodeContext,
+        metrics: dict[str, Any],
+        opened: _LegStart,
+        replans: int,
+        *,
+        reached: bool,
+        plan_failed: bool = False,
+        collided: bool = False,
+    ) -> dict[str, Any]:
+        """One leg as source B's tables show it: what it cost and drove since it started where the last one ended."""
+        spent = {k: metrics[k] - opened.counters[k] for k in LEG_COUNTERS}
+        gens, valid = int(spent["generations"]), int(spent["valid_generations"])
+        return {
+            "command": opened.command,
+            "target": opened.target_id,
+            "reached": reached,
+            "plan_failed": plan_failed,
+            "start": [round(v, 4) for v in opened.pose.as_list()],
+            "end": [round(v, 4) for v in ctx.world.robot.pose().as_list()],
+            "planning_time_s": spent["planning_time_s"],
+            "generations": gens,
+            "valid_generations": valid,
+            "wgsr": 100.0 * valid / gens if gens else None,
+            "replans": replans,
+            "execution_time_s": round(spent["execution_time_s"], 4),
+            "path_length_m": round(spent["driven_m"], 4),
+            "collision_events": int(spent["collision_events"]),
+            "collided": collided,
+        }
+
+    @staticmethod
+    def _leg_failed(
+        ctx: EpisodeContext,
+        metrics: dict[str, Any],
+        opened: _LegStart,
+        replans: int,
+        reason: str,
+        step: int,
+        *,
+        plan_failed: bool = False,
+        collided: bool = False,
+    ) -> EpisodeOutcome:
         """Record the unreached leg, then end the episode as failed."""
-        metrics["legs"].append({"target": target_id, "reached": False, "replans": replans})
+        record = WaypointPlanner._leg_record(
+            ctx, metrics, opened, replans, reached=False, plan_failed=plan_failed, collided=collided
+        )
+        metrics["legs"].append(record)
         return WaypointPlanner._end(metrics, "failed", reason, step)
 
     @staticmethod

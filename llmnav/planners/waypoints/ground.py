@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from llmnav.geometry import Point
-    from llmnav.guard.schemas import TargetChoice
+    from llmnav.planners.waypoints.answers import TargetChoice
     from llmnav.planners.waypoints.plan import ModelCall
     from llmnav.relevance import Scorer
     from llmnav.scenario import LabelledObject, Scenario, Task
@@ -40,7 +40,8 @@ def ground_target(
     when exactly one candidate's goal point lies within `tolerance_m` [m] of it. The model's pick goes
     through `ask_guarded` (`max_tries` replies at most); `on_event` receives its `guard` events.
     """
-    from llmnav.guard.schemas import response_schema, target_choice_model
+    from llmnav.guard.schemas import response_schema
+    from llmnav.planners.waypoints.answers import target_choice_model
     from llmnav.prompting import render
     from llmnav.tasks import named_objects
 

@@ -20,8 +20,8 @@ from llmnav.planners.waypoints.validate import PlanRules
 if TYPE_CHECKING:
     from llmnav.geometry import Pose2D
     from llmnav.guard.parse import GuardResult
-    from llmnav.guard.schemas import WaypointList
     from llmnav.mapping.grid import OccupancyGrid
+    from llmnav.planners.waypoints.answers import WaypointList
     from llmnav.scenario import LabelledObject, Scenario, WaypointRules
 
 ModelCall = Callable[[ChatRequest, str], ChatResult]  # (request, purpose) -> reply
@@ -97,7 +97,8 @@ def waypoint_schema(rules: WaypointRules) -> dict[str, Any]:
 
     A grammar-constrained model then cannot ramble on past it; the validator still checks the count.
     """
-    from llmnav.guard.schemas import WaypointList, response_schema
+    from llmnav.guard.schemas import response_schema
+    from llmnav.planners.waypoints.answers import WaypointList
 
     return {**response_schema(WaypointList), "maxItems": rules.max_waypoints}
 
@@ -126,7 +127,7 @@ def generate_plan(
     the guard's events (one `guard` event per reply).
     """
     from llmnav.guard.parse import correction_message, parse_answer
-    from llmnav.guard.schemas import WaypointList
+    from llmnav.planners.waypoints.answers import WaypointList
     from llmnav.prompting import render
 
     clock = PlanningClock(call)
