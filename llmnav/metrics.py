@@ -204,8 +204,13 @@ def _task_info(
     return task, points, faces
 
 
-def condition_of(config: dict[str, Any]) -> dict[str, Any]:
-    """The condition of a run: its planner, backend and the options an ablation varies."""
+def condition_of(config: dict[str, Any], events: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
+    """The condition of a run: its planner, backend and the options an ablation varies.
+
+    What the run actually did wins over what was asked: an event carrying `condition` (a fallback from
+    `decide=auto` to generation, an assist that died) replaces those keys' values, so tables never pool
+    such a run with the condition it was asked for (`decide=generate (fallback)`, `assist=llm (failed)`).
+    """
     options = config.get("options") or {}
     condition: dict[str, Any] = {}
     for key in CONDITION_KEYS:
@@ -218,6 +223,10 @@ def condition_of(config: dict[str, Any]) -> dict[str, Any]:
         if isinstance(value, (list, tuple)):  # sensing: ("lidar", "image") -> "lidar+image", as on the CLI
             value = "+".join(str(v) for v in value)
         condition[key] = value
+    for event in events:
+        changed = event.get("condition")
+        if isinstance(changed, dict):
+            condition.update({k: str(v) for k, v in changed.items() if k in CONDITION_KEYS and isinstance(v, str)})
     return condition
 
 
@@ -485,7 +494,7 @@ def summarize_run(
         "backend": config.get("backend"),
         "start_pose_index": config.get("start_pose_index"),
         "seed": config.get("seed"),
-        "condition": condition_of(config) | _as_run(planner_metrics),
+        "condition": condition_of(config, record.events) | _as_run(planner_metrics),
         "iterations": iterations,
         "latency_s_mean": _rounded(_mean(latencies)),
         "llm_calls": len(record.of_type("llm_call")),

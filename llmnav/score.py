@@ -1,13 +1,13 @@
 """`llmnav score`: read run folders, group them by task and condition, and build the sources' tables.
 
 Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
-`build_tables` (the episode and path-length tables every run has, the tables each planner declares (see
-`llmnav.declarations`), and the null-policy, floor/model/ceiling and wording tables of
-`llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A
-KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data
-(`Table`): formatted cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a
-scenario that does not load, an oracle that fails) is noted on its `Run` and listed by `problems`, never
-silently dropped.
+the tables: the episode and path-length tables every run has and the tables each planner declares (see
+`llmnav.declarations`) here, the null-policy, floor/model/ceiling and wording tables in
+`llmnav.score_policies`, all of them gathered by `llmnav.score_tables.build_tables` (only those with data);
+and `compare_groups` (`--compare KEY=A KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in
+`llmnav.reporting.tables`. Tables are plain data (`Table`): formatted cells for display and raw numbers for
+JSON and CSV. Whatever cannot be computed (a scenario that does not load, an oracle that fails) is noted on
+its `Run` and listed by `problems`, never silently dropped.
 """
 
 from __future__ import annotations
@@ -730,32 +730,6 @@ def declared_tables(runs: Sequence[Run], keys: Sequence[str], declared: Mapping[
             planners[spec.name].add(name)
     tables = (declared_table(spec, runs, keys, planners[name]) for name, spec in specs.items())
     return [t for t in tables if t is not None]
-
-
-def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
-    """Every table that has data; groups are told apart by `group_keys` (default: the varying keys).
-
-    The planners' own tables come from what each installed planner declares (`llmnav.declarations`);
-    a run whose planner is not installed is in the common tables (and noted as a problem).
-    """
-    from llmnav.score_policies import ceiling_table, null_policy_table, wording_spread_table, wording_table
-
-    keys = list(group_keys) if group_keys is not None else varying_keys(runs)
-    results, aborted = split_aborted(runs)
-    declared = installed_declarations()
-    for run in runs:
-        if run.planner not in declared:
-            run.problem(f"planner '{run.planner}' is not installed (or fails to load): its own tables are left out")
-    common = (episodes_table(results, keys), path_table(results, keys, reference_paths(declared)))
-    tables = [t for t in common if t is not None]
-    tables += declared_tables(results, keys, declared)
-    policies = (null_policy_table, ceiling_table, wording_table, wording_spread_table)
-    tables += [t for t in (b(results, keys) for b in policies) if t is not None]
-    tables += [t for t in (failures_table(runs, keys), aborted_table(aborted, keys)) if t is not None]
-    from llmnav.score_cost import cost_table
-
-    tables += [t for t in (cost_table(runs, keys),) if t is not None]
-    return tables
 
 
 def failures_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:

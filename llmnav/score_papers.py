@@ -33,6 +33,7 @@ from llmnav.errors import BadInputError
 from llmnav.runlog import read_run
 from llmnav.scenario import SEQUENCE_JOIN
 from llmnav.score import (
+    CACHE_MARK,
     FAILED,
     MISSING,
     NA,
@@ -321,9 +322,10 @@ def _fsm_conditions(runs: Sequence[Run], keys: Sequence[str]) -> list[tuple[str,
 
     def name(group: Sequence[Run]) -> str:
         assist, backend = assist_of(group), group[0].summary.get("backend")
+        named = ASSIST_NAMES.get(assist, "?")
         if assist == "llm" and backend:
-            return ASSIST_NAMES[assist] + (ORACLE_MARK if is_oracle(group[0]) else f" ({backend})")
-        return ASSIST_NAMES.get(assist, "?")
+            named += ORACLE_MARK if is_oracle(group[0]) else f" ({backend})"
+        return named + (CACHE_MARK if group[0].summary.get("cache_hits") else "")  # as every condition label
 
     names = [name(group) for _, group in groups]
     if "?" in names or len(set(names)) < len(names):
@@ -453,7 +455,7 @@ PAPER_TABLES: dict[str, Callable[[Sequence[Run], Sequence[str]], Table | None]] 
     "fsm-compare": fsm_compare_table,
     "fsm-velocity": fsm_velocity_table,
 }
-# llmnav's own tables (`llmnav.score.build_tables`, `--compare`) whatever the planners declare
+# llmnav's own tables (`llmnav.score_tables.build_tables`, `--compare`) whatever the planners declare
 OWN_TABLES = ("runs", "episodes", "path", "null_policies", "ceiling", "wording", "wording_spread", "failures",
               "aborted", "cost", "comparison")  # fmt: skip
 

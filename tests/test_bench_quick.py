@@ -87,7 +87,13 @@ ROWS: dict[str, list[str]] = {
         rf"sweep: hybrid · local model, 2 workers, 2 episodes in {NUMBER} min",
         rf"\s+300 episodes: {NUMBER} min \(extrapolated from 2 episodes\)",
     ],
-    "rl": [rf"\s+{name}\s+\d+\s+\d+\s+\d+\s+\d+$" for name in ("Factory-v0", "Corridor-v0", "Maze-v0")],
+    "rl": [
+        r"\s+training steps\s+64$",
+        rf"\s+training wall time \[s\]\s+{NUMBER} \(\d+ steps/s\)",
+        r"\s+success\s+\d/2 evaluation episodes \(\d+ %\), target 80 %: quick: not a measurement",
+        rf"\s+load {NUMBER} at the start, {NUMBER} at the end",
+        *(rf"\s+{name}\s+\d+\s+\d+\s+\d+\s+\d+$" for name in ("Factory-v0", "Corridor-v0", "Maze-v0")),
+    ],
     "protocol": [
         rf"\s+wall time of the sweep\s+{NUMBER} min",
         rf"\s+episodes per minute\s+{NUMBER}",

@@ -6,7 +6,7 @@ import os
 from collections.abc import Callable, Generator, Sequence
 from typing import TYPE_CHECKING, Any
 
-from llmnav.errors import BadInputError, one_line
+from llmnav.errors import BadInputError, LlmnavError, one_line
 
 if TYPE_CHECKING:
     from llmnav.ablate.grid import Episode
@@ -14,6 +14,10 @@ if TYPE_CHECKING:
 
 Runner = Callable[["EpisodeSpec"], dict[str, Any]]
 Result = tuple[dict[str, Any] | None, str | None, bool]
+
+
+class WorkerDiedError(LlmnavError):
+    """A pool worker ended without an answer (killed, out of memory): the sweep stops, resumable."""
 
 
 def execute_episode(runner: Runner, spec: EpisodeSpec) -> tuple[dict[str, Any] | None, str | None, bool]:
@@ -107,10 +111,14 @@ def run_pool(
 ) -> Generator[tuple[Episode, Result], None, None]:
     """Episodes in a spawn process pool (fresh interpreters: no inherited PyBullet or model state).
 
-    `env`: environment variables for the workers alone.
+    `env`: environment variables for the workers alone. A worker that dies (a SIGKILL, the OOM killer) breaks
+    the whole pool, and the episodes the others were running die with it: its episode is yielded as an
+    error, then `WorkerDiedError` ends the sweep with one line. The manifest keeps every finished
+    episode; running the same sweep again resumes it.
     """
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
 
     context = multiprocessing.get_context("spawn")
     count = min(workers, len(specs))
@@ -128,6 +136,16 @@ def run_pool(
         while remaining:
             finished, remaining = wait(remaining, return_when=FIRST_COMPLETED)
             for future in finished:
-                yield futures[future], future.result()
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    episode = futures[future]
+                    yield episode, (None, "its worker process died (killed or out of memory)", False)
+                    raise WorkerDiedError(
+                        f"a worker process died (killed or out of memory) during episode {episode.key}; the "
+                        "sweep stopped with the episodes running beside it: run the same command again to "
+                        "resume (finished episodes are kept)"
+                    ) from None
+                yield futures[future], result
     finally:  # Ctrl-C or a fatal episode: drop what has not started, let running episodes end
         executor.shutdown(wait=True, cancel_futures=True)

@@ -370,6 +370,9 @@ class JsonHttpClient:
                 failure, status = _timeout_reason(err, round(budget, 1)), None
             except httpx.TransportError as err:
                 failure, status = _transport_reason(err), None
+            except httpx.HTTPError as err:  # a body that does not decode (a false Content-Encoding): not retried
+                failure, status = f"bad reply: {type(err).__name__}: {one_line(str(err), 100)}", None
+                break
             else:
                 if response.status_code < 400:
                     return HttpReply(self._decode(response), response.status_code, attempt, time.perf_counter() - t0)
@@ -440,10 +443,9 @@ class JsonHttpClient:
             data = bounded_loads(response.content)  # a `[` × 200,000 is a bad reply, not a RecursionError
         except (ValueError, UnicodeDecodeError):
             data = None
-            snippet = one_line(response.content[:60].decode("utf-8", errors="replace"), 60)
         if not isinstance(data, dict):
-            if data is not None:
-                snippet = one_line(json.dumps(data)[:60], 60)
+            shown = json.dumps(data) if data is not None else response.content[:60].decode("utf-8", errors="replace")
+            snippet = one_line(shown[:60], 60)
             raise ModelError(
                 self.redact(
                     f"{self.label}: HTTP {response.status_code} reply is not a JSON object "

@@ -106,6 +106,21 @@ def plan(
         model.close()
 
 
+def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
+    """`policy:oracle`: the waypoint planner's answer key, from the true map and the start pose (nothing moves)."""
+    from llmnav.planners.base import GroundTruth
+    from llmnav.planners.waypoints import WaypointPlanner
+    from llmnav.planners.waypoints.options import WaypointOptions
+    from llmnav.runner import oracle_backend
+
+    oracle = oracle_backend(model)
+    if oracle is None:
+        return
+    start = resolved.start.pose()
+    truth = GroundTruth(resolved.scenario, resolved.task, lambda: start, lambda: 0.0)
+    oracle.attach_answer_key(WaypointPlanner().oracle_answers(truth, WaypointOptions(planner="waypoints")))
+
+
 PLAN_FILE = "plan.png"
 
 
@@ -123,21 +138,6 @@ def _write_figure(sc: Scenario, result: PlanResult, start: Pose2D, path: Path) -
         raise BadInputError(f"--plot {path}: exists; llmnav plan never replaces a file, choose another name") from None
     except OSError as err:
         raise BadInputError(f"--plot {path}: cannot write: {err.strerror or err}") from None
-
-
-def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
-    """`policy:oracle`: the waypoint planner's answer key, from the true map and the start pose (nothing moves)."""
-    from llmnav.planners.base import GroundTruth
-    from llmnav.planners.waypoints import WaypointPlanner
-    from llmnav.planners.waypoints.options import WaypointOptions
-    from llmnav.runner import oracle_backend
-
-    oracle = oracle_backend(model)
-    if oracle is None:
-        return
-    start = resolved.start.pose()
-    truth = GroundTruth(resolved.scenario, resolved.task, lambda: start, lambda: 0.0)
-    oracle.attach_answer_key(WaypointPlanner().oracle_answers(truth, WaypointOptions(planner="waypoints")))
 
 
 def _print_plan(result: PlanResult, scenario: str, plot: Path | None) -> None:

@@ -75,7 +75,6 @@ def score(
     Tables (or data) go to stdout; status and anything that could not be computed go to stderr.
     """
     from llmnav.score import (
-        build_tables,
         collided_runs,
         compare_groups,
         problems,
@@ -85,6 +84,7 @@ def score(
         varying_keys,
     )
     from llmnav.score_papers import PAPER_TABLES, check_table_name, paper_table
+    from llmnav.score_tables import build_tables
 
     if table is not None:
         check_table_name(table)  # before any run is read: a typo costs nothing

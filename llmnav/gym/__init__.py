@@ -18,6 +18,15 @@ start_pose, information, lidar_sectors, max_steps, reward, ...). `make` wraps th
 `llmnav.gym.make_sb3(id, **options)` gives the same environment with array-only spaces, as
 Stable-Baselines3 takes them (`llmnav.gym.flat`). `gymnasium.make_vec` works for every id in both
 vector modes.
+
+Array-only ids, for Stable-Baselines3's `make_vec_env`, `check_env` and `PPO("MlpPolicy", id)`: the same
+worlds with the observation one float32 `Box` (no task text) and an array action (`llmnav.gym.flat`):
+- `llmnav/Factory-Flat-v0`: `Factory-v0` with LiDAR and detections, the action `DiscreteFactoryActions`.
+- `llmnav/Corridor-Flat-v0`: `Corridor-v0` with LiDAR and the goal (`observe_goal`: the map's target from
+  the odometry pose), (v, w) in [-1, 1] (`velocity_actions="discrete"`: `DiscreteVelocityActions`).
+- `llmnav/Maze-Flat-v0`: `Maze-v0` with LiDAR and detections (the signs), (v, w) as for the corridor.
+They take the same keywords (`sensing=("lidar", "image")` puts the camera back, flattened). Given a text
+id, SB3's vector helpers raise `BadInputError` naming the Flat id instead of a bare `TypeError`.
 """
 
 from __future__ import annotations
@@ -27,12 +36,23 @@ from typing import Any, Literal
 import gymnasium
 
 from llmnav.gym.env import FactoryEnv, NavEnv, VelocityEnv
-from llmnav.gym.flat import DiscreteFactoryActions, NumericObservation, make_sb3
+from llmnav.gym.flat import (
+    FLAT_SUFFIX,
+    DiscreteFactoryActions,
+    DiscreteVelocityActions,
+    FlatObservation,
+    NumericObservation,
+    make_flat_env,
+    make_sb3,
+)
+from llmnav.gym.text_space import TaskText
 from llmnav.gym.wrappers import RunLog, SafetyVeto, TextObservation, observation_text
 
 __all__ = [
     "DiscreteFactoryActions",
+    "DiscreteVelocityActions",
     "FactoryEnv",
+    "FlatObservation",
     "NavEnv",
     "NumericObservation",
     "RunLog",
@@ -40,18 +60,31 @@ __all__ = [
     "TextObservation",
     "VelocityEnv",
     "make_env",
+    "make_flat_env",
     "make_sb3",
     "observation_text",
 ]
 
 ENV_IDS: tuple[str, ...] = ("llmnav/Factory-v0", "llmnav/Corridor-v0", "llmnav/Maze-v0")
+FLAT_IDS: tuple[str, ...] = tuple(i.removesuffix("-v0") + FLAT_SUFFIX for i in ENV_IDS)
 
 
 def make_env(
-    kind: Literal["factory", "velocity"], *, safety_veto: bool = True, render_mode: str | None = None, **kwargs: Any
+    kind: Literal["factory", "velocity"],
+    *,
+    safety_veto: bool = True,
+    render_mode: str | None = None,
+    array_id: str | None = None,
+    **kwargs: Any,
 ) -> gymnasium.Env[Any, Any]:
-    """Build one environment (the entry point `gymnasium.make` calls), safety-vetoed unless told otherwise."""
+    """Build one environment (the entry point `gymnasium.make` calls), safety-vetoed unless told otherwise.
+
+    `array_id`: the array-only id that errors about the text field should name (set by the registry).
+    """
     env: NavEnv = (FactoryEnv if kind == "factory" else VelocityEnv)(render_mode=render_mode, **kwargs)
+    space = env.observation_space
+    if isinstance(space, gymnasium.spaces.Dict) and isinstance(space.spaces.get("task"), TaskText):
+        space.spaces["task"].array_id = array_id  # type: ignore[attr-defined]
     return SafetyVeto(env) if safety_veto else env
 
 
@@ -75,9 +108,20 @@ def _register() -> None:
             "arrive_radius_m": 0.6,
         },
     }
-    for env_id, kwargs in defaults.items():
+    # What the array-only ids add: senses that flatten to a short vector (the camera is 57 600 numbers),
+    # and in the corridors, whose map the agent is given, the target that map shows.
+    flat_extras: dict[str, dict[str, Any]] = {
+        "llmnav/Factory-v0": {"sensing": ("lidar", "detections")},
+        "llmnav/Corridor-v0": {"sensing": ("lidar",), "observe_goal": True},
+        "llmnav/Maze-v0": {"sensing": ("lidar", "detections")},
+    }
+    for (env_id, kwargs), flat_id in zip(defaults.items(), FLAT_IDS, strict=True):
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point="llmnav.gym:make_env", kwargs=kwargs)
+            gymnasium.register(id=env_id, entry_point="llmnav.gym:make_env", kwargs={**kwargs, "array_id": flat_id})
+        if flat_id not in gymnasium.registry:
+            gymnasium.register(
+                id=flat_id, entry_point="llmnav.gym:make_flat_env", kwargs={**kwargs, **flat_extras[env_id]}
+            )
 
 
 _register()

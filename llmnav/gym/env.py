@@ -24,21 +24,32 @@ Observation (a `Dict`; `odom` and `task` always, the rest as `sensing` asks, by 
 - `detection_class`: `MultiDiscrete`, per row 0 for padding, else 1 + the index of the detected label in
   `env.unwrapped.labels` (sorted labels of the scenario's objects; sign classes in the maze).
 - `detection_mask`: `MultiBinary(MAX_DETECTIONS)`, 1 where a row holds a detection.
+- `goal` (with `observe_goal=True`, "map" information only): `Box(float32, (3,))`, the task's target as
+  the map places it, seen from the odometry pose: distance [m], sine and cosine of its bearing (left
+  positive). The map point and the odometry, never the true pose; zeros for a task without a target point.
 - `task`: `Text` (`TaskText`), the task as given (characters outside printable ASCII shown as `?`).
+
+Start: the task's listed start pose (`start_pose`, 1-based), or with `start="random"` (a `make` keyword or
+`reset(options={"start": "random"})`) a pose drawn from the environment's seeded generator: a free cell
+of the true occupancy grid reachable from the listed start, within `start_radius_m` of it when given, and
+a uniform heading (`llmnav.gym.starts`). The same seed draws the same start; `info["start"]` gives it.
 
 Reward (`reward="score_delta"`, default): the change of the stepwise source's score S = distance_score ×
 heading_score of the true pose against the task's best target (rotate tasks: S = 1 once the net rotation
 reaches the full turn), plus `success_bonus` on the step that ends the episode with success (a completed
-episode within 2.5 m, as `llmnav score` counts it). `reward="sparse"`: only that bonus.
+episode within 2.5 m, as `llmnav score` counts it). `reward="progress"`: the metres by which the step
+brought the true pose nearer the best target (negative when it went away; S's change for a task without
+target points), plus the same bonus: S stops changing within 2.5 m, where a velocity agent still has to
+close in to `arrive_radius_m`. `reward="sparse"`: only the bonus.
 
 `terminated`: the agent said COMPLETE (Factory), or a velocity agent stopped within `arrive_radius_m` of
 a target. `truncated`: `max_steps` steps taken.
 
 `info`: `score`, `distance_m` (to the best target, None without one), `success`, `path_length_m` (true
-trajectory), `collisions`, `sim_time_s`, `steps`, `information` ("map" or "sensed"); after `reset`, in
-"map" mode, also `map` (corridor rectangles and labelled objects with positions, the map such a scenario
-publishes); `vetoed` (the reason) when the safety layer refused or overrode the action. `SafetyVeto`
-adds `vetoes` and `guard_events`.
+trajectory), `collisions`, `sim_time_s`, `steps`, `information` ("map" or "sensed"); after `reset` also
+`start` (the start pose [x m, y m, yaw rad]) and, in "map" mode, `map` (corridor rectangles and labelled
+objects with positions, the map such a scenario publishes); `vetoed` (the reason) when the safety layer
+refused or overrode the action. `SafetyVeto` adds `vetoes` and `guard_events`.
 """
 
 from __future__ import annotations
@@ -50,10 +61,11 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from llmnav.errors import BadInputError, validation_message
 from llmnav.geometry import Pose2D, wrap_angle
+from llmnav.gym.starts import StartSampler
 from llmnav.gym.text_space import TaskText
 from llmnav.metrics import SUCCESS_RADIUS_M, best_target, rotation_done
 from llmnav.perception import lidar_sectors
@@ -72,7 +84,10 @@ MAX_DETECTIONS = 8  # rows of the padded detection table
 TASK_CHARSET = frozenset(string.ascii_letters + string.digits + string.punctuation + " ")
 MAX_TASK_CHARS = 512
 ODOM_LIMIT_M = 1.0e4  # [m] bound of the odometry space (drift keeps it far inside)
+ODOM_DRIFT_ALLOWANCE_M = 100.0  # [m] added to the map's diagonal in the goal distance's bound
 Information = Literal["map", "sensed"]
+StartMode = Literal["listed", "random"]
+RESET_OPTIONS = ("task_id", "task_text", "start_pose", "start")
 
 
 class EnvOptions(BaseModel):
@@ -84,6 +99,8 @@ class EnvOptions(BaseModel):
     task_id: str | None = None
     task_text: str | None = None  # free wording; resolved like `llmnav drive --task`
     start_pose: int = Field(default=1, ge=1)  # 1-based, as on the CLI
+    start: StartMode = "listed"  # "random": a free pose drawn per reset from the seeded generator
+    start_radius_m: float | None = Field(default=None, gt=0)  # [m] random starts this close to the listed one
     information: Information = "sensed"
     sensing: tuple[Literal["lidar", "image", "detections"], ...] = ("lidar", "image", "detections")
     lidar_sectors: int = Field(default=8, ge=1, le=72)
@@ -91,11 +108,18 @@ class EnvOptions(BaseModel):
     image_width: int = Field(default=160, ge=16, le=640)  # [px]
     image_height: int = Field(default=120, ge=16, le=480)  # [px]
     max_steps: int = Field(default=30, ge=1)
-    reward: Literal["score_delta", "sparse"] = "score_delta"
+    reward: Literal["score_delta", "progress", "sparse"] = "score_delta"
+    observe_goal: bool = False  # the map's target as seen from the odometry pose ("map" information only)
     success_bonus: float = Field(default=1.0, ge=0)
     max_step_m: float = Field(default=5.0, gt=0)  # [m] FRONT/BACK upper bound (Factory)
     control_dt_s: float = Field(default=0.1, gt=0, le=1.0)  # [s] how long a velocity is held
     arrive_radius_m: float = Field(default=0.5, gt=0)  # [m] a stopped velocity agent this close has arrived
+
+    @model_validator(mode="after")
+    def _goal_needs_the_map(self) -> EnvOptions:
+        if self.observe_goal and self.information != "map":
+            raise ValueError("observe_goal needs information='map' (a sensing agent is not told where the target is)")
+        return self
 
 
 def _printable(text: str) -> str:
@@ -161,12 +185,15 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         self.range_m = float(self.scenario.sensors.lidar.range_m)
         self.observation_space = self._observation_space()
         self.start_index = self.options.start_pose
+        self.start_mode: StartMode = self.options.start
+        self._starts: StartSampler | None = None  # built on the first random start
         self.trajectory: list[list[float]] = []  # true-pose samples [x, y, yaw] since reset (for logs and render)
         self._background: Any = None
         self.last_scan: LidarScan | None = None
         self.last_detections: list[Detection] = []
         self._steps = 0
         self._score = 0.0
+        self._progress_distance: float | None = None  # [m] to the best target after the last step
         self._path = 0.0
         self._done = False
 
@@ -199,6 +226,14 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
             fields["detections"] = spaces.Box(det_low, det_high, dtype=np.float32)
             fields["detection_class"] = spaces.MultiDiscrete([len(self.labels) + 1] * MAX_DETECTIONS)
             fields["detection_mask"] = spaces.MultiBinary(MAX_DETECTIONS)
+        if o.observe_goal:
+            bounds = self.scenario.bounds
+            reach = math.hypot(bounds.x[1] - bounds.x[0], bounds.y[1] - bounds.y[0])  # [m] the map's diagonal
+            fields["goal"] = spaces.Box(
+                np.array([0.0, -1.0, -1.0], dtype=np.float32),
+                np.array([reach + ODOM_DRIFT_ALLOWANCE_M, 1.0, 1.0], dtype=np.float32),
+                dtype=np.float32,
+            )
         fields["task"] = TaskText(MAX_TASK_CHARS, min_length=1, charset=TASK_CHARSET)
         return spaces.Dict(fields)
 
@@ -206,21 +241,29 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, Any]]:
-        """Put the robot at the start pose; `options` may name `task_id`, `task_text` or `start_pose`.
+        """Put the robot at the start pose; `options` may name `task_id`, `task_text`, `start_pose`, `start`.
 
         `reset(seed=s)` seeds the world's noise streams with s, as `llmnav drive --seed s` does, so it
         repeats observations exactly; an unseeded reset draws the world's seed from the environment's
-        generator, continuing the seeded sequence.
+        generator, continuing the seeded sequence. `start` ("listed" or "random") changes the start mode
+        from this reset on; naming `start_pose` alone goes back to the listed start.
         """
         self._check_open()
+        names = ", ".join(RESET_OPTIONS)
         if options is not None and not isinstance(options, dict):
-            raise BadInputError(f"reset options must be a dict (task_id, task_text, start_pose), not {options!r:.60}")
+            raise BadInputError(f"reset options must be a dict ({names}), not {options!r:.60}")
         super().reset(seed=seed)
         options = dict(options or {})
-        unknown = set(options) - {"task_id", "task_text", "start_pose"}
+        unknown = set(options) - set(RESET_OPTIONS)
         if unknown:
-            raise BadInputError(f"reset options {sorted(unknown)} are unknown (use task_id, task_text, start_pose)")
-        if options:
+            raise BadInputError(f"reset options {sorted(unknown)} are unknown (use {names})")
+        if "start" in options:
+            if options["start"] not in ("listed", "random"):
+                raise BadInputError(f"reset option start={options['start']!r}: use 'listed' or 'random'")
+            self.start_mode = options["start"]
+        elif "start_pose" in options:
+            self.start_mode = "listed"
+        if options.keys() - {"start"}:
             if "task_id" in options or "task_text" in options:
                 self._task_id, self._task_text = options.get("task_id"), options.get("task_text")
             self.start_index = int(options.get("start_pose", self.start_index))
@@ -228,16 +271,23 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         # A given seed seeds the world as `llmnav drive --seed` does (the same episode as a planner's);
         # an unseeded reset continues from the environment's generator.
         world_seed = seed if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
-        self.world.reset(self._start, seed=world_seed)
+        start = self._start
+        if self.start_mode == "random":
+            if self._starts is None:
+                self._starts = StartSampler(self.scenario, self.spec_robot)
+            start = self._starts.draw(self.np_random, self._start, self.options.start_radius_m)
+        self.world.reset(start, seed=world_seed)
         self.world.motion.on_pose = self._on_pose
-        self.trajectory = [self._start.as_list()]
+        self.trajectory = [start.as_list()]
         self._path = 0.0
         self._steps = 0
         self._rotation = 0.0  # [rad] net turn since reset, and the largest one reached (metrics.total_rotation)
         self._max_rotation = 0.0
         self._done = False
         self._score = self._true_score()
+        self._progress_distance = self._distance()
         info = self._info(success=False)
+        info["start"] = start.as_list()
         if self.options.information == "map":
             info["map"] = self._published_map()
         return self._observe(), info
@@ -310,8 +360,7 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         terminated = finished or self._arrived()
         truncated = not terminated and self._steps >= self.options.max_steps
         success = terminated and self._success()
-        delta = score - self._score if self.options.reward == "score_delta" else 0.0
-        reward = float(delta + (self.options.success_bonus if success else 0.0))
+        reward = self._shaping(score) + (self.options.success_bonus if success else 0.0)
         self._score = score
         self._done = terminated or truncated
         info = self._info(success=success)
@@ -320,6 +369,18 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         if result is not None and result.veto is not None:
             info["vetoed"] = result.veto
         return self._observe(), reward, terminated, truncated, info
+
+    def _shaping(self, score: float) -> float:
+        """The reward's dense part for this step (the module docstring's `reward`)."""
+        kind = self.options.reward
+        if kind == "sparse":
+            return 0.0
+        distance = self._distance()
+        if kind == "progress" and distance is not None and self._progress_distance is not None:
+            gained = self._progress_distance - distance  # [m] nearer the target than a step ago
+            self._progress_distance = distance
+            return float(gained)
+        return float(score - self._score)
 
     def _targets(self) -> list[tuple[float, float]]:
         return [tuple(p) for p in self.scenario.target_points(self.task)]  # type: ignore[misc]
@@ -388,8 +449,19 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         obs["odom"] = np.array([odom.x, odom.y, wrap_angle(odom.yaw)], dtype=np.float32)
         if "detections" in sensing:
             obs.update(self._detection_table(self.last_detections))
+        if self.options.observe_goal:
+            obs["goal"] = self._goal_vector(odom)
         obs["task"] = _printable(self.task.text)
         return obs
+
+    def _goal_vector(self, odom: Pose2D) -> np.ndarray:
+        """(distance [m], sin, cos of the bearing) of the map's nearest target point from the odometry pose."""
+        points = self._targets()
+        if not points:
+            return np.zeros(3, dtype=np.float32)
+        x, y = min(points, key=lambda p: math.hypot(p[0] - odom.x, p[1] - odom.y))
+        bearing = odom.bearing_to(x, y)
+        return np.array([math.hypot(x - odom.x, y - odom.y), math.sin(bearing), math.cos(bearing)], dtype=np.float32)
 
     def _sector_table(self, scan: LidarScan) -> np.ndarray:
         sectors = lidar_sectors(scan, self.options.lidar_sectors, self.options.lidar_fov_deg)
@@ -507,10 +579,17 @@ class VelocityEnv(NavEnv):
         self._last_command = (0.0, 0.0)
 
     def _command(self, action: Any) -> tuple[float, float]:
+        """(v [m/s], w [rad/s]) of an action in the space, judged in the space's own precision (float32).
+
+        The space's float32 bounds lie a rounding beyond the robot's limits (0.4 m/s is 0.40000000596 in
+        float32): an action at the bound is the limit itself, so it is clipped onto the exact limits here
+        and the safety layer never mistakes float32 rounding for a command out of its kinematic box.
+        """
         command = np.asarray(action, dtype=np.float32).reshape(-1)
         if command.shape != (2,) or command not in self.action_space:
             raise BadInputError(f"action {action!r} is not in the action space {self.action_space}")
-        return float(command[0]), float(command[1])
+        v_max, w_max = self.spec_robot.max_linear, self.spec_robot.max_angular
+        return min(max(float(command[0]), -v_max), v_max), min(max(float(command[1]), -w_max), w_max)
 
     def describe(self, action: Any) -> str:
         """`v 0.20 m/s, w -0.10 rad/s`."""

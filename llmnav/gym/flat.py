@@ -5,17 +5,25 @@
   `Discrete` index into the scenario's task list (fixed per task id).
 - `DiscreteFactoryActions`: `Factory-v0`'s `Dict` action as one `Discrete` table of (command, amount)
   pairs, the step sizes the stepwise source asks a model to prefer (moves of 0.5–3 m, turns of 15–90°).
-- `make_sb3(env_id, **options)`: `gymnasium.make` plus both (and a velocity action rescaled to [-1, 1]), so
-  SB3's `check_env` passes without a warning and `PPO("MultiInputPolicy", env)` takes the environment as it is.
+- `DiscreteVelocityActions`: a velocity action as one `Discrete` table of (v, w) fractions of the robot's
+  limits, (0, 0) among them: a stochastic policy stops (and so can arrive) on one index, which a Gaussian
+  over [-1, 1]² all but never samples within the 1 % band that counts as stopped.
+- `FlatObservation`: the numeric `Dict` as one float32 `Box` vector (fields in the Dict's order, `Discrete`
+  and `MultiDiscrete` fields one-hot), for `PPO("MlpPolicy", ...)`; `fields` says where each one lies.
+- `make_sb3(env_id, **options)`: `gymnasium.make` plus the numeric observation and an array action (a
+  velocity rescaled to [-1, 1], or the discrete table), so SB3's `check_env` passes without a warning and
+  `PPO("MultiInputPolicy", env)` takes the environment as it is.
+- `make_flat_env`: the entry point of the registered `llmnav/*-Flat-v0` ids, array-only from
+  `gymnasium.make` on, so SB3's `make_vec_env("llmnav/Corridor-Flat-v0")` works as for any Gymnasium id.
 
 SB3 refuses `Text` (its buffers hold arrays only) and any `Dict` action; the guard and the safety veto
-stay in place under both wrappers.
+stay in place under every wrapper.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -25,6 +33,9 @@ from llmnav.errors import BadInputError
 
 MOVES_M: tuple[float, ...] = (0.5, 1.0, 2.0, 3.0)  # FRONT sizes; BACK takes the two shortest
 TURNS_DEG: tuple[float, ...] = (15.0, 30.0, 45.0, 90.0)  # each way
+SPEED_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)  # [-] of max_linear: stop, half, full ahead
+TURN_FRACTIONS: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)  # [-] of max_angular, left positive
+VelocityActions = Literal["box", "discrete"]
 
 
 class NumericObservation(gym.ObservationWrapper[dict[str, Any], Any, dict[str, Any]]):
@@ -129,20 +140,110 @@ class DiscreteFactoryActions(gym.ActionWrapper[Any, np.int64, dict[str, Any]]):
         }
 
 
-def make_sb3(env_id: str, *, task_index: bool = False, **options: Any) -> gym.Env[Any, Any]:
-    """`gymnasium.make(env_id, **options)` with array-only spaces, as Stable-Baselines3 takes them.
+class DiscreteVelocityActions(gym.ActionWrapper[Any, np.int64, Any]):
+    """A velocity action as `Discrete(n)`: index i of `table` is (v, w) [m/s, rad/s].
 
-    The observation loses `task` (`task_index=True`: the task's index instead) and its tables are
-    flattened; `Factory-v0`'s action becomes `DiscreteFactoryActions`, a velocity (v, w) is given in
-    [-1, 1] of the robot's limits. The safety veto stays unless `safety_veto=False`.
+    The table: every pair of `speeds` × `turns` (fractions of `max_linear` and `max_angular`), speed-major;
+    with the defaults 15 actions, index 2 = (0, 0), the stop that ends an episode at the target.
     """
+
+    def __init__(
+        self,
+        env: gym.Env[Any, Any],
+        *,
+        speeds: Sequence[float] = SPEED_FRACTIONS,
+        turns: Sequence[float] = TURN_FRACTIONS,
+    ) -> None:
+        from llmnav.gym.env import VelocityEnv
+        from llmnav.gym.wrappers import _base
+
+        super().__init__(env)
+        base = _base(env)
+        if not isinstance(base, VelocityEnv):
+            raise BadInputError(f"DiscreteVelocityActions needs a velocity environment, not {type(base).__name__}")
+        if not speeds or not turns or any(abs(f) > 1 for f in (*speeds, *turns)):
+            raise BadInputError("speeds and turns need at least one fraction each, all within [-1, 1]")
+        v_max, w_max = base.spec_robot.max_linear, base.spec_robot.max_angular
+        self.table: tuple[tuple[float, float], ...] = tuple((v * v_max, w * w_max) for v in speeds for w in turns)
+        self.action_space = spaces.Discrete(len(self.table))
+
+    def action(self, action: Any) -> np.ndarray:
+        """Row `action` of the table as the environment's (v, w) action."""
+        index = int(np.asarray(action).reshape(-1)[0])
+        if not 0 <= index < len(self.table):
+            raise BadInputError(f"action {index} is not in Discrete({len(self.table)})")
+        return np.array(self.table[index], dtype=np.float32)
+
+
+class FlatObservation(gym.ObservationWrapper[np.ndarray, Any, dict[str, Any]]):
+    """The numeric `Dict` observation as one float32 vector; `fields` = (name, start, stop) of each part."""
+
+    def __init__(self, env: gym.Env[dict[str, Any], Any]) -> None:
+        super().__init__(env)
+        source = env.observation_space
+        if not isinstance(source, spaces.Dict) or any(isinstance(s, spaces.Text) for s in source.spaces.values()):
+            raise BadInputError("FlatObservation needs a numeric Dict observation (wrap NumericObservation first)")
+        self._source = source
+        fields, start = [], 0
+        for name, space in source.spaces.items():
+            size = spaces.flatdim(space)
+            fields.append((name, start, start + size))
+            start += size
+        self.fields: tuple[tuple[str, int, int], ...] = tuple(fields)
+        flat = spaces.flatten_space(source)
+        assert isinstance(flat, spaces.Box)
+        self.observation_space = spaces.Box(flat.low.astype(np.float32), flat.high.astype(np.float32), dtype=np.float32)
+
+    def observation(self, observation: dict[str, Any]) -> np.ndarray:
+        """The fields one after another, as float32."""
+        return np.asarray(spaces.flatten(self._source, observation), dtype=np.float32)
+
+
+def _array_only(env: gym.Env[Any, Any], *, task_index: bool, velocity_actions: VelocityActions) -> gym.Env[Any, Any]:
+    """The numeric observation and an array action (the Factory table, a rescaled or discrete velocity)."""
     from gymnasium.wrappers import RescaleAction
 
     from llmnav.gym.env import FactoryEnv
 
-    env: gym.Env[Any, Any] = NumericObservation(gym.make(env_id, **options), task_index=task_index)
+    if velocity_actions not in ("box", "discrete"):
+        raise BadInputError(f"velocity_actions={velocity_actions!r}: use 'box' or 'discrete'")
+    env = NumericObservation(env, task_index=task_index)
     if isinstance(env.unwrapped, FactoryEnv):
         return DiscreteFactoryActions(env)
+    if velocity_actions == "discrete":
+        return DiscreteVelocityActions(env)
     shape: tuple[int, ...] = env.action_space.shape or (2,)
     unit = np.ones(shape, dtype=np.float32)  # float32 bounds: no precision warning
     return RescaleAction(env, -unit, unit)
+
+
+def make_sb3(
+    env_id: str, *, task_index: bool = False, velocity_actions: VelocityActions = "box", **options: Any
+) -> gym.Env[Any, Any]:
+    """`gymnasium.make(env_id, **options)` with array-only spaces, as Stable-Baselines3 takes them.
+
+    The observation loses `task` (`task_index=True`: the task's index instead) and its tables are
+    flattened; `Factory-v0`'s action becomes `DiscreteFactoryActions`, a velocity (v, w) is given in
+    [-1, 1] of the robot's limits (`velocity_actions="discrete"`: `DiscreteVelocityActions`). The safety
+    veto stays unless `safety_veto=False`. A `-Flat-v0` id is array-only already: it is made as it is.
+    """
+    if env_id.endswith(FLAT_SUFFIX):
+        return gym.make(env_id, task_index=task_index, velocity_actions=velocity_actions, **options)
+    return _array_only(gym.make(env_id, **options), task_index=task_index, velocity_actions=velocity_actions)
+
+
+FLAT_SUFFIX = "-Flat-v0"
+
+
+def make_flat_env(
+    kind: Literal["factory", "velocity"],
+    *,
+    task_index: bool = False,
+    velocity_actions: VelocityActions = "box",
+    **kwargs: Any,
+) -> gym.Env[Any, Any]:
+    """The entry point of the `llmnav/*-Flat-v0` ids: `make_env`, array-only, the observation one vector."""
+    from llmnav.gym import make_env
+
+    env = _array_only(make_env(kind, **kwargs), task_index=task_index, velocity_actions=velocity_actions)
+    return FlatObservation(env)

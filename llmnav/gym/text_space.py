@@ -15,9 +15,50 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import read_from_shared_memory
 
+from llmnav.errors import BadInputError
+
+
+class NoArrayShape:
+    """The shape of a text field: None to Gymnasium; unpacking it as an array shape raises why it cannot be."""
+
+    def __init__(self, message: str) -> None:
+        self.message = message
+
+    def __iter__(self) -> Iterator[int]:
+        raise BadInputError(self.message)
+
+    def __len__(self) -> int:
+        raise BadInputError(self.message)
+
+    def __bool__(self) -> bool:
+        return False
+
+    def __eq__(self, other: object) -> bool:
+        return other is None or isinstance(other, NoArrayShape)
+
+    def __hash__(self) -> int:
+        return hash(None)
+
+    def __repr__(self) -> str:
+        return "None"
+
 
 class TaskText(spaces.Text):
-    """A `Text` space whose vectorised shared-memory reading follows the buffer (see the module docstring)."""
+    """A `Text` space whose vectorised shared-memory reading follows the buffer (see the module docstring).
+
+    `array_id` names the registered id with array-only observations, for the error `shape` gives.
+    """
+
+    array_id: str | None = None
+
+    @property
+    def shape(self) -> Any:
+        """No array shape: a `NoArrayShape` that says which id or wrapper to use instead."""
+        instead = f"{self.array_id} (array-only observations)" if self.array_id else "an llmnav/*-Flat-v0 id"
+        return NoArrayShape(
+            "the observation field 'task' is text, which has no array shape for Stable-Baselines3's (or any "
+            f"array-only learner's) buffers: use {instead}, or llmnav.gym.make_sb3(id)"
+        )
 
 
 class LiveTexts(Sequence[str]):

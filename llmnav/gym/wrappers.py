@@ -51,8 +51,9 @@ class SafetyVeto(gym.Wrapper[dict[str, Any], Any, dict[str, Any], Any]):
     and refused when it would reach an obstacle (the robot does not move); a velocity command is clipped
     to the kinematic box and its forward speed set to 0 when the time-to-collision check fails (the turn
     still applies). Rotations in place are never checked (a round base sweeps no new area). Either way
-    `info["vetoed"]` gives the reason, `info["vetoes"]` counts refusals this episode and
-    `info["guard_events"]` holds the layer's `guard`/`override` events of this step.
+    `info["vetoed"]` gives the reason, `info["vetoes"]` counts the steps of this episode that were
+    vetoed (a velocity command overridden on 40 steps in a row counts 40) and `info["guard_events"]`
+    holds the layer's `guard`/`override` events of this step.
     """
 
     def __init__(self, env: gym.Env[dict[str, Any], Any], *, config: MotionGuardConfig | None = None) -> None:
@@ -60,6 +61,7 @@ class SafetyVeto(gym.Wrapper[dict[str, Any], Any, dict[str, Any], Any]):
 
         super().__init__(env)
         self._events: list[dict[str, Any]] = []
+        self._vetoed_steps = 0
         base = _base(env)
         self._layer = PlannerWorld(base.world, _EventList(self._events), config)
         base.motion = self._layer.motion
@@ -67,8 +69,9 @@ class SafetyVeto(gym.Wrapper[dict[str, Any], Any, dict[str, Any], Any]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, Any]]:
-        """Reset the count of refusals with the episode."""
+        """Reset the count of vetoed steps with the episode."""
         self._layer.motion.vetoes = 0
+        self._vetoed_steps = 0
         obs, info = self.env.reset(seed=seed, options=options)
         info["vetoes"] = 0
         return obs, info
@@ -78,12 +81,15 @@ class SafetyVeto(gym.Wrapper[dict[str, Any], Any, dict[str, Any], Any]):
         self._events.clear()
         result: Step = self.env.step(action)
         info = result[4]
-        info["vetoes"] = self._layer.motion.vetoes
         info["guard_events"] = [dict(e) for e in self._events]
         if "vetoed" not in info:
             reasons = [e.get("reason") or e.get("error") for e in self._events]
             if any(reasons):
                 info["vetoed"] = next(r for r in reasons if r)
+        # Counted per step here: the layer counts a run of overridden velocity ticks once (a planner's
+        # view), while a learner's step is the unit its `info` speaks of.
+        self._vetoed_steps += "vetoed" in info
+        info["vetoes"] = self._vetoed_steps
         return result
 
 
@@ -188,7 +194,7 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
             "scenario_file": str(scenario_path),
             "scenario_hash": hashlib.sha256(scenario_path.read_bytes()).hexdigest()[:16],
             "task": task_record(base.task),
-            "start_pose_index": base.start_index,
+            "start_pose_index": base.start_index if base.start_mode == "listed" else None,  # random: no index
             "start_pose": start,
             "planner": f"gym:{self.agent}",
             "backend": self.backend,

@@ -44,6 +44,7 @@ from llmnav.planners.options import (
     Information,
     OptionsT,
     decides_by_scores,
+    fallback_mark,
     option_value,
     planner_names,
 )
@@ -73,6 +74,7 @@ __all__ = [
     "check_option_value",
     "decides_by_scores",
     "drive_options",
+    "fallback_mark",
     "get_planner",
     "inapplicable_options",
     "option_names",

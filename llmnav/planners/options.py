@@ -123,6 +123,15 @@ def planner_names() -> list[str]:
     return sorted(plugins.registrations(PLANNER_GROUP))
 
 
+def fallback_mark(requested: str, mode: str) -> dict[str, Any]:
+    """The `condition` field of the event logging the decision mode: set when `auto` fell back to generation.
+
+    `llmnav.metrics.condition_of` reads it, so tables show `decide=generate (fallback)`, never `decide=auto`
+    over runs that generated (the backend could not score).
+    """
+    return {"condition": {"decide": "generate (fallback)"}} if requested == "auto" and mode == "generate" else {}
+
+
 def decides_by_scores(options: ChoiceOptions, backend: Backend | None) -> bool:
     """Whether `decide` asks for scored choices with this backend (`auto`: if the backend can score)."""
     if options.decide == "generate" or backend is None:

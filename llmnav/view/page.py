@@ -359,7 +359,8 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
     """Everything the sweep template needs; writes the run pages that are missing."""
     from llmnav.ablate import MANIFEST_FILE
     from llmnav.safefiles import loads as bounded_loads
-    from llmnav.score import build_tables, read_runs, split_aborted, varying_keys
+    from llmnav.score import read_runs, split_aborted, varying_keys
+    from llmnav.score_tables import build_tables
 
     runs, broken = read_runs([root])  # a damaged run is named on the page, not fatal to it
     keys = varying_keys(runs)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import re
 import warnings
 from pathlib import Path
 from types import ModuleType
@@ -199,13 +200,30 @@ def _example() -> ModuleType:
     return module
 
 
-def test_train_ppo_example_trains_saves_and_drives(tmp_path: Path, capsys: Any) -> None:
+def test_train_ppo_example_trains_saves_and_evaluates(tmp_path: Path, capsys: Any) -> None:
     torch.set_num_threads(1)
     out = tmp_path / "policy.zip"
-    code = _example().main(["--timesteps", "32", "--n-steps", "32", "--max-steps", "10", "--out", str(out)])
+    args = ["--timesteps", "32", "--n-steps", "32", "--max-steps", "10", "--episodes", "2", "--out", str(out)]
+    code = _example().main(args)
     assert code == 0 and out.stat().st_size > 0
-    assert "one episode: return" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert re.search(r"success [0-2]/2 evaluation episodes", captured.out), captured.out
+    assert re.search(r"trained 32 steps in \d+ s \(\d+ steps/s, load \d", captured.err), captured.err
     assert PPO.load(out, device="cpu").num_timesteps == 32
+
+
+def test_train_ppo_example_evaluates_on_seeded_random_starts() -> None:
+    # the evaluation episodes start apart (random starts), and the same seeds give the same episodes
+    module = _example()
+    env = module.make_env(max_steps=3)
+    try:
+        model = PPO("MlpPolicy", env, n_steps=16, batch_size=16, seed=0, device="cpu")
+        first = module.evaluate(model, env, 3)
+        again = module.evaluate(model, env, 3)
+        assert [f["distance_m"] for f in first] == [f["distance_m"] for f in again]
+        assert len({f["distance_m"] for f in first}) == 3
+    finally:
+        env.close()
 
 
 def test_train_ppo_example_refuses_bad_sensing(capsys: Any) -> None:

@@ -32,3 +32,27 @@ def test_a_target_seen_but_walled_in_leaves_the_menu_and_the_episode_ends_not_fo
     assert later and not any("crate" in text for text in later)
     assert summary.get("collisions", 0) == 0
     assert not any(a.get("command") == "COMPLETE" for a in record.of_type("action"))
+
+
+def test_at_an_explored_edge_the_robot_looks_around_so_a_mapped_room_is_also_seen(tmp_path: Path) -> None:
+    """Generated flat 1, "Go to the fridge" from start 1, every answer right. The LiDAR maps the kitchen
+    from its doorway, so no frontier is left there; the camera saw it only on arriving at an explored edge
+    and turning round (without the turn the episode ended `not_found`, 1.8 m from the fridge)."""
+    from llmnav.buildings.generate import Request, generate
+
+    flat = tmp_path / "flat-1.yaml"
+    flat.write_text(generate(Request("flat", 1)).text)
+    spec = EpisodeSpec(
+        scenario=str(flat),
+        task_id="T1",
+        options=drive_options(planner="hybrid", information="sensed"),
+        backend="policy:oracle",
+        out_dir=tmp_path / "run",
+        plots=False,
+    )
+    summary = run_episode(spec)
+    assert summary["task_text"] == "Go to the fridge"
+    assert summary["success"], summary["reason"]
+    record = read_run(tmp_path / "run")
+    # it found the fridge by exploring (from the start it is out of sight)
+    assert any(str(a.get("option", "")).startswith("Explore") for a in record.of_type("action"))

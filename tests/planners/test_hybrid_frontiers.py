@@ -173,6 +173,7 @@ def test_frontier_scores_are_logged_and_a_strict_replay_repeats_them(tmp_path: P
         assert sorted(r["pmi"] for r in rows)[-1] == 10.0  # oracle answers: one frontier leads toward the target
     again = _drive(tmp_path, "again", f"replay:{tmp_path / 'live'}")
     assert again["final_pose"] == live["final_pose"]
+
     def decisions(run: Path) -> list[dict[str, Any]]:
         return [{k: v for k, v in e.items() if k != "t_wall"} for e in read_run(run).of_type("decision")]
 
@@ -189,3 +190,42 @@ def test_a_backend_that_cannot_score_explores_by_utility_and_says_so(tmp_path: P
     assert summary["condition"]["explore"] == "utility (cannot score)"
     assert [e["explore"] for e in read_run(tmp_path / "generated").of_type("planner")] == ["utility (cannot score)"]
 
+
+# --- relational places ----------------------------------------------------------------------------
+def test_a_relation_counts_only_where_it_is_more_relevant_than_its_landmarks() -> None:
+    boxes = "spot between the boxes and the fire"
+    menu = [
+        Candidate(1, "landmark", ("boxes",), 6.0),
+        Candidate(2, "landmark", (boxes, "boxes", "fire"), 2.0, place=(1.0, 1.0)),
+        Candidate(3, "complete"),
+    ]
+    # keyword-like scores: the spot shares the boxes' words and no more, so the boxes themselves are taken
+    ctx = BackendContext(PolicyBackend("keyword"))
+    chooser = ScoredChooser(ctx, "Go to the boxes", mapped=True)  # type: ignore[arg-type]
+    chooser.intent = "go"
+    assert chooser.choose(menu, turned=True, step=1).number == 1
+    # a task that asks for the relation: the spot scores above both landmarks and wins
+    asks = ScoredChooser(BackendContext(PolicyBackend("keyword")), "Go between the boxes and the fire", mapped=True)  # type: ignore[arg-type]
+    asks.intent = "go"
+    decision = asks.choose(menu, turned=True, step=1)
+    assert decision.number == 2 and decision.scores[f"{boxes} (1.0, 1.0)"] == pytest.approx(3.0)
+
+
+def test_oracle_answers_choose_the_place_between_the_stairs_and_the_oil_barrels(tmp_path: Path) -> None:
+    """Factory T4 names no landmark ("Go between the stairs and the oil barrels"): a relational place."""
+    summary = run_episode(
+        EpisodeSpec(
+            scenario="factory",
+            task_id="T4",
+            start_pose=1,
+            options=drive_options(planner="hybrid"),
+            backend="policy:oracle",
+            out_dir=tmp_path / "t4",
+            plots=False,
+        )
+    )
+    assert summary["success"] and summary["outcome"] == "completed", summary
+    decisions = read_run(tmp_path / "t4").of_type("decision")
+    went = [d["rule"] for d in decisions if d["rule"].startswith("go to")]
+    assert went and went[-1].startswith("go to spot between the") and "stairs" in went[-1], went
+    assert decisions[-1]["rule"].startswith("at spot between the")

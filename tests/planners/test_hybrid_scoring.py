@@ -93,6 +93,16 @@ def test_with_nothing_worth_taking_the_search_goes_on_past_the_budget() -> None:
     assert choose.choose(without_frontier, turned=True, step=5).number == 4  # then a look where none was made
 
 
+def test_an_exploration_cut_short_by_something_new_is_not_counted_against_the_budget() -> None:
+    # `explored` counts explorations carried to their end; one stopped because something new came into view
+    # hands the decision back and leaves the budget as it was.
+    rejected = {"drive to something": 0.0, "stairs": -5.0 - 10.0, "table": -5.0 - 10.0}
+    choose, _ = chooser(rejected)
+    choose.cfg = ScoringConfig(explore_budget=1)
+    assert choose.choose(MENU, turned=True, step=2, explored=0).number == 3
+    assert choose.choose(MENU, turned=True, step=3, explored=0).number == 3  # the first was cut short
+
+
 def test_equal_relevance_goes_to_the_nearer_landmark() -> None:
     menu = [Candidate(1, "landmark", ("oil barrel",), 7.0), Candidate(2, "landmark", ("oil barrel",), 2.0), MENU[4]]
     choose, _ = chooser({"drive to something": 0.0, "oil barrel": 9.0}, mapped=True)

@@ -42,6 +42,9 @@ CATEGORIES = {
     "test_scripts": "scoring scripts",
     "test_raw_access": "raw access",
     "test_crashed_runs": "crashed runs",
+    "test_mode_fallback": "mode fallback",
+    "test_dead_assist": "dead assist",
+    "test_worker_kill": "worker kill",
 }
 
 

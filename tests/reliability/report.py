@@ -19,6 +19,7 @@ ORDER = [
     "backend faults",
     "crash safety",
     "data safety",
+    "worker kill",
     "hostile folders",
     "hostile sizes",
     "servers",
@@ -28,10 +29,12 @@ ORDER = [
     "raw access",
     "honest accounting",
     "crashed runs",
+    "mode fallback",
     "scoring scripts",
     "bad input",
     "secrets",
     "fsm deadline",
+    "dead assist",
 ]
 # Categories whose "logs lost" count results lost or mislabelled: concurrent sweeps, resumes, kills.
 RESULT_CATEGORIES = ("data safety",)

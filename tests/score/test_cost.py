@@ -228,3 +228,38 @@ def test_drive_through_the_cache_says_what_it_cost(chat_server, tmp_path, monkey
     assert len(chat_server.seen) == 1
     summary = json.loads((tmp_path / "b" / "summary.json").read_text())
     assert summary["tokens"] == {"prompt": 1000, "completion": 50, "paid_prompt": 0, "paid_completion": 0}
+
+
+@pytest.mark.parametrize(
+    "url, local",
+    [
+        ("http://127.0.0.1:8080/v1", True),
+        ("http://localhost:11434", True),
+        ("http://[::1]:8080/v1", True),
+        ("http://10.0.0.7:8000/v1", True),
+        ("http://192.168.1.20:11434", True),
+        ("https://api.openai.com/v1", False),
+        ("https://generativelanguage.googleapis.com", False),
+        ("http://8.8.8.8:8080/v1", False),
+        ("https://localhost.example.com/v1", False),
+    ],
+)
+def test_which_servers_are_local(url, local):
+    from llmnav.backends.prices import local_server
+
+    assert local_server(url) is local
+
+
+def test_a_dated_snapshot_takes_the_longest_listed_name():
+    import datetime
+
+    from llmnav.backends.prices import parse_prices
+
+    table = parse_prices(
+        {"as_of": datetime.date(2026, 1, 1), "openai": {"gpt-4o": {"prompt": 2, "completion": 8},
+                                                        "gpt-4o-mini": {"prompt": 1, "completion": 4}}},
+        "t.toml",
+    )  # fmt: skip
+    assert table.lookup("openai", "gpt-4o-mini-2024-07-18") == ("gpt-4o-mini", table.prices["openai"]["gpt-4o-mini"])
+    assert table.lookup("openai", "gpt-4o-2024-08-06")[0] == "gpt-4o"
+    assert table.lookup("openai", "gpt-4omega") is None and table.lookup("gemini", "gpt-4o") is None

@@ -253,6 +253,9 @@ class AssistPipeline:
         if polled is None:
             return
         stamp, result, error, latency = polled
+        died = getattr(self.worker, "died", None)
+        if died is not None and self.stats.assist_failed is None:
+            self._degrade(died)
         fixed = self.ctx.options.model_latency
         if isinstance(fixed, float | int):  # cannot be faster than reality: a floor
             latency = max(latency, fixed / 1000.0)
@@ -298,7 +301,9 @@ class AssistPipeline:
             self.pending, self.in_flight = None, False
 
     def publish(self, now: float, text: str) -> None:
-        """Send the state line when none is in flight and the publish period has passed."""
+        """Send the state line when none is in flight and the publish period has passed (never once failed)."""
+        if self.stats.assist_failed is not None:
+            return
         if self.in_flight or now - self.last_publish < 1.0 / self.cfg.publish_hz - 1e-9:
             return
         request = self.sent = self.request(text)
@@ -327,6 +332,16 @@ class AssistPipeline:
             self.worker.close()
 
     # --- machinery ----------------------------------------------------------------------------------
+    def _degrade(self, cause: str) -> None:
+        """The worker died: the episode goes on with the baseline alone, and says so.
+
+        A `degraded` event names the cause and marks the run's condition `assist=llm (failed)`, so no
+        table pools it with runs the model assisted.
+        """
+        self.stats.assist_failed = cause
+        mark = {"assist": f"{self.ctx.options.assist} (failed)"}
+        self.notes.append(("degraded", {"component": "assist", "cause": cause, "condition": mark}))
+
     def _judge(self, text: str | None) -> Judged | None:
         return None if text is None else judge(text, self.box, self.sent)
 

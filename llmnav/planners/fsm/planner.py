@@ -80,6 +80,9 @@ class FsmPlanner(Planner):
         stop = stop_point(ctx.scenario, ctx.task, self.cfg.d_goal)
         outcome.metrics = run_metrics(stats, ctx.options.assist, final, stop)
         outcome.metrics["ttl_ms"] = round((assist.ttl_s if assist else ctx.options.ttl_ms / 1000.0) * 1000.0, 1)
+        if stats.assist_failed is not None:  # the baseline drove on alone: the result must say so
+            outcome.reason = f"{outcome.reason}; assist failed: {stats.assist_failed}"
+            outcome.metrics["assist_failed"] = stats.assist_failed
         return outcome
 
     def _assist(self, ctx: EpisodeContext, stats: FsmStats) -> AssistPipeline | None:

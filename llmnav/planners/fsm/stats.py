@@ -30,6 +30,7 @@ class FsmStats:
     missed_deadlines: int = 0
     scheduling: str = "simulated"  # the loop thread's policy under --realtime (llmnav.realtime)
     model_in: str = "loop"  # where the model runs: called between ticks, a worker "thread" or a "process"
+    assist_failed: str | None = None  # what ended the model's worker mid-episode (the run went on without it)
 
 
 def run_metrics(stats: FsmStats, assist: str, final: Pose2D, stop: tuple[float, float] | None) -> dict[str, Any]:

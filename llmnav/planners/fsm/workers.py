@@ -13,19 +13,26 @@ from collections.abc import Callable
 from typing import Any
 
 from llmnav.chat import ChatRequest, ChatResult
-from llmnav.errors import LlmnavError
+from llmnav.errors import LlmnavError, one_line
 
 Record = Callable[[ChatRequest, ChatResult | None, str | None], None]
 Polled = tuple[float, ChatResult | None, str | None, float]  # (stamp, result, error, latency [s])
 
 
 class ThreadWorker:
-    """Realtime mode: runs model calls in a thread; the controller only polls."""
+    """Realtime mode: runs model calls in a thread; the controller only polls.
+
+    A model error comes back as that call's error. Anything else (a bug below the call) ends the thread:
+    `died` then names it, so the episode can say its assist failed instead of running on without answers.
+    After `close` nothing the thread meets is reported (the episode is over and its backend closed).
+    """
 
     def __init__(self, call: Callable[[ChatRequest], ChatResult]) -> None:
         self._call = call
         self._requests: queue.Queue[tuple[float, ChatRequest] | None] = queue.Queue(maxsize=1)
         self.results: queue.Queue[Polled] = queue.Queue()
+        self.died: str | None = None  # what ended the thread before `close`, one line
+        self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name="llmnav-fsm-llm", daemon=True)
         self._thread.start()
 
@@ -43,7 +50,7 @@ class ThreadWorker:
     def _run(self) -> None:
         while True:
             item = self._requests.get()
-            if item is None:
+            if item is None or self._closed.is_set():
                 return
             stamp, request = item
             started = time.perf_counter()
@@ -51,9 +58,15 @@ class ThreadWorker:
                 self.results.put((stamp, self._call(request), None, time.perf_counter() - started))
             except LlmnavError as err:
                 self.results.put((stamp, None, str(err), time.perf_counter() - started))
+            except Exception as err:  # noqa: BLE001 - a bug below the call: reported, never a thread's traceback
+                if not self._closed.is_set():
+                    self.died = f"{type(err).__name__}: {one_line(err)}"
+                    self.results.put((stamp, None, f"assist failed: {self.died}", time.perf_counter() - started))
+                return
 
     def close(self) -> None:
-        """Stop the thread; a call still running is abandoned (daemon thread)."""
+        """Stop the thread; a call still running is abandoned (daemon thread), its outcome unreported."""
+        self._closed.set()
         with contextlib.suppress(queue.Full):
             self._requests.put_nowait(None)
         self._thread.join(timeout=0.1)

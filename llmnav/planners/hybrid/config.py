@@ -22,6 +22,8 @@ class HybridConfig:
     max_frontiers_scored: int = 6  # scored decisions read no prompt: more frontiers, each weighed by its description
     describe_radius_m: float = 3.0  # [m] landmarks this close to a frontier describe it (about a room's half-width)
     describe_max: int = 3  # landmark names in a description (the nearest)
+    between_max_m: float = 6.0  # [m] two landmarks farther apart than this name no place between them
+    max_relational: int = 16  # relational places offered to a scored decision (the nearest)
     min_hop_m: float = 1.0  # [m] a frontier nearer than this shows next to nothing new: not offered
     frontier_decay_per_m: float = 0.2  # [1/m] how fast a frontier's worth falls with the drive to it
     frontier_min_cells: int = 12  # smaller frontier clusters are noise

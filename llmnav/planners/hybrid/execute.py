@@ -107,8 +107,15 @@ class Executor:
     # --- the steps ----------------------------------------------------------------------------------
     def _scan(self, option: Option, step: int) -> Executed:
         """Four quarter turns, looking after each (and localizing, where a localizer runs)."""
-        world = self.ctx.world
         before = self._believed()
+        new, result = self._turn_looking()
+        self._log(step, option, before, result, command="SCAN", parameters=360.0)
+        return Executed("looked around, " + ("new objects in view" if new else "nothing new"), collided=result.collided)
+
+    def _turn_looking(self) -> tuple[bool, MotionResult]:
+        """A full turn in quarters, looking after each; whether anything new came into view, the last turn."""
+        world = self.ctx.world
+        at = self._believed()
         new = False
         for _ in range(4):
             result = world.motion.rotate(math.pi / 2)
@@ -118,9 +125,8 @@ class Executor:
             if result.collided:
                 break
         self.memory.scans += 1
-        self.memory.scanned_at = (before.x, before.y)
-        self._log(step, option, before, result, command="SCAN", parameters=360.0)
-        return Executed("looked around, " + ("new objects in view" if new else "nothing new"), collided=result.collided)
+        self.memory.scanned_at = (at.x, at.y)
+        return new, result
 
     def _leg(self, x: float, y: float, step: int) -> MotionResult:
         """Turn toward the leg (the LiDAR then sees it), map the scan it is checked on, drive it."""
@@ -138,22 +144,32 @@ class Executor:
         return result
 
     def _arrive(self, option: Option, before: Pose2D, step: int) -> Executed:
-        """Face what the option went to, note the visit, say how close the robot got."""
+        """Face what the option went to, note the visit, say how close the robot got.
+
+        At an explored edge the robot turns a full circle, looking (as frontier exploration does): the
+        LiDAR maps all around on the way, the camera sees only ahead, so a room driven into and out of was
+        mapped (its frontiers gone) without the camera ever facing most of it. Measured on generated
+        flats: 7 of 9 `not_found` episodes with oracle answers passed within 2-5 m of a target they never
+        faced.
+        """
         memory = self.memory
         if option.face is not None:
             self.ctx.world.motion.rotate(self._believed().bearing_to(*option.face))
         if option.landmark_id is not None:
             memory.visited.add(option.landmark_id)
+        new = False
         if option.kind == "frontier" and option.goal is not None:
             memory.explored.append(option.goal)
             # The map grew: a landmark that had no path before may have one now (seen through a doorway
             # whose floor was still unknown).
             memory.unreachable.clear()
+            new = self._turn_looking()[0]
         after = self._believed()
         self._log(step, option, before, None)
+        seen = ", looked around: new objects in view" if new else ""
         if option.goal is not None and after.distance_to(*option.goal) > self.cfg.arrived_m:
-            return Executed(f"stopped {after.distance_to(*option.goal):.1f} m short ({option.goal_name})")
-        return Executed(f"reached {option.goal_name}")
+            return Executed(f"stopped {after.distance_to(*option.goal):.1f} m short ({option.goal_name}){seen}")
+        return Executed(f"reached {option.goal_name}{seen}")
 
     def _refused(self, option: Option, reason: str) -> str:
         """What a vetoed leg means for the menu, as the result line says it.

@@ -59,6 +59,17 @@ class Option:
     standing: bool = False  # landmark: the robot is there (at its stand point, or as close as is safe)
     utility: float = 0.0  # frontier: what exploring it is worth (`frontier_utility`)
     near: tuple[str, ...] = ()  # frontier: names of the known landmarks near it, nearest first (`landmarks_near`)
+    # a relational place ("spot between the stairs and the oil barrel"): where it lies [m], from the
+    # landmark estimates it is built from (`relational_options`)
+    place: Point | None = None
+    parts: tuple[str, ...] = ()  # relational place: the names of the landmarks it is built from
+
+    @property
+    def key(self) -> str:
+        """What `Memory.unreachable` calls this option: its landmark id, or a relational place's words and spot."""
+        if self.place is not None:
+            return f"{self.name}@{self.place[0]:.1f},{self.place[1]:.1f}"
+        return self.landmark_id or ""
 
     @property
     def goal_name(self) -> str:
@@ -86,6 +97,8 @@ class MenuInputs:
 def build_menu(inputs: MenuInputs, *, scored: bool = False) -> list[Option]:
     """The numbered menu (`scored`: no cap on landmarks)."""
     places = landmark_options(inputs, scored=scored) + frontier_options(inputs, scored=scored)
+    if scored:  # relational places read no prompt only when scored: a generated menu stays short
+        places += relational_options(inputs)
     memory, pose, cfg = inputs.memory, inputs.pose, inputs.cfg
     scanned_here = memory.scanned_at is not None and pose.distance_to(*memory.scanned_at) < cfg.rescan_m
     # A second full turn on the same spot shows nothing new (the world is static): not offered. The words
@@ -199,6 +212,40 @@ def frontier_options(inputs: MenuInputs, *, scored: bool = False) -> list[Option
     ]
 
 
+def relational_options(inputs: MenuInputs) -> list[Option]:
+    """Places named by the landmarks around them: "spot between the A and the B", "spot beside the A".
+
+    A task may name a place that is no landmark ("Go between the stairs and the oil barrels"). Built from
+    the landmarks already seen (the planner's own estimates): between two of different names at most
+    `between_max_m` apart (their midpoint), beside each one (its estimate); the `max_relational` nearest
+    to the robot, each with a reachable stand point. Scored like names (`scoring.ScoredChooser`).
+    """
+    memory, pose, cfg = inputs.memory, inputs.pose, inputs.cfg
+    known = sorted((memory.label(oid), position) for oid, position in memory.landmarks.items())
+    spots: list[tuple[str, Point, tuple[str, ...]]] = []
+    for index, (first, a) in enumerate(known):
+        spots.append((f"spot beside the {first}", a, (first,)))
+        for second, b in known[index + 1 :]:
+            if first != second and math.dist(a, b) <= cfg.between_max_m:
+                middle = ((a[0] + b[0]) / 2, (a[1] + b[1]) / 2)
+                spots.append((f"spot between the {first} and the {second}", middle, (first, second)))
+    spots.sort(key=lambda spot: pose.distance_to(*spot[1]))
+    options: list[Option] = []
+    for name, spot, parts in spots:
+        if len(options) >= cfg.max_relational:
+            break
+        option = Option(0, "landmark", f"Go to the {name}", name=name, place=spot, face=spot, parts=parts)
+        if option.key in memory.unreachable:
+            continue
+        goal = nearest_stand(inputs, spot)
+        if goal is None:
+            continue
+        option.goal, option.distance_m = goal, pose.distance_to(*goal)
+        option.standing = option.distance_m <= cfg.arrived_m
+        options.append(option)
+    return options
+
+
 def landmarks_near(memory: Memory, point: Point, radius_m: float, most: int) -> tuple[str, ...]:
     """Names of the known landmarks within `radius_m` [m] of `point`, nearest first, each name once, at most `most`.
 
@@ -230,7 +277,7 @@ def neutral_menu(pose: Pose2D, places: list[Option], turn: list[Option]) -> list
     Going to where the robot already stands does nothing, so that entry becomes a fact in the Finish
     line instead (whatever the task is).
     """
-    here = [o for o in places if o.kind == "landmark" and o.standing]
+    here = [o for o in places if o.kind == "landmark" and o.standing and o.place is None]
     moves = sorted(
         (o for o in places if o not in here),
         key=lambda o: (
@@ -309,6 +356,20 @@ def approach(inputs: MenuInputs, goal: Point | None, position: Point) -> Point |
             cost = np.where(ok, np.hypot(xs - pose.x, ys - pose.y), np.inf)
             row, col = np.unravel_index(int(np.argmin(cost)), cost.shape)
             return grid.geometry.cell_to_world(rows.start + int(row), cols.start + int(col))
+    return None
+
+
+def nearest_stand(inputs: MenuInputs, spot: Point) -> Point | None:
+    """The free cell nearest `spot` within `approach_max_m` (roomiest grid first).
+
+    A relational place is a spot to stand on, not an object to keep a stand-off from.
+    """
+    from llmnav.mapping.grid import nearest_free_cell
+
+    for grid in inputs.grids[:PLAIN_GRIDS]:
+        cell = nearest_free_cell(grid.blocked, grid.geometry, spot[0], spot[1], inputs.cfg.approach_max_m)
+        if cell is not None:
+            return grid.geometry.cell_to_world(*cell)
     return None
 
 

@@ -14,6 +14,10 @@ The hybrid asks two kinds of question, and a perfect model answers both from the
   acceptable target (the `oracle` planner's geometry, `llmnav.mapping.targets.goal_distance`), which is
   the way into the target's room. The room a set of landmarks suggests is not the oracle's business:
   every room word scores `NEUTRAL`.
+- **Relational places** ("spot between the stairs and the oil barrel", `menu.relational_options`): scored
+  like names, but judged by where the spot lies (`ScoreRequest.places`): `MATCH` within `PLACE_MATCH_M`
+  of an acceptable target point, `MISMATCH` elsewhere. This is how factory T4's point target ("Go
+  between the stairs and the oil barrels") gets a name the hybrid can choose.
 - **An option number** (`--decide generate`): Finish where the robot stands at an acceptable target;
   else the option that drives to one; for a rotate or explore task the full turn, then Finish; else the
   full turn when offered (look before choosing); else the frontier whose direction is closest to the
@@ -40,6 +44,7 @@ if TYPE_CHECKING:
     from llmnav.planners.base import GroundTruth
 
 MATCH, MISMATCH, NEUTRAL = 0.0, -20.0, -10.0  # [nats] see the module docstring
+PLACE_MATCH_M = 1.0  # [m] a relational place this close to a target point is that target, whatever its words
 TOWARD_RADIUS_M = 2.5  # [m] a frontier leads toward the target that its path reaches within this (full credit)
 _MENU_LINE = re.compile(r"^\s*(\d+)\.\s+(.+?)\s*$", re.MULTILINE)
 _GO_TO = re.compile(r"^Go to (.+?)(?:,|$)")
@@ -79,12 +84,22 @@ class HybridAnswerKey:
             return (NEUTRAL,) * n
         if request.prefix == FRONTIER_PROMPT.format(task=task):
             return self._frontier_scores(request)
+        if request.prefix == TARGET_PROMPT.format(task=task) and request.places:
+            return self._place_scores(request)
         if request.prefix.startswith(ROOM_PROMPT.split("{task}", 1)[0]):
             return (NEUTRAL,) * n
         if request.prefix == INTENT_PROMPT.format(task=task):
             wanted = dict(INTENTS)["go" if self.truth.task.kind == "target" else "turn"]
             return tuple(MATCH if c.strip() == wanted.strip() else MISMATCH for c in request.continuations)
         return tuple(MATCH if self._is_target(c) else MISMATCH for c in request.continuations)
+
+    def _place_scores(self, request: ScoreRequest) -> tuple[float, ...]:
+        """Relational places: MATCH for a spot within PLACE_MATCH_M of an acceptable target point, else MISMATCH."""
+        points = self.truth.scenario.target_points(self.truth.task)
+        return tuple(
+            MATCH if any(math.dist(place, point) <= PLACE_MATCH_M for point in points) else MISMATCH
+            for place in request.places
+        )
 
     def _frontier_scores(self, request: ScoreRequest) -> tuple[float, ...]:
         """MATCH for the frontier nearest an acceptable target by path on the true map, NEUTRAL for the others."""

@@ -61,6 +61,7 @@ from llmnav.planners.base import (
     Planner,
     StepInfo,
     decides_by_scores,
+    fallback_mark,
 )
 from llmnav.planners.hybrid.config import HybridConfig
 from llmnav.planners.hybrid.execute import Executor, with_seen_obstacles
@@ -159,7 +160,13 @@ class HybridPlanner(Planner):
         area = (bounds.x[1] - bounds.x[0]) * (bounds.y[1] - bounds.y[0])  # [m^2]
         mapped = bool(scenario.corridors)
         explore = self.explore_mode(ctx)
-        ctx.event("planner", decide=mode, requested=ctx.options.decide, explore=explore)
+        ctx.event(
+            "planner",
+            decide=mode,
+            requested=ctx.options.decide,
+            explore=explore,
+            **fallback_mark(ctx.options.decide, mode),
+        )
         chooser = (
             ScoredChooser(ctx, ctx.task.text, mapped=mapped, area_m2=area, explore=ctx.options.explore)
             if mode == "score"
@@ -236,8 +243,8 @@ def _drop_if_stuck(ctx: EpisodeContext, memory: Memory, option: Option, before: 
     after = believed_pose(ctx, memory)
     if after.distance_to(before.x, before.y) >= STUCK_M:
         return
-    if option.landmark_id is not None:
-        memory.unreachable.add(option.landmark_id)
+    if option.landmark_id is not None or option.place is not None:
+        memory.unreachable.add(option.key)
     else:
         memory.explored.append(option.goal)
     ctx.log.sim_time = ctx.world.sim_time

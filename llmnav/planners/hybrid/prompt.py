@@ -89,13 +89,14 @@ def scored_choice(
         Candidate(
             o.number,
             o.kind,
-            (o.name,) if o.kind == "landmark" and o.name else (o.near if o.kind == "frontier" else o.at),
+            (o.name, *o.parts) if o.kind == "landmark" and o.name else (o.near if o.kind == "frontier" else o.at),
             o.distance_m,
             o.utility,
-            o.goal if o.kind == "frontier" else None,
+            o.goal if o.kind == "frontier" else o.place,
+            o.standing,
         )
         for o in options
     ]
-    decision = chooser.choose(candidates, turned=memory.scans > 0, step=step)
+    decision = chooser.choose(candidates, turned=memory.scans > 0, step=step, explored=len(memory.explored))
     ctx.event("decision", step=step, **decision.to_log())
     return decision

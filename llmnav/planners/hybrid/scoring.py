@@ -22,7 +22,8 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
 4. A target is sure when its PMI reaches `sure_pmi`. An unsure one is not taken while there is more to
    see: explore the frontier worth the most first (its length discounted by the drive to it), at most
    max(`explore_budget`, the world's area / `explore_area_m2`) times in an episode. Exploring
-   ends early when something new comes into view, and the decision is made again.
+   ends early when something new comes into view, and the decision is made again (such an exploration is
+   not counted against the budget).
 5. Once the budget is spent (or nothing is left to explore), a target whose PMI reaches `min_pmi` (the
    task makes it e times likelier) is taken. Below that there is nothing to take: explore on while
    frontiers remain (the budget only bounds the search before an unsure target is taken), then look
@@ -118,11 +119,14 @@ class Candidate:
 
     number: int
     kind: CandidateKind
-    # landmark: its name; complete: the names of the landmarks the robot is at; frontier: the landmarks near it
+    # landmark: its name (a relational place: its words, then the landmarks it names); complete: the names of
+    # the landmarks the robot is at; frontier: the landmarks near it
     names: tuple[str, ...] = ()
     distance_m: float = 0.0  # [m] from the robot to where the option drives
     utility: float = 0.0  # frontier: what exploring it is worth (`llmnav.planners.hybrid.menu.frontier_utility`)
-    place: tuple[float, float] | None = None  # [m] frontier: where it drives (for oracle answers' geometry)
+    # [m] frontier: where it drives; relational place: where it lies (oracle answers judge both by where)
+    place: tuple[float, float] | None = None
+    standing: bool = False  # relational place: the robot is there
 
 
 @dataclass
@@ -176,6 +180,7 @@ class ScoredChooser:
         self.task = task
         self.scorer = TextRelevance(self._score, task)
         self._rooms: dict[str, str] = {}  # landmark list -> the room it suggests ("" for none)
+        self._places: dict[tuple[str, tuple[float, float]], float] = {}  # relational place -> PMI [nats]
         self.mapped = mapped  # a published map lists every landmark: no need to look before choosing
         self.intent: Intent | None = None
         self.explored = 0  # decisions that chose to explore
@@ -197,13 +202,18 @@ class ScoredChooser:
             self.intent = "turn" if best[0] == "turn" else "go"
         return self.intent
 
-    def choose(self, candidates: list[Candidate], *, turned: bool, step: int | None) -> Decision:
+    def choose(
+        self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None = None
+    ) -> Decision:
         """The option to take now; `turned`: a full turn has been made in this episode.
 
-        The decision lists every frontier on the menu with what is known near it and its utility (and,
-        where it chose by scores, each one's description, PMI and value).
+        `explored`: explorations carried to their end so far, which the budget counts (default: every
+        choice to explore). One cut short because something new came into view is not spent: it hands
+        the decision back with more to go on, and what can come into view is finite. The decision lists
+        every frontier on the menu with what is known near it and its utility (and, where it chose by
+        scores, each one's description, PMI and value).
         """
-        decision = self._choose(candidates, turned=turned, step=step)
+        decision = self._choose(candidates, turned=turned, step=step, explored=explored)
         if not decision.frontiers:
             decision.frontiers = [
                 {"option": c.number, "near": list(c.names), "utility": round(c.utility, 3)}
@@ -212,7 +222,9 @@ class ScoredChooser:
             ]
         return decision
 
-    def _choose(self, candidates: list[Candidate], *, turned: bool, step: int | None) -> Decision:
+    def _choose(
+        self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None
+    ) -> Decision:
         by_kind: dict[str, list[Candidate]] = {}
         for candidate in candidates:
             by_kind.setdefault(candidate.kind, []).append(candidate)
@@ -225,13 +237,27 @@ class ScoredChooser:
             return Decision(finish.number, "turned: done", intent)
         if not turned and scan is not None and not self.mapped:
             return Decision(scan.number, "look around before choosing", intent)
-        places = [c for c in by_kind.get("landmark", []) if c.names]
+        places = [c for c in by_kind.get("landmark", []) if c.names and c.place is None]
+        relational = [c for c in by_kind.get("landmark", []) if c.names and c.place is not None]
         here = list(finish.names)
         names = [*here, *(c.names[0] for c in places)]
         scores = self.relevance(names, step) if names else {}
-        # (value, candidate or None for "where the robot stands")
-        options: list[tuple[float, str, Candidate | None]] = [(scores[n], n, None) for n in here]
-        options += [(scores[c.names[0]] - self.cfg.distance_cost * c.distance_m, c.names[0], c) for c in places]
+        between = self.place_relevance(relational)
+        # (value, PMI, name, candidate or None for "where the robot stands")
+        options: list[tuple[float, float, str, Candidate | None]] = [(scores[n], scores[n], n, None) for n in here]
+        options += [
+            (scores[c.names[0]] - self.cfg.distance_cost * c.distance_m, scores[c.names[0]], c.names[0], c)
+            for c in places
+        ]
+        for c, pmi in zip(relational, between, strict=True):
+            scores[_place_label(c)] = pmi
+            # A relation counts only where the task asks for it: more relevant than each landmark it names
+            # (else "spot between the boxes and the fire" would take the boxes' score to a spot metres off).
+            parts = self.relevance(list(c.names[1:]), step) if c.names[1:] else {}
+            if parts and pmi <= max(parts.values()):
+                continue
+            # a relational place the robot stands at is "where the robot stands", like Finish's landmarks
+            options.append((pmi - self.cfg.distance_cost * c.distance_m, pmi, c.names[0], None if c.standing else c))
         if not options:
             if by_kind.get("frontier"):
                 self.explored += 1
@@ -240,22 +266,23 @@ class ScoredChooser:
                 return Decision(scan.number, "nothing known yet: look around", intent, scores)
             why = "not found: no reachable place is known and nothing is left to explore"
             return Decision(finish.number, why, intent, scores, True)
-        value, name, best = max(options, key=lambda item: item[0])
-        sure = scores[name] >= self.cfg.sure_pmi
-        if not sure and self.explored < self.explore_budget() and by_kind.get("frontier"):
+        value, pmi, name, best = max(options, key=lambda item: item[0])
+        sure = pmi >= self.cfg.sure_pmi
+        spent = self.explored if explored is None else explored
+        if not sure and spent < self.explore_budget() and by_kind.get("frontier"):
             self.explored += 1
-            return self._frontier(by_kind, intent, scores, f"{name} {scores[name]:+.1f} is unsure")
-        if scores[name] < self.cfg.min_pmi:
+            return self._frontier(by_kind, intent, scores, f"{name} {pmi:+.1f} is unsure")
+        if pmi < self.cfg.min_pmi:
             # The budget bounds exploring before an unsure target is taken; with no known place worth
             # taking there is nothing to take yet, so the search goes on while anything is left to explore.
             if by_kind.get("frontier"):
                 self.explored += 1
-                return self._frontier(by_kind, intent, scores, f"no known place fits ({name} {scores[name]:+.1f})")
+                return self._frontier(by_kind, intent, scores, f"no known place fits ({name} {pmi:+.1f})")
             if scan is not None:
-                why = f"no known place fits ({name} {scores[name]:+.1f}): look around"
+                why = f"no known place fits ({name} {pmi:+.1f}): look around"
                 return Decision(scan.number, why, intent, scores)
             # Never Finish at, or drive to, a place the scores reject: say so instead.
-            why = f"not found: no known place fits ({name} {scores[name]:+.1f}) and nothing is left to explore"
+            why = f"not found: no known place fits ({name} {pmi:+.1f}) and nothing is left to explore"
             return Decision(finish.number, why, intent, scores, True)
         if best is None:
             if not sure and scan is not None and not self.mapped:
@@ -293,6 +320,24 @@ class ScoredChooser:
         decision.frontiers = rows
         return decision
 
+    def place_relevance(self, relational: list[Candidate]) -> list[float]:
+        """PMI [nats] of relational places ("spot between the stairs and the oil barrel") with the task.
+
+        Scored like names (after TARGET_PROMPT, against the content-free task), with where each lies in
+        the request (`ScoreRequest.places`): oracle answers judge the spot, not the words, since the same
+        words name a spot beside each of several oil barrels. Each (words, spot to `PLACE_CACHE_M`) once.
+        """
+        keys = [(c.names[0], _rounded(c.place)) for c in relational]
+        new = [key for key in dict.fromkeys(keys) if key not in self._places]
+        if new:
+            continuations = tuple(" " + text for text, _ in new)
+            where = tuple(spot for _, spot in new)
+            with_task = self._score(ScoreRequest(TARGET_PROMPT.format(task=self.task), continuations, where))
+            free = self._score(ScoreRequest(TARGET_PROMPT.format(task=CONTENT_FREE_TASK), continuations, where))
+            for key, a, b in zip(new, with_task.scores, free.scores, strict=True):
+                self._places[key] = a.logprob - b.logprob
+        return [self._places[key] for key in keys]
+
     # --- frontier descriptions ----------------------------------------------------------------------
     def describe(self, names: tuple[str, ...]) -> str:
         """A frontier's description: the room its nearby landmarks suggest and the landmarks themselves.
@@ -325,6 +370,21 @@ class ScoredChooser:
         with_task = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=self.task), continuations, where))
         free = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=CONTENT_FREE_TASK), continuations, where))
         return [a.logprob - b.logprob for a, b in zip(with_task.scores, free.scores, strict=True)]
+
+
+PLACE_CACHE_M = 0.5  # [m] a relational place's spot moves this little as its landmarks are seen again
+
+
+def _rounded(place: tuple[float, float] | None) -> tuple[float, float]:
+    """A spot on the `PLACE_CACHE_M` lattice (what a relational place's score is kept under)."""
+    x, y = place or (0.0, 0.0)
+    return (round(round(x / PLACE_CACHE_M) * PLACE_CACHE_M, 3), round(round(y / PLACE_CACHE_M) * PLACE_CACHE_M, 3))
+
+
+def _place_label(candidate: Candidate) -> str:
+    """A relational place as the decision's scores name it: its words and where it lies."""
+    x, y = candidate.place or (0.0, 0.0)
+    return f"{candidate.names[0]} ({x:.1f}, {y:.1f})"
 
 
 def _listed(names: tuple[str, ...]) -> str:

@@ -18,7 +18,15 @@ from llmnav.declarations import Column, Declarations, ScoreTable
 from llmnav.errors import BadInputError, InvalidActionError
 from llmnav.geometry import Point, Pose2D
 from llmnav.guard.legs import drive_leg
-from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner, StepInfo, decides_by_scores
+from llmnav.planners.base import (
+    EpisodeContext,
+    EpisodeOutcome,
+    Information,
+    Planner,
+    StepInfo,
+    decides_by_scores,
+    fallback_mark,
+)
 from llmnav.planners.waypoints.ground import ground_target
 from llmnav.planners.waypoints.options import WaypointOptions
 from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, generate_plan
@@ -160,7 +168,11 @@ class WaypointPlanner(Planner):
             return call_model(ctx, request, purpose=purpose, step=step)
 
         # Free text that names no object is grounded by scores where the backend can (`--decide`).
-        score = (lambda request: ctx.score(request, step)) if decides_by_scores(ctx.options, ctx.backend) else None
+        scores = decides_by_scores(ctx.options, ctx.backend)
+        score = (lambda request: ctx.score(request, step)) if scores else None
+        mark = fallback_mark(ctx.options.decide, "score" if scores else "generate")
+        if mark:
+            ctx.event("planner", decide="generate", requested=ctx.options.decide, **mark)
 
         def note(kind: str, **fields: Any) -> None:
             ctx.log.sim_time = world.sim_time
