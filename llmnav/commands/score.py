@@ -15,6 +15,7 @@ from llmnav.errors import BadInputError
 from llmnav.safefiles import write_text
 
 if TYPE_CHECKING:
+    from llmnav.backends.prices import PriceTable
     from llmnav.score import Table
 
 
@@ -100,7 +101,7 @@ def score(
         for flag, given in (("--compare", compare), ("--by", by), ("--plot", plot)):
             if given:
                 raise BadInputError(f"--table runs: {flag} does not apply (it lists every run, ungrouped)")
-        runs_table(paths, fmt, out, success_radius)
+        runs_table(paths, fmt, out, success_radius, table_of_prices)
         return
     runs, broken = read_runs(paths, success_radius, table_of_prices)
     keys = varying_keys(runs) if by is None else parse_keys(by)
@@ -141,14 +142,16 @@ def score(
     err_console.print(f"[dim]{len(runs)} run(s) read{f', {cut} cut short' if cut else ''}[/]", highlight=False)
 
 
-def runs_table(paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None) -> None:
+def runs_table(
+    paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None, prices: PriceTable | None
+) -> None:
     """`--table runs`: a row per run, streamed through a spool file (see `llmnav.score_runs`)."""
     import contextlib
 
     from llmnav.safefiles import atomic_text
     from llmnav.score_runs import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
 
-    spool = spool_rows(paths, success_radius)
+    spool = spool_rows(paths, success_radius, prices=prices)
     with spool.file, contextlib.ExitStack() as stack:
         if fmt is OutputFormat.rich and out is None and spool.count <= RICH_ROWS:
             _print_runs(spool, DISPLAY_COLUMNS)
