@@ -209,11 +209,7 @@ class ScoredChooser:
         """
         decision = self._choose(candidates, turned=turned, step=step)
         if not decision.frontiers:
-            decision.frontiers = [
-                {"option": c.number, "near": list(c.names), "utility": round(c.utility, 3)}
-                for c in candidates
-                if c.kind == "frontier"
-            ]
+            decision.frontiers = [_row(c) for c in candidates if c.kind == "frontier"]
         return decision
 
     def _choose(self, candidates: list[Candidate], *, turned: bool, step: int | None) -> Decision:
@@ -297,14 +293,7 @@ class ScoredChooser:
             values = [frontier_value(c.utility, p) for c, p in zip(frontiers, pmi, strict=True)]
             best = max(zip(values, frontiers, strict=True), key=lambda item: (item[0], -item[1].distance_m))[1]
             rows = [
-                {
-                    "option": c.number,
-                    "near": list(c.names),
-                    "description": text,
-                    "utility": round(c.utility, 3),
-                    "pmi": round(p, 3),
-                    "value": round(v, 3),
-                }
+                _row(c) | {"description": text, "pmi": round(p, 3), "value": round(v, 3)}
                 for c, text, p, v in zip(frontiers, texts, pmi, values, strict=True)
             ]
         decision = Decision(best.number, f"{why}: explore", intent, scores)
@@ -361,6 +350,14 @@ class ScoredChooser:
         with_task = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=self.task), continuations, where))
         free = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=CONTENT_FREE_TASK), continuations, where))
         return [a.logprob - b.logprob for a, b in zip(with_task.scores, free.scores, strict=True)]
+
+
+def _row(frontier: Candidate) -> dict[str, Any]:
+    """A frontier as the decision logs it: option, where [m], what is near it, its utility."""
+    row: dict[str, Any] = {"option": frontier.number}
+    if frontier.place is not None:
+        row["at"] = [round(frontier.place[0], 2), round(frontier.place[1], 2)]
+    return row | {"near": list(frontier.names), "utility": round(frontier.utility, 3)}
 
 
 PLACE_CACHE_M = 0.5  # [m] a relational place's spot moves this little as its landmarks are seen again
