@@ -20,9 +20,13 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
 3. Every known landmark gets the value PMI - `distance_cost` x distance [m] (the affordance term: between
    equally relevant landmarks, such as two oil barrels, the nearer wins). The best one is the target.
 4. A target is sure when its PMI reaches `sure_pmi`. An unsure one is not taken while there is more to
-   see: explore the frontier worth the most first (its length discounted by the drive to it), at most
-   max(`explore_budget`, the world's area / `explore_area_m2`) times in an episode. Exploring
-   ends early when something new comes into view, and the decision is made again.
+   see: explore a frontier first, at most max(`explore_budget`, the world's area / `explore_area_m2`)
+   times in an episode. Which frontier (`-o explore`): the nearest; the most useful (its length
+   discounted by the drive to it); or, `scored`, the one of highest `frontier_value`: the utility times
+   the likelihood ratio of its description ("the bedroom with the bed and the wardrobe": the landmarks
+   seen within `describe_radius_m` of it and the room they suggest) with the task, the PMI after
+   FRONTIER_PROMPT against the content-free task (docs/frontier-values.md). Exploring ends early when
+   something new comes into view, and the decision is made again.
 5. Once the budget is spent (or nothing is left to explore), a target whose PMI reaches `min_pmi` (the
    task makes it e times likelier) is taken. Below that there is nothing to take: explore on while
    frontiers remain (the budget only bounds the search before an unsure target is taken), then look
@@ -30,6 +34,12 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
    never driven to or finished at, and neither is anything when nothing was seen at all.
 6. At the target: an unsure one gets one more look around from there (a better match may come into
    view), then Finish. Otherwise go to the target.
+
+Relational places ("spot between the stairs and the oil barrel", "spot beside the stairs"; built from the
+landmarks seen, `menu.relational_options`) join the landmarks in step 3, scored like names after
+TARGET_PROMPT (with their spot in the request, for oracle answers); one counts only where its PMI exceeds
+that of each landmark it names, so a relation is taken when the task asks for it, not as a nearer stand-in
+for its landmark.
 
 `sure_pmi` and `min_pmi` were set on task wordings that are not part of this repository (targets scored
 6-12 nats, unrelated landmarks up to 5), never on the bundled tasks.
