@@ -338,7 +338,7 @@ class ScoredChooser:
         if not names:
             return UNDESCRIBED
         things = _listed(names)
-        room = self.room(things)
+        room = self.room(_listed(tuple(sorted(names))))  # one question per set of landmarks, in any order
         return f"the {room} with {things}" if room else things
 
     def room(self, things: str) -> str:
