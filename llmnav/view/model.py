@@ -115,6 +115,9 @@ class StepView:
     t_sim: float | None = None
     scores: dict[str, float] = field(default_factory=dict)  # a scored decision: each landmark's PMI [nats]
     rule: str | None = None  # a scored decision: which rule chose
+    # hybrid: the frontiers on the menu (where, what is near, utility; PMI and value where scored)
+    frontiers: list[dict[str, Any]] = field(default_factory=list)
+    chosen: int | None = None  # a scored decision: the option number it chose
 
     @property
     def vetoes(self) -> list[dict[str, Any]]:
@@ -538,6 +541,10 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
                 if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
             }
             step.rule = event.get("rule") if isinstance(event.get("rule"), str) else None
+            option = event.get("option")
+            step.chosen = option if isinstance(option, int) and not isinstance(option, bool) else None
+            rows = event.get("frontiers")
+            step.frontiers = [r for r in (rows if isinstance(rows, list) else []) if isinstance(r, dict)]
         elif kind == "guard":
             step.guards.append(event)
         elif kind == "action":

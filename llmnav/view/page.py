@@ -153,7 +153,37 @@ def _overlay(step: StepView) -> dict[str, Any]:
         "after": heading(step.pose_after),
         "attempts": attempts,
         "replans": replans,
+        "frontiers": _frontier_marks(step),
     }
+
+
+def _frontier_marks(step: StepView) -> list[dict[str, Any]]:
+    """The decision's frontiers on the map: a dot each, sized by value (or utility), the chosen one marked.
+
+    The label is the value where the decision scored its frontiers (log utility + PMI), else the utility.
+    """
+    from llmnav.view.drawing import svg_point
+    from llmnav.view.model import as_pose
+
+    chosen = step.chosen
+    marks = []
+    for row in step.frontiers:
+        at = as_pose(row.get("at"))
+        if at is None:
+            continue
+        x, y = svg_point(at[0], at[1])
+        value, utility = row.get("value"), row.get("utility")
+        scored = isinstance(value, (int, float)) and not isinstance(value, bool)
+        shown = value if scored else utility
+        number = float(shown) if isinstance(shown, (int, float)) else 0.0
+        near = ", ".join(str(n) for n in row.get("near") or []) or "nothing known near"
+        words = row.get("description") or near
+        title = f"frontier {row.get('option')}: {words}; " + (
+            f"value {number:+.1f} (PMI {row.get('pmi')}, utility {utility})" if scored else f"utility {number:.2f}"
+        )
+        label = f"{number:+.1f}" if scored else f"{number:.1f}"
+        marks.append({"cx": x, "cy": y, "label": label, "title": title, "chosen": row.get("option") == chosen})
+    return marks
 
 
 STRIP_W, STRIP_PAD = 760, 36  # [px] suggestion-outcome strip: width and left margin

@@ -180,6 +180,24 @@ def test_frontier_scores_are_logged_and_a_strict_replay_repeats_them(tmp_path: P
     assert decisions(tmp_path / "again") == decisions(tmp_path / "live")
 
 
+def test_the_viewer_draws_each_decisions_frontier_values_on_the_map(tmp_path: Path) -> None:
+    import re
+
+    from llmnav.view.api import write_view
+
+    _drive(tmp_path, "live", "policy:oracle")
+    rows = [row for d in read_run(tmp_path / "live").of_type("decision") for row in d.get("frontiers", [])]
+    page = write_view(tmp_path / "live").page.read_text(encoding="utf-8")
+    marks = re.findall(
+        r'<g class="frontier( chosen)?"><circle[^>]*><title>([^<]*)</title></circle><text[^>]*>([^<]*)</text>', page
+    )
+    assert len(marks) == len([r for r in rows if "at" in r]) > 0
+    scored = [r for r in rows if "value" in r]
+    labels = {label for _, _, label in marks}
+    assert scored and all(f"{r['value']:+.1f}" in labels for r in scored)
+    assert any(chosen for chosen, _, _ in marks)
+
+
 def test_a_backend_that_cannot_score_explores_by_utility_and_says_so(tmp_path: Path) -> None:
     import json
 

@@ -24,7 +24,8 @@ The hybrid asks two kinds of question, and a perfect model answers both from the
   true bearing of the nearest target; else Finish.
 
 What the hybrid can find is still what its own sensors reveal: a target it never detects cannot be
-chosen, and a point target (no landmark to name) is beyond its menu. That is the planner's ceiling.
+chosen, and a point target is reachable only as a relational place between or beside landmarks it has
+seen (scored decisions). That is the planner's ceiling.
 """
 
 from __future__ import annotations

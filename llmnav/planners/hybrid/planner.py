@@ -10,8 +10,9 @@ well-described options under a grammar (docs/sources.md, M), so each decision of
 - go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
   the waypoint source), otherwise only objects the detector has seen (the nearest `max_landmarks`),
   each with distance, direction and (with `--menu-order relevance`) whether its name matches the task;
-- explore a frontier cluster of the robot's own LiDAR map (the nearest `max_frontiers`; not offered
-  when the map is published);
+- explore a frontier cluster of the robot's own LiDAR map (the first `max_frontiers` by `-o explore`:
+  nearest, most useful, or scored by what has been seen near it; not offered when the map is published);
+- (scored decisions) a relational place between or beside landmarks already seen;
 - rotate 360° to look around;
 - finish.
 The answer's schema restricts `option` to the listed numbers, and it still passes the guard.
