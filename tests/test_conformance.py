@@ -12,7 +12,7 @@ from pydantic import Field
 
 from llmnav.backends.base import registry
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, planner_class
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 from llmnav.testing import check_backend, check_planner
 
 SMALL = str(Path(__file__).parent / "runner" / "small_room.yaml")
@@ -83,7 +83,7 @@ def test_a_third_party_planner_with_its_own_option_conforms(lean_registered: Non
     from typer.testing import CliRunner
 
     from llmnav.cli import app
-    from llmnav.runlog import read_run
+    from llmnav.runs.runlog import read_run
 
     check_planner(LeanPlanner, scenario=SMALL)
     out = tmp_path / "run"

@@ -47,7 +47,7 @@ def collect_rows() -> list[BackendRow]:
 
     A name two distributions register is shown as broken too, naming both (neither is used).
     """
-    from llmnav import plugins
+    from llmnav.core import plugins
 
     rows: list[BackendRow] = []
     for name, registered in sorted(plugins.registrations(GROUP).items()):

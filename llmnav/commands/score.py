@@ -11,12 +11,12 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from llmnav.commands.common import chart_folder_option, check_output_path, cli_errors, console, err_console, esc
+from llmnav.core.safefiles import write_text
 from llmnav.errors import BadInputError
-from llmnav.safefiles import write_text
 
 if TYPE_CHECKING:
     from llmnav.backends.prices import PriceTable
-    from llmnav.score import Table
+    from llmnav.scoring.score import Table
 
 
 class OutputFormat(StrEnum):
@@ -74,7 +74,8 @@ def score(
 
     Tables (or data) go to stdout; status and anything that could not be computed go to stderr.
     """
-    from llmnav.score import (
+    from llmnav.scoring.papers import PAPER_TABLES, check_table_name, paper_table
+    from llmnav.scoring.score import (
         collided_runs,
         compare_groups,
         problems,
@@ -83,8 +84,7 @@ def score(
         split_aborted,
         varying_keys,
     )
-    from llmnav.score_papers import PAPER_TABLES, check_table_name, paper_table
-    from llmnav.score_tables import build_tables
+    from llmnav.scoring.tables import build_tables
 
     if table is not None:
         check_table_name(table)  # before any run is read: a typo costs nothing
@@ -145,11 +145,11 @@ def score(
 def runs_table(
     paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None, prices: PriceTable | None
 ) -> None:
-    """`--table runs`: a row per run, streamed through a spool file (see `llmnav.score_runs`)."""
+    """`--table runs`: a row per run, streamed through a spool file (see `llmnav.scoring.runs_table`)."""
     import contextlib
 
-    from llmnav.safefiles import atomic_text
-    from llmnav.score_runs import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
+    from llmnav.core.safefiles import atomic_text
+    from llmnav.scoring.runs_table import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
 
     spool = spool_rows(paths, success_radius, prices=prices)
     with spool.file, contextlib.ExitStack() as stack:
@@ -182,8 +182,8 @@ RICH_ROWS = 1000  # a terminal table above this many runs is written as Markdown
 def _print_runs(spool: object, columns: tuple[str, ...]) -> None:
     """The runs as a rich table of the given columns (those some run has a value in)."""
     from llmnav.reporting.tables import print_tables
-    from llmnav.score import Table
-    from llmnav.score_runs import NOTE, TITLE, Spool
+    from llmnav.scoring.runs_table import NOTE, TITLE, Spool
+    from llmnav.scoring.score import Table
 
     assert isinstance(spool, Spool)
     shown = [c for c in columns if c in spool.filled]
@@ -200,8 +200,8 @@ def _short(value: object) -> str:
 
 def parse_keys(text: str) -> list[str]:
     """`--by lidar_sectors,prompt` → validated condition keys."""
-    from llmnav.metrics import CONDITION_KEYS
-    from llmnav.score import START_POSE_KEY, is_option_key
+    from llmnav.scoring.metrics import CONDITION_KEYS
+    from llmnav.scoring.score import START_POSE_KEY, is_option_key
 
     keys = [k.strip().replace("-", "_") for k in text.split(",") if k.strip()]
     unknown = [k for k in keys if k not in (*CONDITION_KEYS, START_POSE_KEY) and not is_option_key(k)]

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
-    from llmnav.score import Run
+    from llmnav.scoring.score import Run
 
 
 def _safe(name: str) -> str:
@@ -25,7 +25,7 @@ def plot_conditions(runs: Sequence[Run], keys: Sequence[str], out_dir: Path) -> 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from llmnav.score import group_runs
+    from llmnav.scoring.score import group_runs
 
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -53,7 +53,7 @@ def condition_figure(task: str, groups: Sequence[tuple[str, Sequence[Run]]], key
     """One task's figure: a bar per condition, its label wrapped to the bar's width (never tilted into the next)."""
     import matplotlib.pyplot as plt
 
-    from llmnav.stats import describe, wilson_interval
+    from llmnav.scoring.stats import describe, wilson_interval
 
     labels = [cond for cond, _ in groups]
     score_mean, score_sd, rate, rate_err = [], [], [], []

@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 
 from llmnav.backends.policy import PolicyBackend
-from llmnav.chat import ScoreRequest, ScoreResult
-from llmnav.geometry import Pose2D
+from llmnav.core.chat import ScoreRequest, ScoreResult
+from llmnav.core.geometry import Pose2D
 from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.hybrid.memory import Memory
 from llmnav.planners.hybrid.menu import landmarks_near
@@ -23,9 +23,9 @@ from llmnav.planners.hybrid.scoring import (
     ScoredChooser,
     frontier_value,
 )
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import load_scenario
 
 TASK = "Find the pillow"
 
@@ -105,7 +105,7 @@ def test_a_room_is_named_only_when_the_landmarks_make_it_likelier() -> None:
 
     class Rooms:
         def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
-            from llmnav.chat import ContinuationScore
+            from llmnav.core.chat import ContinuationScore
 
             free = "N/A" in request.prefix
             values = [-5.0 if free else scored.get(c.strip(), -5.0) for c in request.continuations]

@@ -19,10 +19,10 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.backends.openai import OpenAIBackend
-from llmnav.chat import ChatRequest, Message
 from llmnav.cli import app
+from llmnav.core.chat import ChatRequest, Message
 from llmnav.planners.fsm.workers import ThreadWorker
-from llmnav.runlog import read_run
+from llmnav.runs.runlog import read_run
 
 CATEGORY = "dead assist"
 

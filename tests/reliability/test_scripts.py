@@ -17,8 +17,8 @@ from typer.testing import CliRunner
 
 from llmnav.backends.forced import continuation_tokens, forced_request, score_continuation
 from llmnav.backends.local import LocalBackend
-from llmnav.chat import ScoreRequest
 from llmnav.cli import app
+from llmnav.core.chat import ScoreRequest
 from llmnav.errors import ModelError
 
 CATEGORY = "scoring scripts"

@@ -14,8 +14,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from score_fakes import config_for, write_run, write_scenario_file  # noqa: E402
 
 from llmnav.cli import app  # noqa: E402
-from llmnav.score import compare_groups, find_run_dirs, load_runs, varying_keys  # noqa: E402
-from llmnav.score_tables import build_tables  # noqa: E402
+from llmnav.scoring.score import compare_groups, find_run_dirs, load_runs, varying_keys  # noqa: E402
+from llmnav.scoring.tables import build_tables  # noqa: E402
 
 
 def _make_runs(root: Path) -> None:

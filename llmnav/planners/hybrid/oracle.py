@@ -38,10 +38,10 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.planners.hybrid.menu import SECTORS
 from llmnav.planners.hybrid.scoring import FRONTIER_PROMPT, INTENT_PROMPT, INTENTS, ROOM_PROMPT
-from llmnav.relevance import CONTENT_FREE_TASK, TARGET_PROMPT
+from llmnav.sensing.relevance import CONTENT_FREE_TASK, TARGET_PROMPT
 
 if TYPE_CHECKING:
-    from llmnav.chat import ChatRequest, ScoreRequest
+    from llmnav.core.chat import ChatRequest, ScoreRequest
     from llmnav.planners.base import GroundTruth
 
 MATCH, MISMATCH, NEUTRAL = 0.0, -20.0, -10.0  # [nats] see the module docstring

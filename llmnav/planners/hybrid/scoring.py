@@ -5,7 +5,7 @@ the menu), but it can tell how likely a text is as the continuation of the task.
 asks the backend for log-probabilities, never for an answer (Ahn et al. 2022, SayCan; docs/sources.md):
 
 - **Relevance of a landmark** is the domain-conditional pointwise mutual information of its name
-  with the task (`llmnav.relevance`; Holtzman et al. 2021): log P(" <name>" | TARGET_PROMPT with the
+  with the task (`llmnav.sensing.relevance`; Holtzman et al. 2021): log P(" <name>" | TARGET_PROMPT with the
   task) minus log P(" <name>" | the same prompt with the content-free task "N/A"). Subtracting the
   content-free term removes the model's prior for short, frequent names. Both terms depend only on the
   task and the name, so each name is scored once per episode, when it first appears on the menu.
@@ -55,8 +55,8 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
-from llmnav.chat import ScoreRequest
-from llmnav.relevance import CONTENT_FREE_TASK, TARGET_PROMPT, TextRelevance
+from llmnav.core.chat import ScoreRequest
+from llmnav.sensing.relevance import CONTENT_FREE_TASK, TARGET_PROMPT, TextRelevance
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeContext

@@ -2,8 +2,8 @@
 
 Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
 the tables: the episode and path-length tables every run has and the tables each planner declares (see
-`llmnav.declarations`) here, the null-policy, floor/model/ceiling and wording tables in
-`llmnav.score_policies`, all of them gathered by `llmnav.score_tables.build_tables` (only those with data);
+`llmnav.core.declarations`) here, the null-policy, floor/model/ceiling and wording tables in
+`llmnav.scoring.policies`, all of them gathered by `llmnav.scoring.tables.build_tables` (only those with data);
 and `compare_groups` (`--compare KEY=A KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in
 `llmnav.reporting.tables`. Tables are plain data (`Table`): formatted cells for display and raw numbers for
 JSON and CSV. Whatever cannot be computed (a scenario that does not load, an oracle that fails) is noted on
@@ -22,25 +22,25 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.backends.base import answerer
-from llmnav.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
+from llmnav.core.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
 from llmnav.errors import BadInputError
-from llmnav.failures import FAILURE_CAUSES
-from llmnav.metrics import (
+from llmnav.runs.runlog import RUN_FILE, SUPERSEDED_FILE, RunRecord, read_run
+from llmnav.scoring.failures import FAILURE_CAUSES
+from llmnav.scoring.metrics import (
     CONDITION_KEYS,
     RESCORED_KEYS,
     SUCCESS_RADIUS_M,
     aborted_without_result,
     summarize_run,
 )
-from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, RunRecord, read_run
-from llmnav.scenario import SEQUENCE_JOIN
-from llmnav.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
-from llmnav.tasks import ADHOC_ID
+from llmnav.scoring.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
+from llmnav.world.scenario import SEQUENCE_JOIN
+from llmnav.world.tasks import ADHOC_ID
 
 if TYPE_CHECKING:
     from llmnav.backends.prices import PriceTable
-    from llmnav.geometry import Pose2D
-    from llmnav.scenario import Scenario, Task
+    from llmnav.core.geometry import Pose2D
+    from llmnav.world.scenario import Scenario, Task
 
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
@@ -70,7 +70,7 @@ class Run:
 
     def task_record(self, scenario: Scenario) -> Task:
         """The run's task: the scenario's of its id, else the one its configuration line records (free text)."""
-        from llmnav.scenario import Task
+        from llmnav.world.scenario import Task
 
         task_id = str(self.summary.get("task_id") or "")
         if task_id and task_id != ADHOC_ID and self.wording != "free":
@@ -83,7 +83,7 @@ class Run:
 
     @property
     def condition(self) -> dict[str, Any]:
-        """The run's condition values (llmnav.metrics.CONDITION_KEYS), then every other logged option.
+        """The run's condition values (llmnav.scoring.metrics.CONDITION_KEYS), then every other logged option.
 
         Any planner option may be an ablation factor (`alpha`, `max_replans`, ...): its value comes from
         the configuration line, a list written as on the command line (`lidar+image`).
@@ -177,7 +177,7 @@ def find_run_dirs(paths: Sequence[Path]) -> list[Path]:
 def _scenario(name_or_path: str) -> Scenario | str:
     """The scenario, or why it cannot be loaded (cached either way: many runs share one)."""
     from llmnav.errors import LlmnavError, one_line
-    from llmnav.scenario import load_scenario
+    from llmnav.world.scenario import load_scenario
 
     try:
         return load_scenario(name_or_path)
@@ -212,7 +212,7 @@ def load_run(run_dir: Path, success_radius_m: float | None = None, prices: Price
 
     `success_radius_m` [m]: success, oracle success, SPL, Soft-SPL and the failure cause are recomputed from
     the log at this radius (`--success-radius`). A summary written before some of these keys existed gets
-    them computed from its log the same way (`llmnav.metrics.summarize_run`). `prices` (`--prices`): the
+    them computed from its log the same way (`llmnav.scoring.metrics.summarize_run`). `prices` (`--prices`): the
     cost is recomputed from the log with this table instead of the one the run was priced with.
     """
     return run_from_record(read_run(run_dir), success_radius_m, prices)
@@ -490,8 +490,8 @@ def _start_key(run: Run) -> tuple[str, Any]:
 
 def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
     """Oracle shortest-path length per (task, start pose); None where unavailable (noted on the run)."""
+    from llmnav.core.geometry import Pose2D
     from llmnav.errors import one_line
-    from llmnav.geometry import Pose2D
 
     lengths: dict[tuple[str, Any], float | None] = {}
     for run in runs:
@@ -521,9 +521,9 @@ def task_of_run(scenario: Scenario, run: Run) -> Task:
     """The task a run drove: the scenario's (a route too) by id, else its logged text resolved again.
 
     A sequence of `--task` commands (id `SEQ`) and free text (id `adhoc`) are no scenario task: their text
-    is (`llmnav.tasks`), so they are resolved from it as `drive` did.
+    is (`llmnav.world.tasks`), so they are resolved from it as `drive` did.
     """
-    from llmnav.tasks import SEQUENCE_ID, sequence_task, task_from_text
+    from llmnav.world.tasks import SEQUENCE_ID, sequence_task, task_from_text
 
     try:
         return scenario.task(run.task)
@@ -543,9 +543,9 @@ def sequence_oracle_length(scenario: Scenario, task: Task, start: Pose2D) -> flo
 
     Each leg starts where the oracle's previous one ended, as the robot's did where the last leg ended.
     """
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.mapping.targets import oracle_path
-    from llmnav.tasks import sequence_legs
+    from llmnav.world.tasks import sequence_legs
 
     total, here = 0.0, start
     for leg in sequence_legs(scenario, task):
@@ -568,7 +568,7 @@ def path_table(
 ) -> Table | None:
     """Source A, Table 2 style, successful runs only: path length and its ratio to Oracle and to each reference.
 
-    The references default to every installed planner's (see `llmnav.declarations.ReferencePath`).
+    The references default to every installed planner's (see `llmnav.core.declarations.ReferencePath`).
     """
     successful = [r for r in runs if r.summary.get("success") and _num(r.summary.get("path_length_m")) is not None]
     if not successful:
@@ -624,7 +624,7 @@ def path_table(
 
 
 def _read(run: Run, source: str, where: Sequence[str]) -> Any:
-    """A value of the run's planner metrics or summary at a dotted path (see `llmnav.declarations.Column`)."""
+    """A value of the run's planner metrics or summary at a dotted path (see `llmnav.core.declarations.Column`)."""
     value: Any = run.metrics if source == "metrics" else run.summary
     for part in where:
         if not isinstance(value, dict):  # a number where a mapping was expected stands for itself
@@ -733,7 +733,7 @@ def declared_tables(runs: Sequence[Run], keys: Sequence[str], declared: Mapping[
 
 
 def failures_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Per condition: how many runs failed, and of what (`failure_cause`, see `llmnav.failures`).
+    """Per condition: how many runs failed, and of what (`failure_cause`, see `llmnav.scoring.failures`).
 
     Every run counts, those aborted by a backend or server failure too (cause `outage`).
     """

@@ -3,15 +3,17 @@
 llmnav's own, the planners' declared ones, the null policies' and ceiling's, the failures, the aborted
 runs and the cost.
 
-It sits above the modules that build each table (`llmnav.score`, `llmnav.score_policies`,
-`llmnav.score_cost`), so none of them imports another back.
+It sits above the modules that build each table (`llmnav.scoring.score`, `llmnav.scoring.policies`,
+`llmnav.scoring.cost`), so none of them imports another back.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from llmnav.score import (
+from llmnav.scoring.cost import cost_table
+from llmnav.scoring.policies import ceiling_table, null_policy_table, wording_spread_table, wording_table
+from llmnav.scoring.score import (
     Run,
     Table,
     aborted_table,
@@ -24,14 +26,12 @@ from llmnav.score import (
     split_aborted,
     varying_keys,
 )
-from llmnav.score_cost import cost_table
-from llmnav.score_policies import ceiling_table, null_policy_table, wording_spread_table, wording_table
 
 
 def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
     """Every table that has data; groups are told apart by `group_keys` (default: the varying keys).
 
-    The planners' own tables come from what each installed planner declares (`llmnav.declarations`);
+    The planners' own tables come from what each installed planner declares (`llmnav.core.declarations`);
     a run whose planner is not installed is in the common tables (and noted as a problem).
     """
     keys = list(group_keys) if group_keys is not None else varying_keys(runs)
