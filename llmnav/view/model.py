@@ -1,8 +1,8 @@
 """What a run page shows, as plain data: one run folder read back and arranged by decision.
 
-`build_run_view` reads the folder with the run-log reader (`llmnav.runs.runlog.read_run`), takes the summary
-the way `llmnav score` does (`llmnav.scoring.score.load_run`: summary.json, or recomputed for a run cut short),
-and groups the events into decisions:
+`build_run_view` reads the folder once with the run-log reader (`llmnav.runs.runlog.read_run`), takes the
+summary from that record the way `llmnav score` does (`llmnav.scoring.score.run_from_record`: summary.json,
+or recomputed for a run cut short), and groups the events into decisions:
 
 - most planners: one decision per logged `step` value, named by the planner's `decision_noun` ("Step 3";
   a waypoint decision is one leg: its grounding, every generation attempt with its verdict, the replans);
@@ -629,13 +629,13 @@ def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
 def build_run_view(run_dir: Path) -> RunView:
     """Read a run folder for its page; raises BadInputError when it is no readable run."""
     from llmnav.reporting.trajectory import oracle_points
-    from llmnav.scoring.score import load_run, scenario_of
+    from llmnav.scoring.score import run_from_record, scenario_of
 
     run_dir = Path(run_dir)
     record = read_run(run_dir)
     missing: list[str] = []
     try:
-        summary = load_run(run_dir).summary
+        summary = run_from_record(record).summary  # the log read once, above
     except (AttributeError, IndexError, KeyError, TypeError, ValueError) as err:
         # Malformed fields (a pose with one number, a string for a number) defeat the metrics; the page
         # still shows every event, and says why the figures are absent.
