@@ -171,8 +171,8 @@ def plan(grid: GridSpec, root: Path, max_episodes: int = MAX_EPISODES) -> Ablati
 
 
 def results_runs(ablation: Ablation) -> list[Any]:
-    """The finished episodes as `llmnav.scoring.score.Run`s (for the closing tables)."""
-    from llmnav.scoring.score import load_run
+    """The finished episodes as `llmnav.runs.folders.Run`s (for the closing tables)."""
+    from llmnav.runs.folders import load_run
 
     runs = []
     for ep in ablation.episodes:

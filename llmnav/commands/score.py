@@ -74,16 +74,9 @@ def score(
 
     Tables (or data) go to stdout; status and anything that could not be computed go to stderr.
     """
+    from llmnav.runs.folders import read_runs, split_aborted
     from llmnav.scoring.papers import PAPER_TABLES, check_table_name, paper_table
-    from llmnav.scoring.score import (
-        collided_runs,
-        compare_groups,
-        problems,
-        read_runs,
-        select_table,
-        split_aborted,
-        varying_keys,
-    )
+    from llmnav.scoring.score import collided_runs, compare_groups, problems, select_table, varying_keys
     from llmnav.scoring.tables import build_tables
 
     if table is not None:
@@ -200,8 +193,9 @@ def _short(value: object) -> str:
 
 def parse_keys(text: str) -> list[str]:
     """`--by lidar_sectors,prompt` → validated condition keys."""
+    from llmnav.runs.folders import START_POSE_KEY
     from llmnav.scoring.metrics import CONDITION_KEYS
-    from llmnav.scoring.score import START_POSE_KEY, is_option_key
+    from llmnav.scoring.score import is_option_key
 
     keys = [k.strip().replace("-", "_") for k in text.split(",") if k.strip()]
     unknown = [k for k in keys if k not in (*CONDITION_KEYS, START_POSE_KEY) and not is_option_key(k)]

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
-    from llmnav.scoring.score import Run
+    from llmnav.runs.folders import Run
 
 
 def _safe(name: str) -> str:

@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from llmnav.errors import BadInputError
+from llmnav.runs.folders import Run, load_scenario_of
 from llmnav.runs.runlog import read_run
 from llmnav.scoring.score import (
     CACHE_MARK,
@@ -37,7 +38,6 @@ from llmnav.scoring.score import (
     MISSING,
     NA,
     ORACLE_MARK,
-    Run,
     Table,
     _fmt,
     _num,
@@ -49,7 +49,6 @@ from llmnav.scoring.score import (
     group_runs,
     installed_declarations,
     is_oracle,
-    load_scenario_of,
     task_of_run,
 )
 from llmnav.scoring.stats import compare, describe

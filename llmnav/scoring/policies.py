@@ -22,11 +22,11 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from llmnav.backends.base import answerer
+from llmnav.runs.folders import Run
 from llmnav.scoring.metrics import CONDITION_KEYS
 from llmnav.scoring.score import (
     COMMON_COLUMNS,
     MISSING,
-    Run,
     Table,
     _hashable,
     _num,

@@ -1,7 +1,7 @@
 """`llmnav score --table runs`: one row per run, streamed, for pandas and spreadsheets.
 
 Pipeline: `iter_run_dirs` walks the folders in sorted order one directory at a time (no list of every
-run) → `run_row` reads one run (`llmnav.scoring.score.run_from_record`: the same summary, rescoring and problems
+run) → `run_row` reads one run (`llmnav.runs.folders.run_from_record`: the same summary, rescoring and problems
 as the aggregate tables) and flattens it into a row → `spool_rows` writes each row to a temporary JSON
 Lines file while noting which columns hold a value → `write_rows` writes CSV, JSON or a Markdown/rich
 table from the spool. Memory stays that of one run and the column names, whatever the number of runs;
@@ -23,8 +23,8 @@ from typing import IO, TYPE_CHECKING, Any
 from llmnav.core.safefiles import SUMMARY_LIMIT, UnsafeFileError, read_text
 from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import BadInputError, one_line
+from llmnav.runs.folders import Run, run_from_record
 from llmnav.runs.runlog import RUN_FILE, SUPERSEDED_FILE, dumps, read_run
-from llmnav.scoring.score import Run, run_from_record
 
 if TYPE_CHECKING:
     from llmnav.backends.prices import PriceTable
@@ -64,7 +64,7 @@ def _walk_sorted(folder: Path, top: bool) -> Iterator[Path]:
 
 
 def iter_run_dirs(paths: Sequence[Path]) -> Iterator[Path]:
-    """Every run folder at or below the given paths, like `llmnav.scoring.score.find_run_dirs` but streamed.
+    """Every run folder at or below the given paths, like `llmnav.runs.folders.find_run_dirs` but streamed.
 
     A path inside another given path is skipped (its runs come with the outer one); an ablation's
     superseded attempts count only when named directly.
@@ -224,7 +224,7 @@ def spool_rows(
 ) -> Spool:
     """Read every run below `paths` into a spool (a temporary file, removed when closed).
 
-    `success_radius_m` and `prices` (`--prices`): as for `llmnav.scoring.score.load_run`.
+    `success_radius_m` and `prices` (`--prices`): as for `llmnav.runs.folders.load_run`.
     """
     spool = Spool(tempfile.TemporaryFile("w+", encoding="utf-8", prefix="llmnav-runs-"))
     for run_dir in iter_run_dirs(paths):

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from llmnav.runs.folders import Run, split_aborted
 from llmnav.scoring.cost import cost_table
 from llmnav.scoring.policies import ceiling_table, null_policy_table, wording_spread_table, wording_table
 from llmnav.scoring.score import (
-    Run,
     Table,
     aborted_table,
     declared_tables,
@@ -23,7 +23,6 @@ from llmnav.scoring.score import (
     installed_declarations,
     path_table,
     reference_paths,
-    split_aborted,
     varying_keys,
 )
 

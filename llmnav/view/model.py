@@ -1,7 +1,7 @@
 """What a run page shows, as plain data: one run folder read back and arranged by decision.
 
 `build_run_view` reads the folder once with the run-log reader (`llmnav.runs.runlog.read_run`), takes the
-summary from that record the way `llmnav score` does (`llmnav.scoring.score.run_from_record`: summary.json,
+summary from that record the way `llmnav score` does (`llmnav.runs.folders.run_from_record`: summary.json,
 or recomputed for a run cut short), and groups the events into decisions:
 
 - most planners: one decision per logged `step` value, named by the planner's `decision_noun` ("Step 3";
@@ -629,7 +629,7 @@ def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
 def build_run_view(run_dir: Path) -> RunView:
     """Read a run folder for its page; raises BadInputError when it is no readable run."""
     from llmnav.reporting.trajectory import oracle_points
-    from llmnav.scoring.score import run_from_record, scenario_of
+    from llmnav.runs.folders import run_from_record, scenario_of
 
     run_dir = Path(run_dir)
     record = read_run(run_dir)

@@ -36,7 +36,8 @@ GENERATOR = PAGE_GENERATOR  # the page's <meta name="generator">: how `write_pag
 if TYPE_CHECKING:
     from jinja2 import Environment
 
-    from llmnav.scoring.score import Run, Table
+    from llmnav.runs.folders import Run
+    from llmnav.scoring.score import Table
     from llmnav.view.model import RunView, StepView
 
 PAGE_FILE = "view.html"  # default page name inside a run or sweep folder
@@ -389,7 +390,8 @@ def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict
     """Everything the sweep template needs; writes the run pages that are missing."""
     from llmnav.ablate import MANIFEST_FILE
     from llmnav.core.safefiles import loads as bounded_loads
-    from llmnav.scoring.score import read_runs, split_aborted, varying_keys
+    from llmnav.runs.folders import read_runs, split_aborted
+    from llmnav.scoring.score import varying_keys
     from llmnav.scoring.tables import build_tables
 
     runs, broken = read_runs([root])  # a damaged run is named on the page, not fatal to it

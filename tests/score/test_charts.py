@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from llmnav.reporting.charts import condition_figure
-from llmnav.scoring.score import Run
+from llmnav.runs.folders import Run
 
 
 def test_long_labels_never_overlap(tmp_path: Path) -> None:

@@ -9,7 +9,8 @@ import pytest
 
 from llmnav.planners.fsm.tables import FSM_TABLE
 from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
-from llmnav.scoring.score import MISSING, Run, declared_table, episodes_table, path_table
+from llmnav.runs.folders import Run
+from llmnav.scoring.score import MISSING, declared_table, episodes_table, path_table
 from llmnav.world.tasks import resolve_task
 
 START = resolve_task("factory", None, "T1", 2).start.pose().as_list()  # the oracle's path starts here

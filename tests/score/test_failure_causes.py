@@ -26,9 +26,10 @@ from llmnav.core.declarations import Column, ScoreTable
 from llmnav.errors import LlmnavError
 from llmnav.planners.base import drive_options
 from llmnav.planners.stepwise.answers import step_answer
+from llmnav.runs.folders import load_runs
 from llmnav.runs.runner import EpisodeSpec, run_episode
 from llmnav.scoring.failures import FAILURE_CAUSES, failure_cause
-from llmnav.scoring.score import declared_table, load_runs
+from llmnav.scoring.score import declared_table
 
 SMALL = Path(__file__).parents[1] / "runner" / "small_room.yaml"
 PEN = """\
@@ -197,8 +198,8 @@ def test_every_end_the_planners_write_maps_to_one_cause(summary: dict[str, Any],
 def test_a_summary_written_before_these_keys_scores_from_its_log(suite: Path, tmp_path: Path) -> None:
     import shutil
 
+    from llmnav.runs.folders import load_run
     from llmnav.scoring.metrics import RESCORED_KEYS
-    from llmnav.scoring.score import load_run
 
     new = (*RESCORED_KEYS, "collisions", "collided_with")
     for name in ("collide", "cap"):

@@ -14,9 +14,10 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
+from llmnav.runs.folders import load_runs
 from llmnav.runs.runlog import SUMMARY_FILE, RunLog, read_run, write_json_atomic
 from llmnav.scoring.papers import PAPER_TABLES, table_names
-from llmnav.scoring.score import load_runs, varying_keys
+from llmnav.scoring.score import varying_keys
 from tests.score.score_fakes import config_for, tiny_scenario, write_run
 
 runner = CliRunner()
@@ -176,7 +177,8 @@ def test_failed_plans_are_marked_and_left_out_of_the_averages(tmp_path: Path) ->
 def test_waypoint_table_leaves_failed_plans_out_of_execution_and_path() -> None:
     """The per-command table (`--table waypoints`): the same rule, and replans as counts."""
     from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
-    from llmnav.scoring.score import Run, declared_table
+    from llmnav.runs.folders import Run
+    from llmnav.scoring.score import declared_table
 
     def run(failed: bool, execution_s: float, path_m: float) -> Run:
         metrics = {"planning_time_s": 1.0, "execution_time_s": execution_s, "wgsr": 100.0, "collision_events": 0,

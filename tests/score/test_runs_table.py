@@ -16,9 +16,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 from score_fakes import config_for, write_run, write_scenario_file  # noqa: E402
 
 from llmnav.cli import app  # noqa: E402
+from llmnav.runs.folders import load_runs  # noqa: E402
 from llmnav.runs.runlog import RunLog  # noqa: E402
 from llmnav.scoring.runs_table import spool_rows, write_csv  # noqa: E402
-from llmnav.scoring.score import compare_groups, load_runs, select_table  # noqa: E402
+from llmnav.scoring.score import compare_groups, select_table
 from llmnav.scoring.tables import build_tables  # noqa: E402
 
 

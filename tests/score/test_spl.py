@@ -26,9 +26,9 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
+from llmnav.runs.folders import load_run
 from llmnav.runs.runlog import RUN_FILE, SUMMARY_FILE, read_run
 from llmnav.scoring.metrics import summarize_run
-from llmnav.scoring.score import load_run
 from llmnav.world.scenario import load_scenario
 
 ROOM = """\
