@@ -44,8 +44,8 @@ from typing import Any
 from bench import NOT_MEASURED, judged, quick_from_env
 from llmnav.buildings.suite import suite_files
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import load_scenario
 
 BUILDINGS = 100
 TASKS_PER_BUILDING = 3

@@ -23,8 +23,8 @@ from typing import Any
 
 from bench import NOT_MEASURED, quick_from_env
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.stats import mean_sd, welch_summary
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.scoring.stats import mean_sd, welch_summary
 
 SCENARIO, TASK, START_POSE = "maze_arena", "M1", 1
 PUBLISHED_N = 60  # runs per condition in the FSM source

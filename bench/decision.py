@@ -19,8 +19,8 @@ from pathlib import Path
 from bench import judged, quick_from_env
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.planners.base import drive_options
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 WARM_DECISION_S = (1.6, 2.3)  # [s] warm local-model decision (docs/sources.md, M)
 TARGET_SHARE = 0.10

@@ -48,10 +48,10 @@ def _tick_overhead_ms(ticks: int = TICKS) -> tuple[float, float]:
 
     The mean, not the median: the layer's scan every 0.1 s (one tick in five) is the cost that matters.
     """
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.guard.view import PlannerWorld
-    from llmnav.scenario import parse_scenario
     from llmnav.sim.world import World
+    from llmnav.world.scenario import parse_scenario
 
     scenario = parse_scenario(
         {
@@ -83,10 +83,10 @@ def _monitor_per_step_ms(legs: int = MONITOR_LEGS) -> tuple[float, float, int]:
     The PR2 in the factory drives legs past shelves, the stairs and into the pallet's aisle (the monitor
     slows it near them and stops it at the pallet), each leg once without the monitor and once with it.
     """
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.guard.view import PlannerWorld
-    from llmnav.scenario import load_scenario
     from llmnav.sim.world import World
+    from llmnav.world.scenario import load_scenario
 
     starts = [Pose2D(-3.05, -9.4, -math.pi / 2), Pose2D(-8.0, -2.0, 0.0), Pose2D(2.0, 1.5, -math.pi / 2)]
     with World(load_scenario("factory")) as world:

@@ -19,7 +19,7 @@ from pathlib import Path
 from bench import judged, quick_from_env
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 TARGET_RATIO = 1.5
 EPISODES = [(task, pose) for task in ("T5", "T8") for pose in (1, 2)]

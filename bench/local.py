@@ -90,8 +90,8 @@ def _percentile(values: list[float], q: float) -> float:
 
 def run_case(scenario: str, task: str, options: DriveOptions, episodes: int, root: Path) -> Calls:
     """Run `episodes` episodes of one planner with the local backend into the new folder `root`; its calls."""
-    from llmnav.runlog import read_run
-    from llmnav.runner import EpisodeSpec, run_episode
+    from llmnav.runs.runlog import read_run
+    from llmnav.runs.runner import EpisodeSpec, run_episode
 
     calls = Calls()
     first = True

@@ -20,7 +20,7 @@ from unittest import mock
 from bench import judged
 from llmnav.nav.localize import Localizer
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 SCAN_TARGET_MS = 1e3 * 0.005  # [ms] per scan on one core
 FINAL_MEDIAN_TARGET_M = 0.10  # [m]

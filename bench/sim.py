@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from bench import judged, quick_from_env
+from llmnav.core.geometry import Pose2D
 from llmnav.errors import ScenarioError
-from llmnav.geometry import Pose2D
-from llmnav.scenario import CameraConfig, Scenario, load_scenario, parse_scenario
 from llmnav.sim.world import World
+from llmnav.world.scenario import CameraConfig, Scenario, load_scenario, parse_scenario
 
 REPEATS = 7
 QUICK_REPEATS = 2
@@ -256,7 +256,7 @@ CLI = [sys.executable, "-c", "from llmnav.cli import main; main()"]
 def _episode_costs(fields: dict[str, Any], out: Path) -> tuple[float, float, int]:
     """(wall [s] inside the episode, CPU [s] of the whole call, decisions) of one episode without plots."""
     from llmnav.planners.base import drive_options
-    from llmnav.runner import EpisodeSpec, run_episode
+    from llmnav.runs.runner import EpisodeSpec, run_episode
 
     spec = EpisodeSpec(
         **{k: v for k, v in fields.items() if k != "options"},
@@ -344,8 +344,8 @@ import json, sys, time
 from pathlib import Path
 t0 = time.perf_counter()
 from llmnav.reporting.trajectory import plot_record
-from llmnav.runlog import read_run
-from llmnav.tasks import resolve_task
+from llmnav.runs.runlog import read_run
+from llmnav.world.tasks import resolve_task
 record = read_run(Path(sys.argv[1]))
 resolved = resolve_task("factory", None, "T1", 1)
 t1 = time.perf_counter()

@@ -20,12 +20,12 @@ import gymnasium as gym
 import numpy as np
 
 import llmnav.gym
-from llmnav import prompting
 from llmnav.backends.base import get_backend
-from llmnav.chat import ChatRequest, Message
+from llmnav.core.chat import ChatRequest, Message
 from llmnav.errors import LlmnavError
 from llmnav.guard.ask import CallContext, ask_guarded
 from llmnav.guard.schemas import response_schema
+from llmnav.planners import prompting
 from llmnav.planners.stepwise.answers import ActionBounds, StepAction
 
 MAX_CORRECTIONS = 2  # guard correction turns per step

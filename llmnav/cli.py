@@ -55,7 +55,7 @@ def plugin_commands(builtins: dict[str, str]) -> tuple[dict[str, object], dict[s
     Typer app, name → one-line problem): a clash with a built-in or another distribution, or a target that
     fails to load, is refused there and troubles no other command.
     """
-    from llmnav import plugins
+    from llmnav.core import plugins
 
     commands: dict[str, object] = {}
     problems: dict[str, str] = {}

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
 
 __all__ = ["check_backend", "check_planner"]
@@ -96,9 +96,9 @@ def check_backend(cls: type[Backend], arg: str | None = None) -> None:
 
 
 def _check_declarations(cls: type[Planner[Any]]) -> None:
-    from llmnav.declarations import Declarations
-    from llmnav.knowledge import INFORMATION_MODES
+    from llmnav.core.declarations import Declarations
     from llmnav.planners.base import DriveOptions, Planner, planner_class
+    from llmnav.world.knowledge import INFORMATION_MODES
 
     assert issubclass(cls, Planner), f"{cls!r} is not a llmnav Planner"
     assert planner_class(cls.name) is cls, f"{cls.name}: the llmnav.planners entry point names another class"
@@ -123,8 +123,8 @@ def _run_probe(
 ) -> tuple[dict[str, Any], list[tuple[str, str]], list[str]]:
     """One short episode through the real runner: the context walked when the planner starts, its motions audited."""
     from llmnav.planners.base import drive_options
-    from llmnav.runner import EpisodeSpec, run_episode
-    from llmnav.scenario import load_scenario
+    from llmnav.runs.runner import EpisodeSpec, run_episode
+    from llmnav.world.scenario import load_scenario
 
     seen: list[tuple[str, str]] = []
     bypasses: list[str] = []
@@ -245,7 +245,7 @@ def _children(obj: Any) -> Iterator[tuple[str, Any]]:
 
 
 def _check_log(cls: type[Planner[Any]], run_dir: Path) -> None:
-    from llmnav.runlog import read_run
+    from llmnav.runs.runlog import read_run
 
     record = read_run(run_dir)
     assert record.complete, f"{cls.name}: the run log has no end event"
@@ -264,8 +264,8 @@ def _check_log(cls: type[Planner[Any]], run_dir: Path) -> None:
 
 def _check_hooks_on_a_cut_log(cls: type[Planner[Any]], run_dir: Path, folder: Path, scenario_name: str) -> None:
     """`summarize` and `figures` on the log of a run killed half-way: numbers or nothing, never a crash."""
-    from llmnav.runlog import RUN_FILE, read_run
-    from llmnav.scenario import load_scenario
+    from llmnav.runs.runlog import RUN_FILE, read_run
+    from llmnav.world.scenario import load_scenario
 
     lines = (run_dir / RUN_FILE).read_text().splitlines()
     cut = folder / "cut"

@@ -302,7 +302,7 @@ def ideal_scenario(tmp_path: Path) -> Callable[[str], str]:
     """
     import yaml
 
-    from llmnav.scenario import OdometryConfig, resolve_scenario_path
+    from llmnav.world.scenario import OdometryConfig, resolve_scenario_path
 
     def make(name: str) -> str:
         data = yaml.safe_load(resolve_scenario_path(name).read_text(encoding="utf-8"))

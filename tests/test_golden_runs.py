@@ -18,8 +18,8 @@ from typing import Any
 import pytest
 
 from llmnav.planners.base import drive_options
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 GOLDEN = Path(__file__).with_name("golden_runs.json")
 

@@ -22,7 +22,7 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.runlog import read_run
+from llmnav.runs.runlog import read_run
 
 ENTRY = "from llmnav.cli import main; main()"
 SMALL_ROOM = str(Path(__file__).parent / "runner" / "small_room.yaml")

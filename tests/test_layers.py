@@ -29,7 +29,7 @@ def test_an_upward_import_breaks_the_contract(tmp_path: Path) -> None:
     # The checker can fail: the same contracts on a copy of the package where the chat leaf imports a planner.
     package = tmp_path / "llmnav"
     shutil.copytree(ROOT / "llmnav", package, ignore=shutil.ignore_patterns("__pycache__", "_data"))
-    chat = package / "chat.py"
+    chat = package / "core" / "chat.py"
     chat.write_text(chat.read_text() + "\nimport llmnav.planners.stepwise  # noqa: E402,F401\n")
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
     done = subprocess.run(
@@ -41,7 +41,7 @@ def test_an_upward_import_breaks_the_contract(tmp_path: Path) -> None:
         env={"PYTHONPATH": str(tmp_path), "PATH": ""},
     )
     assert done.returncode != 0
-    assert "llmnav.chat is not allowed to import llmnav.planners" in done.stdout
+    assert "llmnav.core.chat is not allowed to import llmnav.planners" in done.stdout
 
 
 def test_the_architecture_page_lists_the_layers_the_contract_enforces() -> None:

@@ -50,7 +50,7 @@ def test_piped_tables_are_never_cut(args: list[str]) -> None:
 
 
 def test_piped_scenario_table_keeps_every_description_on_its_row() -> None:
-    from llmnav.scenario import list_scenarios, load_scenario
+    from llmnav.world.scenario import list_scenarios, load_scenario
 
     lines = CliRunner().invoke(app, ["scenarios"]).stdout.splitlines()
     for name in list_scenarios():
@@ -77,7 +77,7 @@ def test_tsv_is_a_header_and_one_line_per_record(args: list[str]) -> None:
 
 def test_listing_records_match_what_is_registered() -> None:
     from llmnav.planners.base import usable_planner_names
-    from llmnav.scenario import list_scenarios
+    from llmnav.world.scenario import list_scenarios
 
     backends = json.loads(CliRunner().invoke(app, ["backends", "--format", "json"]).stdout)
     policy = [b for b in backends if b["name"] == "policy"]

@@ -7,9 +7,9 @@ import math
 import numpy as np
 
 from llmnav.backends.base import ChatResult
-from llmnav.metrics import new_prompt_tokens_median
-from llmnav.observe import compact_lidar_line, new_prompt_tokens
-from llmnav.perception import summarize_scan
+from llmnav.planners.observe import compact_lidar_line, new_prompt_tokens
+from llmnav.scoring.metrics import new_prompt_tokens_median
+from llmnav.sensing.perception import summarize_scan
 from llmnav.sim.sensors import LidarScan
 
 

@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.runlog import RunLog
+from llmnav.runs.runlog import RunLog
 
 ENTRY = "from llmnav.cli import main; main()"
 SMALL_ROOM = str(Path(__file__).parent / "runner" / "small_room.yaml")

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from llmnav.geometry import Pose2D
-from llmnav.perception import (
+from llmnav.core.geometry import Pose2D
+from llmnav.sensing.perception import (
     describe_detections,
     detections_text,
     front_distance,

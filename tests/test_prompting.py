@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from llmnav import prompting
 from llmnav.errors import PromptTemplateError
+from llmnav.planners import prompting
 
 STEPWISE_VALUES = {"max_step_m": 5.0, "lidar_sectors": 8, "lidar_fov_deg": 90.0}
 

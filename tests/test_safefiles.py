@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from llmnav import safefiles
-from llmnav.safefiles import JsonLimitError, UnsafeFileError
+from llmnav.core import safefiles
+from llmnav.core.safefiles import JsonLimitError, UnsafeFileError
 
 
 def test_write_replaces_a_planted_link_instead_of_writing_through_it(tmp_path: Path) -> None:

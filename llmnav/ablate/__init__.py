@@ -14,7 +14,7 @@ same grid again keeps every episode whose folder holds a finished run of exactly
 (`grid.condition`: scenario file, task, pose, trial, backend spec, every option, prompt templates) and
 runs the others into new folders; nothing is ever deleted (`resume`). An episode aborted by a backend
 failure is an error and runs again on the next resume.
-Episodes run through `llmnav.runner.run_episode` — in this process, in a spawn process pool whose
+Episodes run through `llmnav.runs.runner.run_episode` — in this process, in a spawn process pool whose
 workers die with the parent, or as Ray tasks (`executors`); the parent alone writes the manifest. With
 the local model, the pool's workers each load a copy or share one model server (`layout`).
 """

@@ -10,7 +10,7 @@ from llmnav.errors import BadInputError, LlmnavError, one_line
 
 if TYPE_CHECKING:
     from llmnav.ablate.grid import Episode
-    from llmnav.runner import EpisodeSpec
+    from llmnav.runs.runner import EpisodeSpec
 
 Runner = Callable[["EpisodeSpec"], dict[str, Any]]
 Result = tuple[dict[str, Any] | None, str | None, bool]
@@ -36,8 +36,8 @@ def execute_episode(runner: Runner, spec: EpisodeSpec) -> tuple[dict[str, Any] |
 
 
 def default_runner() -> Runner:
-    """`llmnav.runner.run_episode` (imported when first needed)."""
-    from llmnav.runner import run_episode
+    """`llmnav.runs.runner.run_episode` (imported when first needed)."""
+    from llmnav.runs.runner import run_episode
 
     return run_episode
 

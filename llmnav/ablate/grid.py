@@ -29,7 +29,7 @@ from llmnav.planners.base import (
 )
 
 if TYPE_CHECKING:
-    from llmnav.runner import EpisodeSpec
+    from llmnav.runs.runner import EpisodeSpec
 
 # Factors of every grid; any planner option may be a factor too (see `GridSpec`).
 CORE_FACTORS: tuple[str, ...] = ("planner", "backend")
@@ -66,7 +66,7 @@ class GridSpec(BaseModel):
     # ablated factors (None = not ablated: the default of the planner's options, or `backend` below)
     planner: list[str] | None = None
     backend: list[str] | None = None
-    wording: list[str] | None = None  # "bundled", "paraphrase:<k>" (llmnav.tasks.worded_text)
+    wording: list[str] | None = None  # "bundled", "paraphrase:<k>" (llmnav.world.tasks.worded_text)
     options: dict[str, Any] = {}  # fixed planner options for every episode (max_iterations, image size, ...)
     # Any other key is an option factor: a planner option and its values, e.g. `lidar_sectors: [3, 8]`.
     model_config = ConfigDict(extra="allow")
@@ -161,8 +161,8 @@ class Episode:
         `plots`: write each run's trajectory.png; `dir_name`: the folder under `root` when not the
         episode's first choice.
         """
-        from llmnav.runner import EpisodeSpec
-        from llmnav.tasks import worded_text
+        from llmnav.runs.runner import EpisodeSpec
+        from llmnav.world.tasks import worded_text
 
         text = worded_text(scenario, self.task_id, str(self.factors.get("wording", "bundled")))
         return EpisodeSpec(
@@ -261,7 +261,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 def load_grid_file(path: Path) -> dict[str, Any]:
     """The raw mapping of a grid YAML file (validated later, merged with flags)."""
-    from llmnav.safefiles import SUMMARY_LIMIT, read_bytes
+    from llmnav.core.safefiles import SUMMARY_LIMIT, read_bytes
 
     try:
         raw = read_bytes(Path(path).resolve(), limit=SUMMARY_LIMIT, what=f"--grid {path}")  # no FIFO, no /dev/zero
@@ -371,7 +371,7 @@ def _prompt_hashes(options: DriveOptions) -> dict[str, str]:
 @lru_cache(maxsize=256)
 def _prompt_hashes_cached(options_json: str) -> tuple[tuple[str, str], ...]:
     from llmnav.planners.base import get_planner
-    from llmnav.runner import prompt_hashes
+    from llmnav.runs.runner import prompt_hashes
 
     options = drive_options(**json.loads(options_json))
     return tuple(sorted(prompt_hashes(get_planner(options.planner), options).items()))
@@ -410,8 +410,8 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
 
     BadInputError before anything is built when the grid holds more than `max_episodes`.
     """
-    from llmnav.scenario import load_scenario, resolve_scenario_path
-    from llmnav.tasks import worded_text
+    from llmnav.world.scenario import load_scenario, resolve_scenario_path
+    from llmnav.world.tasks import worded_text
 
     scenario = load_scenario(grid.scenario)
     scenario_hash = hashlib.sha256(resolve_scenario_path(grid.scenario).read_bytes()).hexdigest()

@@ -10,7 +10,7 @@ from typing import Any, Literal
 from llmnav.ablate.grid import MAX_EPISODES, Episode, GridSpec, expand
 from llmnav.ablate.layout import Layout
 from llmnav.errors import redact_userinfo
-from llmnav.runlog import SUMMARY_FILE, write_json_atomic
+from llmnav.runs.runlog import SUMMARY_FILE, write_json_atomic
 
 MANIFEST_FILE = "manifest.json"
 Status = Literal["pending", "done", "error"]
@@ -171,8 +171,8 @@ def plan(grid: GridSpec, root: Path, max_episodes: int = MAX_EPISODES) -> Ablati
 
 
 def results_runs(ablation: Ablation) -> list[Any]:
-    """The finished episodes as `llmnav.score.Run`s (for the closing tables)."""
-    from llmnav.score import load_run
+    """The finished episodes as `llmnav.runs.folders.Run`s (for the closing tables)."""
+    from llmnav.runs.folders import load_run
 
     runs = []
     for ep in ablation.episodes:

@@ -46,14 +46,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.ablate.executors import _WORKER_THREAD_VARS, Result, Runner, execute_episode
+from llmnav.core.safefiles import write_bytes
 from llmnav.errors import BadInputError, one_line
-from llmnav.locking import LOCK_FILE
-from llmnav.runlog import SUMMARY_FILE, write_json_atomic
-from llmnav.safefiles import write_bytes
+from llmnav.runs.locking import LOCK_FILE
+from llmnav.runs.runlog import SUMMARY_FILE, write_json_atomic
 
 if TYPE_CHECKING:
     from llmnav.ablate.grid import Episode
-    from llmnav.runner import EpisodeSpec
+    from llmnav.runs.runner import EpisodeSpec
 
 LOCAL = "local"
 LOOPBACK_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"

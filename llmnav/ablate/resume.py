@@ -17,10 +17,10 @@ from typing import Any
 
 from llmnav.ablate.grid import Episode
 from llmnav.ablate.manifest import is_result
+from llmnav.core.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, loads, read_bytes
 from llmnav.errors import BadInputError, FolderLockedError, one_line
-from llmnav.locking import locked_by
-from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, read_run, write_json_atomic
-from llmnav.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, loads, read_bytes
+from llmnav.runs.locking import locked_by
+from llmnav.runs.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, read_run, write_json_atomic
 
 _CONFIG_LINE_LIMIT = 4 << 20  # bytes: a config line is a few kB; more is damage, not a config
 

@@ -14,10 +14,10 @@ from llmnav.ablate.grid import Episode, GridSpec
 from llmnav.ablate.layout import Layout, choose
 from llmnav.ablate.manifest import MANIFEST_FILE, Ablation, ManifestEntry, without_credentials
 from llmnav.ablate.resume import locate, set_aside
+from llmnav.core.safefiles import SUMMARY_LIMIT, UnsafeFileError, is_our_page, loads, read_bytes
 from llmnav.errors import BadInputError
-from llmnav.locking import LOCK_FILE, FolderLock
-from llmnav.runlog import RUN_FILE
-from llmnav.safefiles import SUMMARY_LIMIT, UnsafeFileError, is_our_page, loads, read_bytes
+from llmnav.runs.locking import LOCK_FILE, FolderLock
+from llmnav.runs.runlog import RUN_FILE
 
 ProgressCallback = Callable[[ManifestEntry, "Ablation"], None]
 
@@ -45,7 +45,7 @@ def run(
     `layout` ("auto", "shared", "per-worker") says where the local model runs with several workers (see
     `llmnav.ablate.layout`); `on_layout(layout)` is told the one taken before any episode runs.
     `on_start(total, already_done, successes)` is called once before any episode runs, `on_result` after
-    each. `runner` (default `llmnav.runner.run_episode`) must be picklable for `workers > 1` and Ray.
+    each. `runner` (default `llmnav.runs.runner.run_episode`) must be picklable for `workers > 1` and Ray.
     `cache_dir` and `prices` go to every episode (`EpisodeSpec`); `budget` refuses a sweep estimated above
     its limit and stops one that reaches it (`llmnav.ablate.budget`).
     """

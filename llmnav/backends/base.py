@@ -11,8 +11,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
-from llmnav import plugins
-from llmnav.chat import (
+from llmnav.core import plugins
+from llmnav.core.chat import (
     AnswerKey,
     ChatRequest,
     ChatResult,

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from llmnav.core.safefiles import UnsafeFileError, read_bytes, write_bytes
+from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import BadInputError, expand_secrets, redact_userinfo
-from llmnav.safefiles import UnsafeFileError, read_bytes, write_bytes
-from llmnav.safefiles import loads as bounded_loads
 
 log = logging.getLogger(__name__)
 

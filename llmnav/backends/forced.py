@@ -21,7 +21,7 @@ from collections.abc import Callable
 from typing import Any
 
 from llmnav.backends.reply import logprob, obj, seq, token_ids
-from llmnav.chat import ContinuationScore
+from llmnav.core.chat import ContinuationScore
 from llmnav.errors import ModelError, one_line
 
 # [alternatives] asked for a held-back token's position: first a few, then the whole vocabulary (the

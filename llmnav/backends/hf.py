@@ -102,16 +102,16 @@ class HFEngine:
         """Each continuation's log-probability after the prefix, from the model's own logits (one pass each).
 
         The continuation's tokens are those of prefix + continuation after the prefix's own (the
-        canonical tail); the sum runs over exactly those positions.
+        canonical tail, both NFC-normalised as for llama.cpp); the sum runs over exactly those positions.
         """
-        from llmnav.backends.forced import continuation_tokens
+        from llmnav.backends.forced import continuation_tokens, normalised
 
         torch = self._torch
         started = time.perf_counter()
-        prefix = self._tokenizer(request.prefix)["input_ids"]
+        prefix = self._tokenizer(normalised(request.prefix))["input_ids"]
         scores: list[ContinuationScore] = []
         for text in request.continuations:
-            whole = self._tokenizer(request.prefix + text)["input_ids"]
+            whole = self._tokenizer(normalised(request.prefix + text))["input_ids"]
             tail = continuation_tokens(list(prefix), list(whole), text)
             if self.max_positions is not None and len(whole) > self.max_positions:
                 raise ModelError(f"scoring {text!r}: {len(whole)} tokens exceed the model's {self.max_positions}")

@@ -39,6 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
 from llmnav.backends.cache import CacheState, ReplyCache
+from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import (
     BackendSpecError,
     ImagesRejectedError,
@@ -47,7 +48,6 @@ from llmnav.errors import (
     one_line,
     redact_secrets,
 )
-from llmnav.safefiles import loads as bounded_loads
 
 if TYPE_CHECKING:
     import httpx
@@ -540,7 +540,7 @@ class ChatPost:
     def meta(self) -> dict[str, Any]:
         """What the run log records about the call (`images_dropped` only when images were dropped).
 
-        `cache` is lifted out of the reply's meta into the `llm_call` event (`llmnav.observe`).
+        `cache` is lifted out of the reply's meta into the `llm_call` event (`llmnav.planners.observe`).
         """
         meta: dict[str, Any] = {"attempts": self.reply.attempts, "cache": self.reply.cache}
         if self.images_dropped:

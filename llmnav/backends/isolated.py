@@ -117,6 +117,11 @@ class ModelProcess:
         self._in_flight = False
         return None, ModelError(f"{self.spec}: {self._dead}"), 0.0
 
+    @property
+    def dead(self) -> str | None:
+        """Why the child cannot answer any more (None while it can)."""
+        return self._dead
+
     # --- life cycle -------------------------------------------------------------------------------
     def close(self) -> None:
         """Stop the child: end of input first, then a kill if it is still generating after STOP_TIMEOUT_S."""

@@ -84,7 +84,7 @@ def price_file(path: Path | str | None = None) -> Path:
 
 def load_prices(path: Path | str | None = None) -> PriceTable:
     """Read and check a price table (see the module docstring); BadInputError with one line when it is bad."""
-    from llmnav.safefiles import UnsafeFileError, read_text
+    from llmnav.core.safefiles import UnsafeFileError, read_text
 
     file = price_file(path)
     where = f"price file {file}"

@@ -30,7 +30,7 @@ from llmnav.backends.base import (
 from llmnav.backends.http import parse_options
 from llmnav.backends.reply import continuation_score, duration, seq, token_count
 from llmnav.errors import BackendSpecError, BadInputError, ModelError, ReplayDivergenceError
-from llmnav.runlog import RUN_FILE, dumps
+from llmnav.runs.runlog import RUN_FILE, dumps
 
 DIFF_LINES = 8  # lines of unified diff shown after the one-line summary
 MODALITIES = ("text", "multimodal")  # the config line's `modality` values
@@ -106,8 +106,8 @@ def load_calls(file: Path) -> list[RecordedCall]:
 
 def load_recording(file: Path) -> Recording:
     """The config line and `llm_call` events of a run log; BadInputError (file and line) on anything malformed."""
-    from llmnav.safefiles import LOG_LIMIT, UnsafeFileError, read_bytes
-    from llmnav.safefiles import loads as bounded_loads
+    from llmnav.core.safefiles import LOG_LIMIT, UnsafeFileError, read_bytes
+    from llmnav.core.safefiles import loads as bounded_loads
 
     try:  # a regular file of bounded size: `replay:/dev/zero` or a FIFO is refused, not read without end
         text = read_bytes(file.resolve(), limit=LOG_LIMIT, what=str(file)).decode("utf-8")
@@ -337,7 +337,7 @@ def write_script(
     Loose replay answers in order whatever the prompt, so a script drives any planner: tests use it as a
     scripted model, and a user can try a planner without any model at all.
     """
-    from llmnav.runlog import RunLog
+    from llmnav.runs.runlog import RunLog
 
     with RunLog(run_dir, {"note": "scripted replies", "modality": "multimodal"}) as log:
         for reply in replies:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from llmnav.chat import ContinuationScore
+from llmnav.core.chat import ContinuationScore
 from llmnav.errors import ModelError
 
 MAX_TOKEN_COUNT = 10_000_000  # [tokens] more than any context window; a larger count is a broken reply

@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
-from llmnav.geometry import Point, Pose2D
+from llmnav.core.geometry import Point, Pose2D
 from llmnav.guard.legs import Action, drive_leg
 from llmnav.mapping.grid import GridGeometry, LidarMap, margins_from
 from llmnav.mapping.targets import OracleConfig, OraclePath, plan_to_targets, scenario_grid, with_added_obstacles
@@ -22,8 +22,8 @@ from llmnav.nav.localize import Localizer
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, StepInfo
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Scenario, Target
     from llmnav.sim.motion import MotionResult
+    from llmnav.world.scenario import Scenario, Target
 
 REPLANS_AFTER_REFUSAL = 4  # plans after legs the motion layer refused, per drive to a target
 REFUSAL_MARK_M = 0.05  # [m] side of the box marked where a refused leg's blocking return was

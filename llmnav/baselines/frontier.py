@@ -47,8 +47,8 @@ from llmnav.baselines.drive import (
     rotate_by,
     run_untargeted,
 )
-from llmnav.declarations import Declarations, ReferencePath
-from llmnav.geometry import Point
+from llmnav.core.declarations import Declarations, ReferencePath
+from llmnav.core.geometry import Point
 from llmnav.mapping.astar import astar, densify, shortcut
 from llmnav.mapping.frontiers import frontier_clusters, goal_cells, sensed_grid
 from llmnav.mapping.grid import (
@@ -62,8 +62,8 @@ from llmnav.mapping.targets import OracleConfig, OraclePath, with_added_obstacle
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Information, Planner
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
-    from llmnav.scenario import Target
+    from llmnav.core.geometry import Pose2D
+    from llmnav.world.scenario import Target
 
 
 @dataclass(frozen=True)

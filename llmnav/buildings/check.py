@@ -30,16 +30,16 @@ from pydantic import ValidationError
 from scipy import ndimage
 
 from llmnav.buildings.sightlines import blockers, visible
+from llmnav.core.robot_specs import ROBOT_SPECS
+from llmnav.core.safefiles import read_text
 from llmnav.errors import BadInputError
 from llmnav.mapping.grid import GridConfig, GridGeometry, build_grid
 from llmnav.mapping.targets import OracleConfig
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.safefiles import read_text
-from llmnav.scenario import Scenario, consistency_problems
+from llmnav.world.scenario import Scenario, consistency_problems
 
 if TYPE_CHECKING:
     from llmnav.mapping.grid import OccupancyGrid
-    from llmnav.scenario import LabelledObject, Shape, Task
+    from llmnav.world.scenario import LabelledObject, Shape, Task
 
 MAX_FILE_BYTES = 4 << 20  # [bytes] a generated office is ~40 kB
 MAX_DEPTH = 32  # YAML nesting; a scenario nests about 6 deep

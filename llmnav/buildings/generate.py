@@ -18,9 +18,9 @@ from llmnav.buildings.furnish import Placed, furnish
 from llmnav.buildings.kinds import KINDS, ROOM_TYPES, room_types_for
 from llmnav.buildings.layout import INNER_WALL_M, JAMB_M, FloorPlan, plan_floor, snap
 from llmnav.buildings.tasks import Placement, make_tasks
+from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.errors import BadInputError
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.scenario import Scenario, parse_scenario
+from llmnav.world.scenario import Scenario, parse_scenario
 
 GENERATOR_VERSION = 1  # bump when the same request would give different bytes
 MIN_SIDE_M = 4.0  # [m] smallest building side accepted

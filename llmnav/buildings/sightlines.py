@@ -20,8 +20,8 @@ import math
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Point
-    from llmnav.scenario import LabelledObject, Scenario, Shape
+    from llmnav.core.geometry import Point
+    from llmnav.world.scenario import LabelledObject, Scenario, Shape
 
 SAMPLE_PULL = 0.1  # [-] corners are pulled this fraction of the way to the centre
 

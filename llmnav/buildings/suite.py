@@ -11,9 +11,9 @@ import re
 from pathlib import Path
 
 from llmnav.buildings.generate import Request, generate_suite
+from llmnav.core.safefiles import write_text
 from llmnav.errors import BadInputError
-from llmnav.safefiles import write_text
-from llmnav.scenario import list_scenarios
+from llmnav.world.scenario import list_scenarios
 
 _GENERATED = re.compile(r"generated:([A-Za-z]+):([0-9]{1,6})(?::([0-9]{1,18}))?")
 

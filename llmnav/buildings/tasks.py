@@ -24,7 +24,7 @@ from llmnav.buildings.catalogue import ITEMS_BY_KEY, USES
 from llmnav.buildings.check import Judge
 from llmnav.buildings.kinds import ROOM_TYPES
 from llmnav.buildings.layout import FloorPlan, Room, snap
-from llmnav.scenario import Scenario, Target, Task
+from llmnav.world.scenario import Scenario, Target, Task
 
 START_TRIES = 400  # candidate poses drawn per task
 START_SPACING_M = 1.0  # [m] two start poses of one task are at least this far apart

@@ -347,7 +347,7 @@ def _cost_line(ablation: Ablation) -> str:
 def _print_results(ablation: Ablation) -> None:
     from llmnav.ablate import results_runs, table_keys
     from llmnav.reporting.tables import print_tables
-    from llmnav.score import build_tables
+    from llmnav.scoring.tables import build_tables
 
     runs = results_runs(ablation)
     errors = [e for e in ablation.entries.values() if e.status == "error"]

@@ -47,7 +47,7 @@ def collect_rows() -> list[BackendRow]:
 
     A name two distributions register is shown as broken too, naming both (neither is used).
     """
-    from llmnav import plugins
+    from llmnav.core import plugins
 
     rows: list[BackendRow] = []
     for name, registered in sorted(plugins.registrations(GROUP).items()):
@@ -139,6 +139,7 @@ def _check(spec: str, senses: tuple[str, ...] | None = None, output_format: str 
     from llmnav.backends.http import IMAGES_CHECK
 
     cls, arg = backend_class(spec)
+    cls.check_arg(arg)  # an argument no run could use (`openai:m@http://`) is bad input, not a failed check
     checks = cls.check(arg)
     if senses is not None and "image" not in senses:
         checks = [

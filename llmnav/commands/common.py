@@ -228,7 +228,7 @@ def chart_folder_option(path: Path | None, flag: str = "--plot") -> None:
 
 def check_output_path(out: Path, flag: str, inputs: Sequence[Path] = ()) -> None:
     """Refuse to write `out` onto an input, or anywhere inside a run folder (its log, summary, images)."""
-    from llmnav.runlog import RUN_FILE
+    from llmnav.runs.runlog import RUN_FILE
 
     target = out.absolute()
     for given in inputs:

@@ -1,4 +1,4 @@
-"""`llmnav drive`: run one episode (argument parsing only; the work is `llmnav.runner.run_episode`)."""
+"""`llmnav drive`: run one episode (argument parsing only; the work is `llmnav.runs.runner.run_episode`)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
     from pydantic import ValidationError
 
-    from llmnav.runner import EpisodeSpec
+    from llmnav.runs.runner import EpisodeSpec
 
 
 # Option keys whose flag is not the key with dashes (a planner's own flags say so on their declarations)
@@ -180,8 +180,8 @@ def drive(
     from pydantic import ValidationError
 
     from llmnav.planners.base import planner_options
-    from llmnav.runner import EpisodeSpec, exit_code
-    from llmnav.tasks import SEQUENCE_JOIN, default_scenario
+    from llmnav.runs.runner import EpisodeSpec, exit_code
+    from llmnav.world.tasks import SEQUENCE_JOIN, default_scenario
 
     out_dir = path_option(out, "--out")
     if record_hz is not None:
@@ -290,7 +290,7 @@ def _run_with_view(
 ) -> dict[str, Any]:
     from llmnav.planners.base import NullView
     from llmnav.reporting.live import LiveView, ProgressView
-    from llmnav.runner import run_episode
+    from llmnav.runs.runner import run_episode
 
     if json_output:
         return run_episode(spec, view=NullView(), later=later)

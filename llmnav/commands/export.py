@@ -35,7 +35,7 @@ def export(
     if mcap is None:
         raise BadInputError("say what to write: --mcap OUT.mcap")
     from llmnav.ros.export import export_mcap, export_sweep, sweep_runs
-    from llmnav.runlog import RUN_FILE
+    from llmnav.runs.runlog import RUN_FILE
 
     if not (run / RUN_FILE).exists() and run.is_dir():  # a sweep: one file per run into the folder --mcap
         if not sweep_runs(run):

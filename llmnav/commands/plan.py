@@ -14,10 +14,10 @@ from llmnav.errors import BadInputError, printable
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.planners.waypoints import PlanResult
-    from llmnav.scenario import Scenario
-    from llmnav.tasks import ResolvedTask
+    from llmnav.world.scenario import Scenario
+    from llmnav.world.tasks import ResolvedTask
 
 
 @cli_errors
@@ -47,7 +47,7 @@ def plan(
     from llmnav.backends.base import ChatRequest, ChatResult, get_backend
     from llmnav.mapping.grid import build_grid
     from llmnav.planners.waypoints import PlanningClock, generate_plan, ground_target, plan_summary
-    from llmnav.tasks import resolve_task
+    from llmnav.world.tasks import resolve_task
 
     out_dir = path_option(out, "--out")
     plot_path = plot_option(plot)  # checked before any model work
@@ -111,7 +111,7 @@ def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
     from llmnav.planners.base import GroundTruth
     from llmnav.planners.waypoints import WaypointPlanner
     from llmnav.planners.waypoints.options import WaypointOptions
-    from llmnav.runner import oracle_backend
+    from llmnav.runs.runner import oracle_backend
 
     oracle = oracle_backend(model)
     if oracle is None:
@@ -126,8 +126,8 @@ PLAN_FILE = "plan.png"
 
 def _write_figure(sc: Scenario, result: PlanResult, start: Pose2D, path: Path) -> None:
     """Draw the plan into a new file at `path`: made aside and linked into place, so nothing is ever replaced."""
+    from llmnav.core.safefiles import private_dir
     from llmnav.reporting.planplot import plot_plan
-    from llmnav.safefiles import private_dir
 
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -175,7 +175,7 @@ def _execute(
 ) -> None:
     from llmnav.planners.base import drive_options
     from llmnav.reporting.live import print_result
-    from llmnav.runner import EpisodeSpec, exit_code, run_episode
+    from llmnav.runs.runner import EpisodeSpec, exit_code, run_episode
 
     options = drive_options(
         "waypoints",

@@ -24,7 +24,7 @@ from llmnav.commands.common import (
 from llmnav.errors import BadInputError, one_line
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Scenario, Task
+    from llmnav.world.scenario import Scenario, Task
 
 app = typer.Typer(
     help="List the bundled scenarios, show one (tasks, start poses, top-view plot), generate or check one, "
@@ -75,7 +75,7 @@ def list_command(output_format: Annotated[str, typer.Option("--format", help=FOR
     table = Table(title="Bundled scenarios")
     for column in ("name", "robot", "size", "objects", "tasks", "description"):
         table.add_column(column, justify="right" if column in ("objects", "tasks") else "left")
-    from llmnav.scenario import list_scenarios, load_scenario
+    from llmnav.world.scenario import list_scenarios, load_scenario
 
     records = []
     for name in list_scenarios():
@@ -109,7 +109,7 @@ def show(
     task: Annotated[str | None, typer.Option("--task", help="Only this task (id), also in the plot.")] = None,
 ) -> None:
     """A scenario's tasks (id, kind, difficulty, text, targets, start poses); optionally its top view."""
-    from llmnav.scenario import load_scenario
+    from llmnav.world.scenario import load_scenario
 
     plot_path = plot_option(plot)
     scenario = load_scenario(name)
@@ -174,7 +174,7 @@ def generate_command(
 ) -> None:
     """Generate a building (rooms, doorways, furniture by room type, tasks with checked start poses)."""
     from llmnav.buildings.generate import Request, generate_suite
-    from llmnav.safefiles import write_text
+    from llmnav.core.safefiles import write_text
 
     path = path_option(out, "--out")
     assert path is not None
@@ -280,7 +280,7 @@ def export_map(
 ) -> None:
     """Write a world as a nav2 map_server map (YAML + PGM): solid shapes occupied, the rest free."""
     from llmnav.ros.mapexport import export_map as write_map
-    from llmnav.scenario import load_scenario
+    from llmnav.world.scenario import load_scenario
 
     if out.suffix.lower() not in (".yaml", ".yml"):
         raise BadInputError(f"-o {out}: give a file name ending in .yaml")

@@ -11,11 +11,12 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from llmnav.commands.common import chart_folder_option, check_output_path, cli_errors, console, err_console, esc
+from llmnav.core.safefiles import write_text
 from llmnav.errors import BadInputError
-from llmnav.safefiles import write_text
 
 if TYPE_CHECKING:
-    from llmnav.score import Table
+    from llmnav.backends.prices import PriceTable
+    from llmnav.scoring.score import Table
 
 
 class OutputFormat(StrEnum):
@@ -73,17 +74,10 @@ def score(
 
     Tables (or data) go to stdout; status and anything that could not be computed go to stderr.
     """
-    from llmnav.score import (
-        build_tables,
-        collided_runs,
-        compare_groups,
-        problems,
-        read_runs,
-        select_table,
-        split_aborted,
-        varying_keys,
-    )
-    from llmnav.score_papers import PAPER_TABLES, check_table_name, paper_table
+    from llmnav.runs.folders import read_runs, split_aborted
+    from llmnav.scoring.papers import PAPER_TABLES, check_table_name, paper_table
+    from llmnav.scoring.score import collided_runs, compare_groups, problems, select_table, varying_keys
+    from llmnav.scoring.tables import build_tables
 
     if table is not None:
         check_table_name(table)  # before any run is read: a typo costs nothing
@@ -100,7 +94,7 @@ def score(
         for flag, given in (("--compare", compare), ("--by", by), ("--plot", plot)):
             if given:
                 raise BadInputError(f"--table runs: {flag} does not apply (it lists every run, ungrouped)")
-        runs_table(paths, fmt, out, success_radius)
+        runs_table(paths, fmt, out, success_radius, table_of_prices)
         return
     runs, broken = read_runs(paths, success_radius, table_of_prices)
     keys = varying_keys(runs) if by is None else parse_keys(by)
@@ -141,14 +135,16 @@ def score(
     err_console.print(f"[dim]{len(runs)} run(s) read{f', {cut} cut short' if cut else ''}[/]", highlight=False)
 
 
-def runs_table(paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None) -> None:
-    """`--table runs`: a row per run, streamed through a spool file (see `llmnav.score_runs`)."""
+def runs_table(
+    paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None, prices: PriceTable | None
+) -> None:
+    """`--table runs`: a row per run, streamed through a spool file (see `llmnav.scoring.runs_table`)."""
     import contextlib
 
-    from llmnav.safefiles import atomic_text
-    from llmnav.score_runs import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
+    from llmnav.core.safefiles import atomic_text
+    from llmnav.scoring.runs_table import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
 
-    spool = spool_rows(paths, success_radius)
+    spool = spool_rows(paths, success_radius, prices=prices)
     with spool.file, contextlib.ExitStack() as stack:
         if fmt is OutputFormat.rich and out is None and spool.count <= RICH_ROWS:
             _print_runs(spool, DISPLAY_COLUMNS)
@@ -179,8 +175,8 @@ RICH_ROWS = 1000  # a terminal table above this many runs is written as Markdown
 def _print_runs(spool: object, columns: tuple[str, ...]) -> None:
     """The runs as a rich table of the given columns (those some run has a value in)."""
     from llmnav.reporting.tables import print_tables
-    from llmnav.score import Table
-    from llmnav.score_runs import NOTE, TITLE, Spool
+    from llmnav.scoring.runs_table import NOTE, TITLE, Spool
+    from llmnav.scoring.score import Table
 
     assert isinstance(spool, Spool)
     shown = [c for c in columns if c in spool.filled]
@@ -197,8 +193,9 @@ def _short(value: object) -> str:
 
 def parse_keys(text: str) -> list[str]:
     """`--by lidar_sectors,prompt` → validated condition keys."""
-    from llmnav.metrics import CONDITION_KEYS
-    from llmnav.score import START_POSE_KEY, is_option_key
+    from llmnav.runs.folders import START_POSE_KEY
+    from llmnav.scoring.metrics import CONDITION_KEYS
+    from llmnav.scoring.score import is_option_key
 
     keys = [k.strip().replace("-", "_") for k in text.split(",") if k.strip()]
     unknown = [k for k in keys if k not in (*CONDITION_KEYS, START_POSE_KEY) and not is_option_key(k)]

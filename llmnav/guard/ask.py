@@ -35,7 +35,7 @@ from typing import Any, Generic, Protocol, TypeVar, cast
 
 from pydantic_core import PydanticSerializationError, to_jsonable_python
 
-from llmnav.chat import ChatRequest, ChatResult, Message
+from llmnav.core.chat import ChatRequest, ChatResult, Message
 from llmnav.guard.parse import GuardResult, correction_message, parse_answer
 from llmnav.guard.schemas import Bounds
 

@@ -33,14 +33,14 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from llmnav.geometry import Pose2D
+from llmnav.core.geometry import Pose2D
 from llmnav.guard.schemas import VelocityLimits
 from llmnav.guard.veto import VetoResult, check_motion
 from llmnav.sim.sensors import LidarScan
 
 if TYPE_CHECKING:
+    from llmnav.core.robot_specs import RobotSpec
     from llmnav.nav.monitor import CollisionMonitor
-    from llmnav.robot_specs import RobotSpec
     from llmnav.sim.motion import Motion, MotionResult
 
 

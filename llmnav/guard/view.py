@@ -21,11 +21,11 @@ from llmnav.guard.motion import GuardedMotion, MotionGuardConfig
 from llmnav.nav.monitor import CollisionMonitor
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
-    from llmnav.robot_specs import RobotSpec
-    from llmnav.scenario import CameraConfig, LidarConfig
+    from llmnav.core.geometry import Pose2D
+    from llmnav.core.robot_specs import RobotSpec
     from llmnav.sim.sensors import CameraFrame, Detection, Lidar, LidarScan
     from llmnav.sim.world import World
+    from llmnav.world.scenario import CameraConfig, LidarConfig
 
 
 # Noise streams of the monitor's casts (the world's own sources use 1-4 of each seed's 8).

@@ -31,7 +31,7 @@ id, SB3's vector helpers raise `BadInputError` naming the Flat id instead of a b
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 import gymnasium
 
@@ -45,7 +45,7 @@ from llmnav.gym.flat import (
     make_flat_env,
     make_sb3,
 )
-from llmnav.gym.text_space import TaskText
+from llmnav.gym.make import make_env
 from llmnav.gym.wrappers import RunLog, SafetyVeto, TextObservation, observation_text
 
 __all__ = [
@@ -67,25 +67,6 @@ __all__ = [
 
 ENV_IDS: tuple[str, ...] = ("llmnav/Factory-v0", "llmnav/Corridor-v0", "llmnav/Maze-v0")
 FLAT_IDS: tuple[str, ...] = tuple(i.removesuffix("-v0") + FLAT_SUFFIX for i in ENV_IDS)
-
-
-def make_env(
-    kind: Literal["factory", "velocity"],
-    *,
-    safety_veto: bool = True,
-    render_mode: str | None = None,
-    array_id: str | None = None,
-    **kwargs: Any,
-) -> gymnasium.Env[Any, Any]:
-    """Build one environment (the entry point `gymnasium.make` calls), safety-vetoed unless told otherwise.
-
-    `array_id`: the array-only id that errors about the text field should name (set by the registry).
-    """
-    env: NavEnv = (FactoryEnv if kind == "factory" else VelocityEnv)(render_mode=render_mode, **kwargs)
-    space = env.observation_space
-    if isinstance(space, gymnasium.spaces.Dict) and isinstance(space.spaces.get("task"), TaskText):
-        space.spaces["task"].array_id = array_id  # type: ignore[attr-defined]
-    return SafetyVeto(env) if safety_veto else env
 
 
 def _register() -> None:

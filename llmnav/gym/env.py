@@ -6,7 +6,7 @@
   one control period: 20 ms in the maze (the FSM source's 50 Hz loop), 100 ms in the corridors.
 
 The environments wrap the existing `World` (physics, sensors), task resolution and the score of
-`llmnav.metrics`; they add no physics or scoring of their own. Safety is not inside: `SafetyVeto`
+`llmnav.scoring.metrics`; they add no physics or scoring of their own. Safety is not inside: `SafetyVeto`
 (`llmnav.gym.wrappers`) is the wrapper `gymnasium.make` adds by default, as Gymnasium does cross-cutting
 behaviour.
 
@@ -63,22 +63,22 @@ import numpy as np
 from gymnasium import spaces
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from llmnav.core.geometry import Pose2D, wrap_angle
+from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.errors import BadInputError, validation_message
-from llmnav.geometry import Pose2D, wrap_angle
 from llmnav.gym.starts import StartSampler
 from llmnav.gym.text_space import TaskText
-from llmnav.metrics import SUCCESS_RADIUS_M, best_target, rotation_done
-from llmnav.perception import lidar_sectors
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.scenario import load_scenario
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M, best_target, rotation_done
+from llmnav.sensing.perception import lidar_sectors
 from llmnav.sim.sensors import DETECTOR_SIZE
-from llmnav.tasks import resolve_task
+from llmnav.world.scenario import load_scenario
+from llmnav.world.tasks import resolve_task
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Scenario, Task
     from llmnav.sim.motion import MotionResult
     from llmnav.sim.sensors import Detection, LidarScan
     from llmnav.sim.world import World
+    from llmnav.world.scenario import Scenario, Task
 
 MAX_DETECTIONS = 8  # rows of the padded detection table
 TASK_CHARSET = frozenset(string.ascii_letters + string.digits + string.punctuation + " ")

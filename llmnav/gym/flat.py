@@ -243,7 +243,7 @@ def make_flat_env(
     **kwargs: Any,
 ) -> gym.Env[Any, Any]:
     """The entry point of the `llmnav/*-Flat-v0` ids: `make_env`, array-only, the observation one vector."""
-    from llmnav.gym import make_env
+    from llmnav.gym.make import make_env
 
     env = _array_only(make_env(kind, **kwargs), task_index=task_index, velocity_actions=velocity_actions)
     return FlatObservation(env)

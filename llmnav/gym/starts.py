@@ -16,14 +16,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import ndimage
 
+from llmnav.core.geometry import Pose2D
 from llmnav.errors import BadInputError
-from llmnav.geometry import Pose2D
 from llmnav.mapping.grid import build_grid
 
 if TYPE_CHECKING:
+    from llmnav.core.robot_specs import RobotSpec
     from llmnav.mapping.grid import OccupancyGrid
-    from llmnav.robot_specs import RobotSpec
-    from llmnav.scenario import Scenario
+    from llmnav.world.scenario import Scenario
 
 
 class StartSampler:

@@ -23,11 +23,11 @@ from gymnasium import spaces
 
 from llmnav.errors import BadInputError
 from llmnav.guard.motion import MotionGuardConfig
-from llmnav.perception import detections_text, summarize_scan
+from llmnav.sensing.perception import detections_text, summarize_scan
 
 if TYPE_CHECKING:
     from llmnav.gym.env import NavEnv
-    from llmnav.runlog import RunLog as RunLogWriter
+    from llmnav.runs.runlog import RunLog as RunLogWriter
 
 TEXT_CHARSET = frozenset(string.printable) | {"°"}
 MAX_TEXT_CHARS = 8192
@@ -109,7 +109,7 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
 
     The configuration line names the scenario, task, start pose, seed and what the agent knew; each step
     logs its camera image, action, the true-pose trajectory and any veto; the episode's end writes
-    `summary.json` with llmnav's metrics (`llmnav.metrics.summarize_run`). An episode left by `reset` or
+    `summary.json` with llmnav's metrics (`llmnav.scoring.metrics.summarize_run`). An episode left by `reset` or
     `close` before it ended is closed as "aborted". Wrap it outside `SafetyVeto` so vetoes are logged.
     """
 
@@ -179,9 +179,9 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
     # --- internals ----------------------------------------------------------------------------------
     def _open(self, seed: int | None) -> None:
         from llmnav import __version__
-        from llmnav.runlog import RunLog as RunLogWriter
-        from llmnav.runner import task_record
-        from llmnav.scenario import resolve_scenario_path
+        from llmnav.runs.runlog import RunLog as RunLogWriter
+        from llmnav.runs.runner import task_record
+        from llmnav.world.scenario import resolve_scenario_path
 
         base = _base(self.env)
         self.episodes += 1
@@ -243,8 +243,8 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
         log = self._log
         if log is None:
             return
-        from llmnav.metrics import summarize_run
-        from llmnav.runlog import read_run
+        from llmnav.runs.runlog import read_run
+        from llmnav.scoring.metrics import summarize_run
 
         base = _base(self.env)
         log.event("end", outcome=outcome, reason=reason, iterations=self._step, metrics={})
@@ -253,7 +253,7 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
         assert self.run_dir is not None
         summary = summarize_run(read_run(self.run_dir), base.scenario)
         summary["run_dir"] = str(self.run_dir)
-        from llmnav.runlog import SUMMARY_FILE, write_json_atomic
+        from llmnav.runs.runlog import SUMMARY_FILE, write_json_atomic
 
         write_json_atomic(self.run_dir / SUMMARY_FILE, summary)
 

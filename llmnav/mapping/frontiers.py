@@ -24,7 +24,7 @@ from llmnav.mapping.grid import LidarMap, OccupancyGrid, near_bounds
 from llmnav.mapping.nearest import dilate4, inside, label8, nearest_within, reach_cells
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Bounds
+    from llmnav.world.scenario import Bounds
 
 
 def sensed_grid(lidar_map: LidarMap, bounds: Bounds, inflation_m: float) -> OccupancyGrid:

@@ -29,9 +29,9 @@ from llmnav.errors import BadInputError
 from llmnav.mapping.nearest import inside, nearest_within, reach_cells, within
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
-    from llmnav.robot_specs import RobotSpec
-    from llmnav.scenario import Bounds, Scenario, Shape
+    from llmnav.core.geometry import Pose2D
+    from llmnav.core.robot_specs import RobotSpec
+    from llmnav.world.scenario import Bounds, Scenario, Shape
 
 Cell = tuple[int, int]  # (row, col)
 
@@ -169,7 +169,7 @@ def build_grid(
     `robot` defaults to the scenario's robot model. Shapes whose bottom is above the robot's height
     (signs hung on walls) are left out: the robot passes beneath them.
     """
-    from llmnav.robot_specs import ROBOT_SPECS  # plain data module, no pybullet
+    from llmnav.core.robot_specs import ROBOT_SPECS  # plain data module, no pybullet
 
     config = config or GridConfig()
     robot = robot or ROBOT_SPECS[scenario.robot]

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from llmnav.geometry import Point, path_length
+from llmnav.core.geometry import Point, path_length
 from llmnav.mapping.astar import astar, shortcut
 from llmnav.mapping.grid import nearest_free_cell
 
 if TYPE_CHECKING:
     from llmnav.mapping.grid import OccupancyGrid
-    from llmnav.scenario import Scenario
+    from llmnav.world.scenario import Scenario
 
 SNAP_M = 0.5  # [m] how far an end point may move to the nearest free cell (a pose inside the inflation)
 

@@ -34,13 +34,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from llmnav.core.geometry import Point, Pose2D, path_length
 from llmnav.errors import BadInputError
-from llmnav.geometry import Point, Pose2D, path_length
 from llmnav.mapping.astar import GridPath, astar, densify, line_of_sight, shortcut
 from llmnav.mapping.grid import Cell, GridConfig, OccupancyGrid, build_grid, nearest_free_cell
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Scenario, Target, Task
+    from llmnav.world.scenario import Scenario, Target, Task
 
 SQRT2 = math.sqrt(2.0)
 OCTILE_STRETCH = math.sqrt(4.0 - 2.0 * SQRT2)  # max octile / Euclidean ratio (at 22.5 deg), ~1.082
@@ -222,7 +222,7 @@ def with_added_obstacles(
 
     `prefix` names them (`prefix:1`, ...): planners that mark what blocked them use their own.
     """
-    from llmnav.scenario import Obstacle
+    from llmnav.world.scenario import Obstacle
 
     if not centres:
         return scenario
@@ -247,7 +247,7 @@ def oracle_path(
 
 @lru_cache(maxsize=1024)
 def _cached_length(key: _ScenarioKey, task_json: str, x: float, y: float) -> float | None:
-    from llmnav.scenario import Task
+    from llmnav.world.scenario import Task
 
     # keyed by the task's content, not its id: free-text tasks share one id and differ in their targets
     path = oracle_path(key.scenario, Task.model_validate_json(task_json), Pose2D(x, y, 0.0))

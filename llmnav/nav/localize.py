@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from llmnav.geometry import Pose2D, wrap_angle
+from llmnav.core.geometry import Pose2D, wrap_angle
 from llmnav.mapping.nearest import nearest_within
 
 if TYPE_CHECKING:

@@ -35,8 +35,8 @@ import numpy as np
 from llmnav.errors import SensorFailure, one_line
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
-    from llmnav.robot_specs import RobotSpec
+    from llmnav.core.geometry import Pose2D
+    from llmnav.core.robot_specs import RobotSpec
     from llmnav.sim.sensors import LidarScan
 
 SAMPLE_STEP_M = 0.01  # [m] spacing of the footprint poses swept along a motion

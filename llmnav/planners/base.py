@@ -9,8 +9,8 @@ and small hooks, so nothing above it names it:
   field's description); `drive -o KEY=VALUE` and ablation factors take any of its keys;
 - `options`: the shared `DriveOptions` fields it reads; `unused_options` tells `drive` and `ablate`
   which given keys it ignores;
-- `information_modes`: what it may know (read by `llmnav.knowledge`); `grid_factors`: options worth
-  varying; `declares`: its score tables and how the view reads its decisions (`llmnav.declarations`);
+- `information_modes`: what it may know (read by `llmnav.world.knowledge`); `grid_factors`: options worth
+  varying; `declares`: its score tables and how the view reads its decisions (`llmnav.core.declarations`);
 - `paces_itself`: it paces its own control loop in `--realtime` (the world then does not);
 - `templates(options)`: the prompt templates it renders (hashed into the run's config line);
   `prompt_package`: the package whose `prompts/` folder holds them (None: llmnav's bundled one), so a
@@ -31,10 +31,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, Protocol
 
-from llmnav import plugins, prompting
-from llmnav.declarations import NOTHING_DECLARED, Declarations
+from llmnav.core import plugins
+from llmnav.core.declarations import NOTHING_DECLARED, Declarations
 from llmnav.errors import BadInputError, redact_secrets
-from llmnav.observe import call_model, call_scorer
+from llmnav.planners import prompting
+from llmnav.planners.observe import call_model, call_scorer
 from llmnav.planners.options import (
     COMMON_OPTIONS,
     DEFAULT_PLANNER,
@@ -93,11 +94,11 @@ __all__ = [
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.chat import AnswerKey, ChatRequest, ChatResult, ScoreRequest, ScoreResult
-    from llmnav.geometry import Pose2D
+    from llmnav.core.chat import AnswerKey, ChatRequest, ChatResult, ScoreRequest, ScoreResult
+    from llmnav.core.geometry import Pose2D
     from llmnav.guard.view import PlannerWorld
-    from llmnav.runlog import RunLog, RunRecord
-    from llmnav.scenario import Scenario, Task
+    from llmnav.runs.runlog import RunLog, RunRecord
+    from llmnav.world.scenario import Scenario, Task
 
 # "not_found": the planner looked everywhere it could and says so, rather than finishing somewhere wrong
 Outcome = Literal["completed", "failed", "not_found", "aborted"]
@@ -221,15 +222,15 @@ class EpisodeContext(Generic[OptionsT]):
     log: RunLog
     options: OptionsT  # the planner's own `Options` model
     view: View = field(default_factory=NullView)
-    # What the planner may know (llmnav.knowledge); with "sensed", `scenario` is a view without positions.
+    # What the planner may know (llmnav.world.knowledge); with "sensed", `scenario` is a view without positions.
     information: Information = "oracle"
 
     def chat(self, request: ChatRequest, purpose: str, step: int | None) -> ChatResult:
-        """Send `request` to the backend, logged as an `llm_call` event (see `llmnav.observe.call_model`)."""
+        """Send `request` to the backend, logged as an `llm_call` event (see `llmnav.planners.observe.call_model`)."""
         return call_model(self, request, purpose, step)
 
     def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
-        """Score continuations with the backend, logged as an `llm_call` event (`llmnav.observe.call_scorer`)."""
+        """Score continuations with the backend, logged as an `llm_call` event (`observe.call_scorer`)."""
         return call_scorer(self, request, step)
 
     def event(self, kind: str, **fields: Any) -> None:
@@ -281,16 +282,16 @@ class Planner(ABC, Generic[OptionsT]):
     needs_backend: ClassVar[bool] = True
     Options: ClassVar[type[DriveOptions]] = DriveOptions  # its own options model (a DriveOptions subclass)
     options: ClassVar[frozenset[str]] = frozenset()  # the shared DriveOptions fields it reads, beyond COMMON_OPTIONS
-    # What it can run with (llmnav.knowledge); the first is its default where no map is published.
+    # What it can run with (llmnav.world.knowledge); the first is its default where no map is published.
     information_modes: ClassVar[tuple[Information, ...]] = ("oracle",)
     # A baseline that plans on the true map in every information mode: `sensed` then senses only its pose
     knows_map: ClassVar[bool] = False
     grid_factors: ClassVar[tuple[str, ...]] = ()  # option keys worth varying in an ablation (its own first)
-    # its score tables, decision noun and view sections (llmnav.declarations): read above it, never by name
+    # its score tables, decision noun and view sections (llmnav.core.declarations): read above it, never by name
     declares: ClassVar[Declarations] = NOTHING_DECLARED
     paces_itself: ClassVar[bool] = False  # paces its own loop under --realtime (the world does not)
-    figure_kinds: ClassVar[tuple[str, ...]] = ()  # standard figures drawn from its log (llmnav.runner.FIGURES)
-    # the package whose prompts/ folder holds its templates (llmnav.prompting); None: llmnav's bundled one
+    figure_kinds: ClassVar[tuple[str, ...]] = ()  # standard figures drawn from its log (llmnav.runs.runner.FIGURES)
+    # the package whose prompts/ folder holds its templates (llmnav.planners.prompting); None: llmnav's bundled one
     prompt_package: ClassVar[str | None] = None
 
     def requires_backend(self, options: OptionsT) -> bool:
@@ -343,7 +344,7 @@ def _not_a_planner(target: Any) -> str | None:
 
 
 def planner_class(name: str) -> type[Planner[Any]]:
-    """The planner class registered as `name` (only its module is imported; see `llmnav.plugins`).
+    """The planner class registered as `name` (only its module is imported; see `llmnav.core.plugins`).
 
     BadInputError when no distribution registers it, two do, or it does not load as a Planner subclass.
     """

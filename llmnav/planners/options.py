@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar, get_args, get
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from llmnav import plugins
+from llmnav.core import plugins
 from llmnav.errors import BadInputError
 from llmnav.planners import DEFAULT_PLANNER
 
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from llmnav.backends.base import Backend
 
 PLANNER_GROUP = "llmnav.planners"
-# What a planner may know (see llmnav.knowledge): a published map, only its own sensors, or ground truth.
+# What a planner may know (see llmnav.world.knowledge): a published map, only its own sensors, or ground truth.
 Information = Literal["map", "sensed", "oracle"]
 # How a model-driven choice is made: scored option texts, generated answers, or scores where the backend can.
 Decide = Literal["auto", "score", "generate"]
@@ -148,7 +148,7 @@ def planner_names() -> list[str]:
 def fallback_mark(requested: str, mode: str) -> dict[str, Any]:
     """The `condition` field of the event logging the decision mode: set when `auto` fell back to generation.
 
-    `llmnav.metrics.condition_of` reads it, so tables show `decide=generate (fallback)`, never `decide=auto`
+    `llmnav.scoring.metrics.condition_of` reads it, so tables show `decide=generate (fallback)`, never `decide=auto`
     over runs that generated (the backend could not score).
     """
     return {"condition": {"decide": "generate (fallback)"}} if requested == "auto" and mode == "generate" else {}

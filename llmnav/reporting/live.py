@@ -18,7 +18,7 @@ from llmnav.planners.base import StepInfo
 from llmnav.reporting.safe import esc
 
 if TYPE_CHECKING:
-    from llmnav.runner import EpisodeSpec
+    from llmnav.runs.runner import EpisodeSpec
 
 MAX_ROWS = 12  # rows kept on screen; older steps scroll away
 REASONING_CHARS = 70

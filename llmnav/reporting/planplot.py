@@ -6,9 +6,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.planners.waypoints import PlanResult
-    from llmnav.scenario import Scenario
+    from llmnav.world.scenario import Scenario
 
 FIG_WIDTH_IN = 9.0  # [in] for a wide map; the height follows its aspect ratio
 FIG_HEIGHT_IN = 11.0  # [in] for a tall map; the width follows
@@ -64,8 +64,8 @@ def plot_plan(scenario: Scenario, plan: PlanResult, start: Pose2D, out: Path) ->
         for index, (x, y) in enumerate(plan.waypoints, start=1):
             ax.annotate(str(index), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8, zorder=7)
     ax.plot(start.x, start.y, "o", color="tab:green", ms=9, zorder=7, label="start")
-    from llmnav.metrics import SUCCESS_RADIUS_M
     from llmnav.reporting.topview import TARGET_RGB, draw_targets
+    from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 
     draw_targets(ax, [plan.target], SUCCESS_RADIUS_M, legend=False)
     label = f"target {plan.target_id} (success within {SUCCESS_RADIUS_M:g} m)"

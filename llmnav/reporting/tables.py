@@ -1,4 +1,4 @@
-"""Rendering `llmnav.score.Table`s: rich tables for the terminal, Markdown, tidy CSV (one table) and JSON."""
+"""Rendering `llmnav.scoring.score.Table`s: rich tables for the terminal, Markdown, tidy CSV (one table) and JSON."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from rich.console import Console
     from rich.table import Table as RichTable
 
-    from llmnav.score import Table
+    from llmnav.scoring.score import Table
 
 Format = Literal["rich", "md", "csv", "json"]
 

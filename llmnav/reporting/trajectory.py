@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING, Any
 from llmnav.errors import LlmnavError, printable
 
 if TYPE_CHECKING:
-    from llmnav.runlog import RunRecord
-    from llmnav.scenario import Scenario, Task
+    from llmnav.runs.runlog import RunRecord
+    from llmnav.world.scenario import Scenario, Task
 
 FIG_WIDTH_IN = 8.0  # [in]
 DPI = 120
@@ -30,7 +30,7 @@ def oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tu
     if task.kind != "target":
         return None
     try:
-        from llmnav.geometry import Pose2D
+        from llmnav.core.geometry import Pose2D
         from llmnav.mapping.targets import oracle_path
 
         path = oracle_path(scenario, task, Pose2D.from_list(start))
@@ -62,8 +62,8 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
 
 def draw_record(ax: Any, record: RunRecord, scenario: Scenario, task: Task) -> None:
     """The run on `ax`: top view, target and success radius, oracle path, driven path, numbered steps."""
-    from llmnav.metrics import SUCCESS_RADIUS_M
     from llmnav.reporting.topview import draw_scenario, draw_targets, label_fontsize, place_labels
+    from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 
     poses = record.poses()
     draw_scenario(ax, scenario, labels=False)  # object names last, placed clear of the run's markers

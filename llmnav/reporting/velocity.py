@@ -30,7 +30,7 @@ def well_formed_cmd(record: dict[str, Any]) -> bool:
 
 def plot_velocity_profile(run_dir: Path, out: Path) -> Path | None:
     """Draw linear and angular velocity from the run's `cmd` records; None when there are none."""
-    from llmnav.runlog import read_run
+    from llmnav.runs.runlog import read_run
 
     records = [e for e in read_run(run_dir).of_type("planner") if e.get("kind") == "cmd" and well_formed_cmd(e)]
     if not records:

@@ -33,12 +33,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from llmnav.core.geometry import logged_pose
+from llmnav.core.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes, write_bytes
 from llmnav.errors import BadInputError
-from llmnav.geometry import logged_pose
 from llmnav.ros.messages import JSON_TOPICS, TYPES, RosMessages, json_schema, missing_dependency
 from llmnav.ros.record import unpack_occupancy
-from llmnav.runlog import IMAGES_DIR, RUN_FILE, SUPERSEDED_FILE, RunRecord, dumps, read_run
-from llmnav.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes, write_bytes
+from llmnav.runs.runlog import IMAGES_DIR, RUN_FILE, SUPERSEDED_FILE, RunRecord, dumps, read_run
 
 ROS_TOPICS: dict[str, str] = {  # topic -> ROS 2 type (the key into messages.TYPES)
     "/odom": TYPES["odometry"],

@@ -15,7 +15,7 @@ from typing import Any
 from llmnav.errors import BadInputError
 from llmnav.ros.export import ROS_TOPICS, Translator
 from llmnav.ros.messages import JSON_TOPICS, RosMessages, json_schema
-from llmnav.runlog import dumps
+from llmnav.runs.runlog import dumps
 
 HOST = "127.0.0.1"  # never another interface: the run's prompts and images are on these topics
 

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from llmnav.core.robot_specs import ROBOT_SPECS
+from llmnav.core.safefiles import write_bytes, write_text
 from llmnav.errors import BadInputError
 from llmnav.mapping.grid import GridGeometry, shape_distance
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.safefiles import write_bytes, write_text
-from llmnav.scenario import Scenario
+from llmnav.world.scenario import Scenario
 
 OCCUPIED_VALUE = 0  # p = 1.0
 FREE_VALUE = 254  # p = 0.004, as map_saver writes free cells

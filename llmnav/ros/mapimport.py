@@ -27,11 +27,11 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
+from llmnav.core.robot_specs import ROBOT_SPECS
+from llmnav.core.safefiles import UnsafeFileError, read_bytes, write_text
 from llmnav.errors import BadInputError, ScenarioError
 from llmnav.mapping.grid import GridConfig
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.safefiles import UnsafeFileError, read_bytes, write_text
-from llmnav.scenario import LabelledObject, Scenario, parse_scenario
+from llmnav.world.scenario import LabelledObject, Scenario, parse_scenario
 
 MAX_YAML_BYTES = 1 << 20  # [bytes] a map YAML is a few lines; an overlay a few hundred
 MAX_IMAGE_BYTES = 64 << 20  # [bytes] a 16-megapixel 8-bit PGM is 16 MB, an ASCII one up to ~64 MB

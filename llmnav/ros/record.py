@@ -23,9 +23,9 @@ import numpy as np
 from llmnav.mapping.grid import GridConfig, build_grid
 
 if TYPE_CHECKING:
-    from llmnav.runlog import RunLog
-    from llmnav.scenario import Scenario
+    from llmnav.runs.runlog import RunLog
     from llmnav.sim.world import World
+    from llmnav.world.scenario import Scenario
 
 MAP_RESOLUTION_M = 0.05  # [m] the recorded map's cell side (nav2 maps are commonly 0.05 m)
 MAX_RECORD_HZ = 50.0  # [Hz] beyond any pose rate: a larger value is a typo

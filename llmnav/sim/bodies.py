@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from llmnav.scenario import Shape
+from llmnav.world.scenario import Shape
 
 # Collision groups. Ray casts carry Bullet's default group (1): scenery accepts it, the robot does not,
 # so the LiDAR never sees the robot's own body.

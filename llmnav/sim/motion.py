@@ -20,7 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
-from llmnav.geometry import Pose2D, wrap_angle
+from llmnav.core.geometry import Pose2D, wrap_angle
 
 if TYPE_CHECKING:
     from llmnav.sim.robot import Robot

@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from llmnav.geometry import Pose2D, wrap_angle
-from llmnav.robot_specs import RobotSpec
-from llmnav.scenario import OdometryConfig
+from llmnav.core.geometry import Pose2D, wrap_angle
+from llmnav.core.robot_specs import RobotSpec
 from llmnav.sim.bodies import ROBOT_GROUP, SCENERY_GROUP
+from llmnav.world.scenario import OdometryConfig
 
 CONTACT_DISTANCE = 0.002  # [m] a contact point closer than this counts as touching
 NOISE_BLOCK = 4096  # wheel-noise draws fetched from the generator at a time (one per wheel per step)

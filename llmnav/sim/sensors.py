@@ -25,12 +25,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from llmnav.chat import Image
-from llmnav.scenario import CameraConfig, DetectorConfig, LidarConfig
+from llmnav.core.chat import Image
+from llmnav.world.scenario import CameraConfig, DetectorConfig, LidarConfig
 
 if TYPE_CHECKING:
-    from llmnav.scenario import LabelledObject
     from llmnav.sim.robot import Robot
+    from llmnav.world.scenario import LabelledObject
 
 LIDAR_CLEARANCE = 0.01  # [m] rays start this far outside the robot's body so they never hit it
 CAMERA_NEAR = 0.05  # [m] near clipping plane

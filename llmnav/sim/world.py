@@ -14,9 +14,13 @@ from types import TracebackType
 
 import pybullet as p
 
-from llmnav.geometry import Pose2D
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.scenario import (
+from llmnav.core.geometry import Pose2D
+from llmnav.core.robot_specs import ROBOT_SPECS
+from llmnav.sim.bodies import create_shape
+from llmnav.sim.motion import Motion
+from llmnav.sim.robot import Robot
+from llmnav.sim.sensors import Camera, Detector, Lidar
+from llmnav.world.scenario import (
     CameraConfig,
     DetectorConfig,
     LabelledObject,
@@ -25,10 +29,6 @@ from llmnav.scenario import (
     OdometryConfig,
     Scenario,
 )
-from llmnav.sim.bodies import create_shape
-from llmnav.sim.motion import Motion
-from llmnav.sim.robot import Robot
-from llmnav.sim.sensors import Camera, Detector, Lidar
 
 PHYSICS_HZ = 240  # [Hz]
 ADDED_OBSTACLE_HEIGHT = 1.0  # [m]

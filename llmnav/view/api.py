@@ -7,7 +7,7 @@ from pathlib import Path
 
 from llmnav.ablate import MANIFEST_FILE
 from llmnav.errors import BadInputError
-from llmnav.runlog import RUN_FILE
+from llmnav.runs.runlog import RUN_FILE
 from llmnav.view.page import PAGE_FILE, check_out, check_target, run_page, sweep_page, write_page
 from llmnav.view.video import VideoInfo, render_video
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import numpy as np
 
-    from llmnav.scenario import Scenario
+    from llmnav.world.scenario import Scenario
 
 DPI = 100
 AXES_BOX = (0.08, 0.08, 0.9, 0.88)  # left, bottom, width, height of the axes in the figure

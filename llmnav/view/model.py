@@ -1,8 +1,8 @@
 """What a run page shows, as plain data: one run folder read back and arranged by decision.
 
-`build_run_view` reads the folder with the run-log reader (`llmnav.runlog.read_run`), takes the summary
-the way `llmnav score` does (`llmnav.score.load_run`: summary.json, or recomputed for a run cut short),
-and groups the events into decisions:
+`build_run_view` reads the folder once with the run-log reader (`llmnav.runs.runlog.read_run`), takes the
+summary from that record the way `llmnav score` does (`llmnav.runs.folders.run_from_record`: summary.json,
+or recomputed for a run cut short), and groups the events into decisions:
 
 - most planners: one decision per logged `step` value, named by the planner's `decision_noun` ("Step 3";
   a waypoint decision is one leg: its grounding, every generation attempt with its verdict, the replans);
@@ -10,7 +10,7 @@ and groups the events into decisions:
   suggestion (its verdict: accepted, stale, bounds, parse), else one per state change, and its command
   profile.
 
-What a planner declares (`llmnav.declarations`) is looked up through the planner registry; for a run whose
+What a planner declares (`llmnav.core.declarations`) is looked up through the planner registry; for a run whose
 planner is not installed here, the log's own content stands in (velocity commands or suggestions, model
 calls made at decisions).
 
@@ -26,13 +26,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from llmnav.declarations import Declarations, declarations_of
-from llmnav.geometry import logged_pose
-from llmnav.relevance import CONTENT_FREE_TASK
-from llmnav.runlog import IMAGES_DIR, RunRecord, read_run
+from llmnav.core.declarations import Declarations, declarations_of
+from llmnav.core.geometry import logged_pose
+from llmnav.runs.runlog import IMAGES_DIR, RunRecord, read_run
+from llmnav.sensing.relevance import CONTENT_FREE_TASK
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Scenario, Task
+    from llmnav.world.scenario import Scenario, Task
 
 REASONING_CHARS = 160  # one line of reasoning in captions and the step list
 
@@ -42,7 +42,7 @@ _SECTOR_LINE = re.compile(
     re.MULTILINE,
 )
 _RANGE_MAX = re.compile(r"inf = nothing within (\d+(?:\.\d+)?) m")
-_IMAGE_HASH = re.compile(r"[0-9a-f]{64}")  # images are stored under their sha256 (llmnav.runlog)
+_IMAGE_HASH = re.compile(r"[0-9a-f]{64}")  # images are stored under their sha256 (llmnav.runs.runlog)
 
 
 @dataclass
@@ -115,6 +115,9 @@ class StepView:
     t_sim: float | None = None
     scores: dict[str, float] = field(default_factory=dict)  # a scored decision: each landmark's PMI [nats]
     rule: str | None = None  # a scored decision: which rule chose
+    # hybrid: the frontiers on the menu (where, what is near, utility; PMI and value where scored)
+    frontiers: list[dict[str, Any]] = field(default_factory=list)
+    chosen: int | None = None  # a scored decision: the option number it chose
 
     @property
     def vetoes(self) -> list[dict[str, Any]]:
@@ -203,7 +206,7 @@ class RunView:
     @property
     def success_radius_m(self) -> float:
         """[m] The radius success was judged at (the summary's, else the default)."""
-        from llmnav.metrics import SUCCESS_RADIUS_M
+        from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 
         value = _number(self.summary.get("success_radius_m"))
         return value if value is not None and value > 0 else SUCCESS_RADIUS_M
@@ -322,7 +325,7 @@ def _number(value: Any) -> float | None:
 
 
 def logged_lidar(sectors: Any, front_m: Any, range_m: Any) -> LidarView | None:
-    """The sectors of an observation event's `lidar_sectors` (see `llmnav.observe.sectors_log`); None if absent."""
+    """The sectors of an observation event's `lidar_sectors` (`planners.observe.sectors_log`); None if absent."""
     if not isinstance(sectors, list) or not sectors:
         return None
     out: list[Sector] = []
@@ -341,7 +344,7 @@ def logged_lidar(sectors: Any, front_m: Any, range_m: Any) -> LidarView | None:
 
 
 def parse_lidar(text: Any, front_m: Any) -> LidarView | None:
-    """The sectors of an observation's LiDAR text (`llmnav.perception.LidarSummary.text`); None if absent."""
+    """The sectors of an observation's LiDAR text (`llmnav.sensing.perception.LidarSummary.text`); None if absent."""
     if not isinstance(text, str) or not text:
         return None
     sectors: list[Sector] = []
@@ -538,6 +541,10 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
                 if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
             }
             step.rule = event.get("rule") if isinstance(event.get("rule"), str) else None
+            option = event.get("option")
+            step.chosen = option if isinstance(option, int) and not isinstance(option, bool) else None
+            rows = event.get("frontiers")
+            step.frontiers = [r for r in (rows if isinstance(rows, list) else []) if isinstance(r, dict)]
         elif kind == "guard":
             step.guards.append(event)
         elif kind == "action":
@@ -604,7 +611,7 @@ def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
     """The run's task: the scenario's own when the id is one of its tasks, else rebuilt from the record."""
     from pydantic import ValidationError
 
-    from llmnav.scenario import Task
+    from llmnav.world.scenario import Task
 
     record = as_dict(config.get("task"))
     if scenario is not None and record.get("id"):
@@ -622,13 +629,13 @@ def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
 def build_run_view(run_dir: Path) -> RunView:
     """Read a run folder for its page; raises BadInputError when it is no readable run."""
     from llmnav.reporting.trajectory import oracle_points
-    from llmnav.score import load_run, scenario_of
+    from llmnav.runs.folders import run_from_record, scenario_of
 
     run_dir = Path(run_dir)
     record = read_run(run_dir)
     missing: list[str] = []
     try:
-        summary = load_run(run_dir).summary
+        summary = run_from_record(record).summary  # the log read once, above
     except (AttributeError, IndexError, KeyError, TypeError, ValueError) as err:
         # Malformed fields (a pose with one number, a string for a number) defeat the metrics; the page
         # still shows every event, and says why the figures are absent.

@@ -19,8 +19,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from llmnav.errors import BadInputError
-from llmnav.safefiles import (
+from llmnav.core.safefiles import (
     IMAGE_LIMIT,
     PAGE_GENERATOR,
     SUMMARY_LIMIT,
@@ -30,13 +29,15 @@ from llmnav.safefiles import (
     read_bytes,
     write_text,
 )
+from llmnav.errors import BadInputError
 
 GENERATOR = PAGE_GENERATOR  # the page's <meta name="generator">: how `write_page` knows its own files
 
 if TYPE_CHECKING:
     from jinja2 import Environment
 
-    from llmnav.score import Run, Table
+    from llmnav.runs.folders import Run
+    from llmnav.scoring.score import Table
     from llmnav.view.model import RunView, StepView
 
 PAGE_FILE = "view.html"  # default page name inside a run or sweep folder
@@ -60,7 +61,7 @@ def environment() -> Environment:
     env.filters["num"] = _num
     env.filters["pose"] = _pose
     env.filters["joined"] = _joined
-    from llmnav.relevance import CONTENT_FREE_TASK
+    from llmnav.sensing.relevance import CONTENT_FREE_TASK
 
     env.globals["content_free_task"] = CONTENT_FREE_TASK
     return env
@@ -153,7 +154,37 @@ def _overlay(step: StepView) -> dict[str, Any]:
         "after": heading(step.pose_after),
         "attempts": attempts,
         "replans": replans,
+        "frontiers": _frontier_marks(step),
     }
+
+
+def _frontier_marks(step: StepView) -> list[dict[str, Any]]:
+    """The decision's frontiers on the map: a dot each, sized by value (or utility), the chosen one marked.
+
+    The label is the value where the decision scored its frontiers (log utility + PMI), else the utility.
+    """
+    from llmnav.view.drawing import svg_point
+    from llmnav.view.model import as_pose
+
+    chosen = step.chosen
+    marks = []
+    for row in step.frontiers:
+        at = as_pose(row.get("at"))
+        if at is None:
+            continue
+        x, y = svg_point(at[0], at[1])
+        value, utility = row.get("value"), row.get("utility")
+        scored = isinstance(value, (int, float)) and not isinstance(value, bool)
+        shown = value if scored else utility
+        number = float(shown) if isinstance(shown, (int, float)) else 0.0
+        near = ", ".join(str(n) for n in row.get("near") or []) or "nothing known near"
+        words = row.get("description") or near
+        title = f"frontier {row.get('option')}: {words}; " + (
+            f"value {number:+.1f} (PMI {row.get('pmi')}, utility {utility})" if scored else f"utility {number:.2f}"
+        )
+        label = f"{number:+.1f}" if scored else f"{number:.1f}"
+        marks.append({"cx": x, "cy": y, "label": label, "title": title, "chosen": row.get("option") == chosen})
+    return marks
 
 
 STRIP_W, STRIP_PAD = 760, 36  # [px] suggestion-outcome strip: width and left margin
@@ -300,8 +331,8 @@ def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, Any]]:
     HTML, not a picture: each condition's label is text in its own row, wrapped to the column's width, so
     long labels (a backend URL, several factors) never run into each other, and a reader can copy them.
     """
-    from llmnav.score import UNIT_RANGE, group_runs
-    from llmnav.stats import clip_interval, describe, wilson_interval
+    from llmnav.scoring.score import UNIT_RANGE, group_runs
+    from llmnav.scoring.stats import clip_interval, describe, wilson_interval
 
     by_task: dict[str, list[dict[str, Any]]] = {}
     for task, label, group in group_runs(runs, keys):
@@ -324,7 +355,7 @@ def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, Any]]:
 
 def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> list[dict[str, Any]]:
     """Per condition: a task × start-pose grid of successes, each cell linking to its runs' pages."""
-    from llmnav.score import group_runs
+    from llmnav.scoring.score import group_runs
 
     conditions: dict[str, dict[str, list[Run]]] = {}
     for task, label, group in group_runs(runs, keys):  # tasks in the tables' order
@@ -358,8 +389,10 @@ def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> l
 def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict[str, Any]:
     """Everything the sweep template needs; writes the run pages that are missing."""
     from llmnav.ablate import MANIFEST_FILE
-    from llmnav.safefiles import loads as bounded_loads
-    from llmnav.score import build_tables, read_runs, split_aborted, varying_keys
+    from llmnav.core.safefiles import loads as bounded_loads
+    from llmnav.runs.folders import read_runs, split_aborted
+    from llmnav.scoring.score import varying_keys
+    from llmnav.scoring.tables import build_tables
 
     runs, broken = read_runs([root])  # a damaged run is named on the page, not fatal to it
     keys = varying_keys(runs)
@@ -418,9 +451,9 @@ def run_own_file(path: Path) -> str | None:
     Those are never replaced by a page or a video, --force or not.
     """
     from llmnav.ablate import MANIFEST_FILE
-    from llmnav.locking import LOCK_FILE
     from llmnav.reporting.velocity import PROFILE_FILE
-    from llmnav.runlog import IMAGES_DIR, RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE
+    from llmnav.runs.locking import LOCK_FILE
+    from llmnav.runs.runlog import IMAGES_DIR, RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE
 
     target = path.absolute()
     folder = target.parent

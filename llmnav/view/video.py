@@ -72,7 +72,7 @@ class CameraRenderer:
             return None
         import numpy as np
 
-        from llmnav.geometry import Pose2D
+        from llmnav.core.geometry import Pose2D
 
         try:
             if self._world is None:
@@ -115,7 +115,7 @@ def _camera(view: RunView, step: StepView | None, renderer: CameraRenderer | Non
     image = None
     rendered = False
     if path is not None:  # the same checks as the page's images: a regular file in the run, a picture
-        from llmnav.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes
+        from llmnav.core.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes
 
         try:
             data = read_bytes(path, limit=IMAGE_LIMIT, root=view.run_dir)
@@ -350,7 +350,7 @@ def render_video(
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise BadInputError(f"--video {out}: cannot create its folder: {err.strerror or err}") from None
-    from llmnav.safefiles import private_dir
+    from llmnav.core.safefiles import private_dir
 
     width, height = 2 * PANEL_W, PANEL_H + CAPTION_H
     # OpenCV and Pillow write to a path: a folder only this process can enter holds the partial file (a

@@ -15,9 +15,9 @@ from llmnav.guard.parse import parse_answer
 from llmnav.guard.schemas import response_schema
 from llmnav.planners.fsm.answers import VelocitySuggestion
 from llmnav.planners.hybrid.answers import hybrid_choice_model
+from llmnav.planners.prompting import render
 from llmnav.planners.stepwise.answers import StepAction
 from llmnav.planners.waypoints.answers import WaypointList, target_choice_model
-from llmnav.prompting import render
 
 MENU = [
     "Turn a full circle to look around",

@@ -27,7 +27,7 @@ from typer.testing import CliRunner
 
 from llmnav.backends.http import forget_text_only
 from llmnav.cli import app
-from llmnav.runlog import read_run
+from llmnav.runs.runlog import read_run
 
 LLMNAV = str(Path(sys.executable).parent / "llmnav")
 KEY = "serve-test-key-5f2a9c"
@@ -132,7 +132,7 @@ def test_the_server_scores_like_the_in_process_engine(served):
     """The same model, scored over HTTP (`/tokenize`, `/completions`) and in process: the same numbers."""
     from llmnav.backends.base import get_backend
     from llmnav.backends.local import LocalBackend
-    from llmnav.chat import ScoreRequest
+    from llmnav.core.chat import ScoreRequest
 
     request = ScoreRequest("Task: Go to the window\nThe robot drives to the", (" window", " room 104", " stairs"))
     remote = get_backend(served.backend)

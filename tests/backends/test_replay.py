@@ -11,7 +11,7 @@ import pytest
 from llmnav.backends.base import ChatRequest, ChatResult, Image, Message
 from llmnav.backends.replay import ReplayBackend
 from llmnav.errors import BackendSpecError, BadInputError, ModelError, ReplayDivergenceError
-from llmnav.runlog import RunLog
+from llmnav.runs.runlog import RunLog
 
 IMG = Image(base64.b64encode(b"\xff\xd8\xff\xe0replay-frame").decode())
 SCHEMA = {"type": "object", "properties": {"command": {"type": "string"}}}

@@ -10,7 +10,7 @@ import json
 
 from llmnav.planners.base import DriveOptions, drive_options
 from llmnav.planners.stepwise.answers import step_answer
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 ANSWERS = [
     {"command": "ROTATE_LEFT", "parameters": 30},

@@ -22,8 +22,8 @@ from llmnav.backends.base import ChatRequest, Message
 from llmnav.backends.policy import PolicyBackend
 from llmnav.cli import app
 from llmnav.planners.base import drive_options
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 # One short episode per planner, under its default options: only the length is cut.
 EPISODES: dict[str, dict[str, Any]] = {

@@ -13,9 +13,9 @@ from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_r
 from llmnav.backends.local import LocalBackend
 from llmnav.backends.policy import PolicyBackend
 from llmnav.backends.replay import ReplayBackend, write_script
-from llmnav.chat import ScoreRequest
+from llmnav.core.chat import ScoreRequest
 from llmnav.errors import ModelError, ReplayDivergenceError
-from llmnav.runlog import RunLog
+from llmnav.runs.runlog import RunLog
 
 LABELS = ("oil barrel", "stairs", "table", "fire extinguisher", "cardboard box")
 

@@ -119,7 +119,7 @@ def test_continuation_scoring_still_reads_llamacpps_fields(
 ) -> None:
     """llmnav's `openai` backend scores continuations from `logprobs.content`: kept beside OpenAI's lists."""
     from llmnav.backends.openai import OpenAIBackend
-    from llmnav.chat import ScoreRequest
+    from llmnav.core.chat import ScoreRequest
 
     _process, url, key = served
     monkeypatch.setenv("OPENAI_API_KEY", key)

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 
 from llmnav.baselines.frontier import FrontierConfig, FrontierPlanner
-from llmnav.geometry import Pose2D
+from llmnav.core.geometry import Pose2D
 from llmnav.guard.view import PlannerWorld
 from llmnav.mapping.grid import GridGeometry, LidarMap
 from llmnav.planners.base import EpisodeContext, drive_options
-from llmnav.runlog import RunLog, read_run
-from llmnav.scenario import Scenario, load_scenario, parse_scenario
+from llmnav.runs.runlog import RunLog, read_run
 from llmnav.sim.world import World
+from llmnav.world.scenario import Scenario, load_scenario, parse_scenario
 
 
 def run(sc: Scenario, task_id: str, tmp_path: Path, config: FrontierConfig | None = None):  # noqa: ANN201

@@ -8,11 +8,11 @@ from pathlib import Path
 import pytest
 
 from llmnav.baselines.oracle import OraclePlanner
+from llmnav.core.geometry import Pose2D
 from llmnav.errors import BadInputError
-from llmnav.geometry import Pose2D
 from llmnav.mapping.astar import line_of_sight
 from llmnav.mapping.targets import oracle_length, oracle_path, scenario_grid
-from llmnav.scenario import Scenario, load_scenario, parse_scenario
+from llmnav.world.scenario import Scenario, load_scenario, parse_scenario
 
 # A 10 m x 6 m room split by a wall at x = 5 with a 1.2 m gap at the top; a box target in the right half.
 ROOM = {
@@ -128,7 +128,7 @@ def test_every_factory_start_pose_has_a_plausible_oracle_path() -> None:
 def run_planner(sc: Scenario, task_id: str, tmp_path: Path, planner: object) -> tuple[object, object, object]:
     from llmnav.guard.view import PlannerWorld
     from llmnav.planners.base import EpisodeContext, drive_options
-    from llmnav.runlog import RunLog, read_run
+    from llmnav.runs.runlog import RunLog, read_run
     from llmnav.sim.world import World
 
     task = sc.task(task_id)
@@ -187,7 +187,7 @@ def test_the_oracle_baseline_ends_inside_the_success_radius_in_the_factory(
     tmp_path: Path, task: str, pose: int, seed: int
 ) -> None:
     from llmnav.planners.base import drive_options
-    from llmnav.runner import EpisodeSpec, run_episode
+    from llmnav.runs.runner import EpisodeSpec, run_episode
 
     spec = EpisodeSpec(
         scenario="factory",
@@ -206,8 +206,8 @@ def test_the_oracle_gets_around_a_box_that_appears_on_its_path_after_the_leg_was
     # Factory T1 from pose 1: the oracle's second leg runs past (0.2, -9.2); a box appears there at 4 s,
     # after the path was planned. Before, the first refusal ended the episode ("motion vetoed").
     from llmnav.planners.base import drive_options
-    from llmnav.runlog import read_run
-    from llmnav.runner import EpisodeSpec, run_episode
+    from llmnav.runs.runlog import read_run
+    from llmnav.runs.runner import EpisodeSpec, run_episode
 
     spec = EpisodeSpec(
         scenario="factory",

@@ -18,8 +18,8 @@ import yaml
 from llmnav.baselines.frontier import FrontierPlanner
 from llmnav.baselines.oracle import OraclePlanner
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, drive_options
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import OdometryConfig, resolve_scenario_path
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import OdometryConfig, resolve_scenario_path
 
 DRIFTING = OdometryConfig(wheel_scale_std=0.01, track_scale_std=0.03, wheel_noise_m_per_sqrt_m=0.01)
 BOUND_M = 0.10  # [m] the ceiling on the median final error, here held at every scan

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from llmnav.buildings.generate import Request, generate
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 
 def test_the_oracle_reaches_a_target_in_a_small_generated_flat(tmp_path: Path) -> None:

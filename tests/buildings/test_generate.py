@@ -12,8 +12,8 @@ import pytest
 
 from llmnav.buildings.check import check_file
 from llmnav.buildings.generate import Request, generate
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.scenario import LabelledObject, Scenario, load_scenario
+from llmnav.core.robot_specs import ROBOT_SPECS
+from llmnav.world.scenario import LabelledObject, Scenario, load_scenario
 
 SEEDS = range(20)
 
@@ -131,7 +131,7 @@ def test_options_change_the_building(tmp_path: Path) -> None:
 def test_catalogue_names_and_use_wordings_copy_no_bundled_task() -> None:
     from llmnav.buildings.catalogue import ITEMS, USES
     from llmnav.buildings.kinds import ROOM_TYPES
-    from llmnav.scenario import list_scenarios
+    from llmnav.world.scenario import list_scenarios
 
     def norm(text: str) -> str:
         return " ".join(text.lower().strip(" ?!.").split())

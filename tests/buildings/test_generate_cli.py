@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 
 from llmnav.buildings.generate import Request, generate
 from llmnav.cli import app
-from llmnav.scenario import load_scenario
+from llmnav.world.scenario import load_scenario
 
 
 def generate_text(kind: str, seed: int) -> str:

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from llmnav.chat import ChatRequest, ChatResult, Message
+from llmnav.core.chat import ChatRequest, ChatResult, Message
 from llmnav.guard.ask import MAX_VALUE_CHARS, CallContext, ask_guarded
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import response_schema
@@ -115,7 +115,7 @@ def test_a_value_too_long_to_log_is_left_in_the_reply() -> None:
 
 
 def test_a_secret_in_the_accepted_value_is_redacted_in_the_run_log(tmp_path: Path) -> None:
-    from llmnav.runlog import RunLog, read_run
+    from llmnav.runs.runlog import RunLog, read_run
 
     key = "sk-test-0123456789"
     with RunLog(tmp_path / "run", {"planner": "stepwise"}, secrets=[key]) as log:

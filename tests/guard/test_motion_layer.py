@@ -8,10 +8,10 @@ from typing import Any
 
 import pytest
 
-from llmnav.geometry import Pose2D
+from llmnav.core.geometry import Pose2D
 from llmnav.guard.view import PlannerWorld
-from llmnav.scenario import parse_scenario
 from llmnav.sim.world import World
+from llmnav.world.scenario import parse_scenario
 
 WALL_FACE = 2.9  # [m] x of the east wall's west face
 

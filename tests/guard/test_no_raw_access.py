@@ -13,7 +13,7 @@ from pydantic import BaseModel
 
 from llmnav.guard.motion import GuardedMotion
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, planner_class, planner_names
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 from llmnav.sim.motion import Motion
 from llmnav.sim.robot import Robot
 from llmnav.sim.sensors import Camera, Detector, Lidar

@@ -19,7 +19,7 @@ from llmnav.cli import app
 from llmnav.errors import BadInputError
 from llmnav.gym import FactoryEnv, RunLog, SafetyVeto, TextObservation, VelocityEnv
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 
@@ -213,7 +213,7 @@ def test_runlog_closes_an_unfinished_episode_as_aborted(tmp_path: Path) -> None:
 
 
 def test_text_observation_is_the_planners_text() -> None:
-    from llmnav.perception import lidar_text
+    from llmnav.sensing.perception import lidar_text
 
     env = TextObservation(FactoryEnv(task_id="T1", start_pose=1))
     text, _ = env.reset(seed=0)

@@ -9,8 +9,8 @@ import pytest
 from scipy.sparse import lil_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from llmnav.core.geometry import path_length
 from llmnav.errors import BadInputError
-from llmnav.geometry import path_length
 from llmnav.mapping.astar import astar, densify, line_of_sight, octile_distance, shortcut
 
 

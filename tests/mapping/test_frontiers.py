@@ -6,7 +6,7 @@ import numpy as np
 
 from llmnav.mapping.frontiers import frontier_clusters, goal_cells, sensed_grid
 from llmnav.mapping.grid import GridGeometry, LidarMap
-from llmnav.scenario import Bounds
+from llmnav.world.scenario import Bounds
 
 
 def lidar_map(rows: int = 20, cols: int = 20) -> LidarMap:

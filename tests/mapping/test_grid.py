@@ -8,10 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from llmnav.geometry import Pose2D
+from llmnav.core.geometry import Pose2D
+from llmnav.core.robot_specs import BURGER, PR2
 from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate
-from llmnav.robot_specs import BURGER, PR2
-from llmnav.scenario import parse_scenario
+from llmnav.world.scenario import parse_scenario
 
 
 def small_scenario(robot: str = "burger") -> object:

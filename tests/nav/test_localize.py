@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 import yaml
 
-from llmnav.geometry import Pose2D
+from llmnav.core.geometry import Pose2D
 from llmnav.mapping.astar import densify
 from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid
 from llmnav.mapping.paths import plan_path
-from llmnav.metrics import pose_error
 from llmnav.nav.localize import Localizer, compose, inverse
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import Bounds, OdometryConfig, load_scenario, resolve_scenario_path
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.scoring.metrics import pose_error
 from llmnav.sim.sensors import LidarScan
 from llmnav.sim.world import World
+from llmnav.world.scenario import Bounds, OdometryConfig, load_scenario, resolve_scenario_path
 
 # Odometry far worse than the factory's own (wheel radii 1 %, track width 3 %, a random walk twice as
 # strong): after the drive below the raw odometry is metres off. Seeds fixed, so the drive repeats exactly.

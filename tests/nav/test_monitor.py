@@ -9,12 +9,12 @@ from typing import Any
 import numpy as np
 import pytest
 
+from llmnav.core.geometry import Pose2D
 from llmnav.errors import SensorFailure
-from llmnav.geometry import Pose2D
 from llmnav.guard.legs import drive_leg
 from llmnav.guard.view import PlannerWorld
-from llmnav.scenario import load_scenario, parse_scenario
 from llmnav.sim.world import World
+from llmnav.world.scenario import load_scenario, parse_scenario
 
 
 class Log:
@@ -246,7 +246,7 @@ def test_the_obstacle_flag_takes_a_time_and_refuses_a_bad_one(tmp_path) -> None:
 
 
 def test_a_sensor_outage_is_its_own_failure_cause() -> None:
-    from llmnav.failures import failure_cause
+    from llmnav.scoring.failures import failure_cause
 
     summary = {"success": False, "outcome": "aborted", "reason": "the low scanner failed", "collisions": 0}
     assert failure_cause({**summary, "planner_metrics": {"failure": "sensor"}}) == "outage"

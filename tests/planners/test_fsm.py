@@ -11,11 +11,11 @@ from typing import Any
 import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
-from llmnav.chat import ChatRequest, ChatResult
+from llmnav.core.chat import ChatRequest, ChatResult
 from llmnav.planners.base import drive_options
 from llmnav.planners.fsm import FsmConfig
-from llmnav.runlog import RunRecord, read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import RunRecord, read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 CFG = FsmConfig()
 
@@ -170,8 +170,8 @@ def test_realtime_runs_an_in_process_model_in_a_process_of_its_own(tmp_path, mon
     child process and no other Python thread of the loop's process runs (none can hold the GIL); its calls
     are logged as `call_model` logs them. (`policy:first`, flagged as an in-process engine, stands in.)"""
     from llmnav.backends.base import get_backend
-    from llmnav.observe import llm_call_fields
     from llmnav.planners import fsm
+    from llmnav.planners.observe import llm_call_fields
 
     backend = get_backend("policy:first")
     monkeypatch.setattr(backend, "engine_in_process", True, raising=False)
@@ -237,9 +237,9 @@ def test_summary_metrics_are_the_recorded_ones(mixed_run):
 
 def test_eta_is_at_most_one_on_a_run_that_stopped_short(mixed_run):
     """eta = L_opt / L_real <= 1 by definition: L_opt joins the same start and stop points as the driven path."""
-    from llmnav.geometry import path_length
+    from llmnav.core.geometry import path_length
     from llmnav.mapping.paths import shortest_path_length
-    from llmnav.scenario import load_scenario
+    from llmnav.world.scenario import load_scenario
 
     summary, record = mixed_run
     metrics = summary["planner_metrics"]

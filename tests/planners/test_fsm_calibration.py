@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 PUBLISHED_E_POS = 0.246  # [m]
 PUBLISHED_E_POS_SD = 0.078  # [m]

@@ -11,14 +11,14 @@ import pytest
 
 from llmnav.backends.policy import PolicyBackend
 from llmnav.backends.replay import ReplayBackend
-from llmnav.geometry import Pose2D
+from llmnav.core.geometry import Pose2D
 from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.fsm import FsmConfig, FsmPlanner, check_suggestion, state_message
 from llmnav.planners.fsm.assist import answer_schema, suggestion_request, system_prompt
-from llmnav.planners.fsm_oracle import FsmAnswerKey, sign_stop_point
-from llmnav.runlog import RunRecord, read_run
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.planners.fsm.oracle import FsmAnswerKey, sign_stop_point
+from llmnav.runs.runlog import RunRecord, read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import load_scenario
 
 CFG = FsmConfig()
 MAZE = load_scenario("maze_arena")

@@ -15,14 +15,14 @@ import pytest
 
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.backends.replay import ReplayBackend, write_script
+from llmnav.core.resources import resource_dir
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.planners.base import drive_options
 from llmnav.planners.hybrid import HybridConfig
 from llmnav.planners.hybrid.answers import hybrid_choice_model
-from llmnav.resources import resource_dir
-from llmnav.runlog import RunRecord, read_run
-from llmnav.runner import EpisodeSpec, exit_code, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import RunRecord, read_run
+from llmnav.runs.runner import EpisodeSpec, exit_code, run_episode
+from llmnav.world.scenario import load_scenario
 
 
 def choice(option: int, reasoning: str = "scripted") -> str:

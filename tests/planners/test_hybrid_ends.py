@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from llmnav.planners.base import drive_options
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 PEN = Path(__file__).parent / "data" / "pen.yaml"
 

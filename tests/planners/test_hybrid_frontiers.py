@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 
 from llmnav.backends.policy import PolicyBackend
-from llmnav.chat import ScoreRequest, ScoreResult
-from llmnav.geometry import Pose2D
+from llmnav.core.chat import ScoreRequest, ScoreResult
+from llmnav.core.geometry import Pose2D
 from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.hybrid.memory import Memory
 from llmnav.planners.hybrid.menu import landmarks_near
@@ -23,9 +23,9 @@ from llmnav.planners.hybrid.scoring import (
     ScoredChooser,
     frontier_value,
 )
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import load_scenario
 
 TASK = "Find the pillow"
 
@@ -105,7 +105,7 @@ def test_a_room_is_named_only_when_the_landmarks_make_it_likelier() -> None:
 
     class Rooms:
         def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
-            from llmnav.chat import ContinuationScore
+            from llmnav.core.chat import ContinuationScore
 
             free = "N/A" in request.prefix
             values = [-5.0 if free else scored.get(c.strip(), -5.0) for c in request.continuations]
@@ -178,6 +178,24 @@ def test_frontier_scores_are_logged_and_a_strict_replay_repeats_them(tmp_path: P
         return [{k: v for k, v in e.items() if k != "t_wall"} for e in read_run(run).of_type("decision")]
 
     assert decisions(tmp_path / "again") == decisions(tmp_path / "live")
+
+
+def test_the_viewer_draws_each_decisions_frontier_values_on_the_map(tmp_path: Path) -> None:
+    import re
+
+    from llmnav.view.api import write_view
+
+    _drive(tmp_path, "live", "policy:oracle")
+    rows = [row for d in read_run(tmp_path / "live").of_type("decision") for row in d.get("frontiers", [])]
+    page = write_view(tmp_path / "live").page.read_text(encoding="utf-8")
+    marks = re.findall(
+        r'<g class="frontier( chosen)?"><circle[^>]*><title>([^<]*)</title></circle><text[^>]*>([^<]*)</text>', page
+    )
+    assert len(marks) == len([r for r in rows if "at" in r]) > 0
+    scored = [r for r in rows if "value" in r]
+    labels = {label for _, _, label in marks}
+    assert scored and all(f"{r['value']:+.1f}" in labels for r in scored)
+    assert any(chosen for chosen, _, _ in marks)
 
 
 def test_a_backend_that_cannot_score_explores_by_utility_and_says_so(tmp_path: Path) -> None:

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from llmnav.runlog import read_run
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import read_run
+from llmnav.world.scenario import load_scenario
 
 
 # Measured: 28-40 s on a quiet machine (model load ~1 s + two decisions of 12-18 s), 76 s at load average 5.

@@ -5,17 +5,17 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from llmnav.chat import ChatRequest, Message, ScoreRequest
-from llmnav.geometry import Pose2D
+from llmnav.core.chat import ChatRequest, Message, ScoreRequest
+from llmnav.core.geometry import Pose2D
 from llmnav.guard.parse import parse_answer
 from llmnav.guard.schemas import response_schema
 from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.hybrid.answers import hybrid_choice_model
 from llmnav.planners.hybrid.oracle import HybridAnswerKey
 from llmnav.planners.hybrid.scoring import INTENT_PROMPT
-from llmnav.relevance import TARGET_PROMPT
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.sensing.relevance import TARGET_PROMPT
+from llmnav.world.scenario import load_scenario
 
 ORIGIN = Pose2D(0.0, 0.0, 0.0)
 

@@ -10,8 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.backends.replay import write_script
-from llmnav.chat import ContinuationScore, ScoreRequest, ScoreResult
 from llmnav.cli import app
+from llmnav.core.chat import ContinuationScore, ScoreRequest, ScoreResult
 from llmnav.planners.base import drive_options
 from llmnav.planners.hybrid.scoring import (
     CONTENT_FREE_TASK,
@@ -19,8 +19,8 @@ from llmnav.planners.hybrid.scoring import (
     ScoredChooser,
     ScoringConfig,
 )
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 
 class FakeContext:

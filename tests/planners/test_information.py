@@ -10,11 +10,11 @@ from typing import Any
 import pytest
 
 from llmnav.errors import BadInputError
-from llmnav.knowledge import planner_modes, resolve_information, scenario_view
 from llmnav.planners.base import EpisodeContext, drive_options
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.knowledge import planner_modes, resolve_information, scenario_view
+from llmnav.world.scenario import load_scenario
 
 from .test_hybrid import MenuReader, first
 
@@ -45,7 +45,7 @@ class Spy:
 @pytest.fixture
 def spied(monkeypatch: pytest.MonkeyPatch) -> tuple[list[tuple[str, str, str]], list[EpisodeContext]]:
     """Every context the runner builds gets a spying world; returns (reads, contexts)."""
-    import llmnav.runner as runner
+    import llmnav.runs.runner as runner
 
     reads: list[tuple[str, str, str]] = []
     contexts: list[EpisodeContext] = []

@@ -13,8 +13,8 @@ from typer.testing import CliRunner
 from llmnav.backends.replay import write_script
 from llmnav.cli import app
 from llmnav.commands import common
-from llmnav.resources import resource_dir
-from llmnav.runlog import read_run
+from llmnav.core.resources import resource_dir
+from llmnav.runs.runlog import read_run
 
 runner = CliRunner()
 BAD = [(3.0, 1.7), (3.2, 1.4), (6.5, 0.5)]  # outside the margin, too close, off target
@@ -190,7 +190,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str], messa
                                                            ("corridor_c", "Go to room 107", "R107")])  # fmt: skip
 def test_plan_with_oracle_answers(tmp_path: Path, scenario: str, task: str, target: str) -> None:
     """`policy:oracle` answers `plan` from the true map: a valid plan on the first attempt, ending on the target."""
-    from llmnav.scenario import load_scenario
+    from llmnav.world.scenario import load_scenario
 
     res = runner.invoke(app, ["plan", "--task", task, "--scenario", scenario, "--backend", "policy:oracle",
                               "--plot", str(tmp_path / "p.png"), "--json"])  # fmt: skip

@@ -12,8 +12,8 @@ import threading
 
 import pytest
 
-from llmnav import realtime
-from llmnav.realtime import realtime_priority
+from llmnav.core import realtime
+from llmnav.core.realtime import realtime_priority
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="POSIX real-time scheduling (Linux)")
 
@@ -85,7 +85,7 @@ def test_a_lidar_scan_starts_no_helper_thread() -> None:
     """The loop would wait for a helper at ordinary priority (Bullet's ray threads did: 10-17 ms under load)."""
     code = (
         "import os\n"
-        "from llmnav.scenario import load_scenario\n"
+        "from llmnav.world.scenario import load_scenario\n"
         "from llmnav.sim.world import World\n"
         "world = World(load_scenario('maze_arena'), seed=0)\n"
         "before = len(os.listdir('/proc/self/task'))\n"

@@ -18,12 +18,12 @@ import pytest
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import response_schema
-from llmnav.metrics import summarize_run
 from llmnav.planners.base import drive_options
 from llmnav.planners.stepwise.answers import ActionBounds, StepAction, step_answer
-from llmnav.runlog import RunRecord, read_run
-from llmnav.runner import EpisodeSpec, exit_code, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import RunRecord, read_run
+from llmnav.runs.runner import EpisodeSpec, exit_code, run_episode
+from llmnav.scoring.metrics import summarize_run
+from llmnav.world.scenario import load_scenario
 
 SMALL = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 TASK = "Go to the red box"
@@ -200,7 +200,7 @@ import sys, time
 from pathlib import Path
 from llmnav.backends.base import Backend, ChatResult
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 class Slow(Backend):
     name = "slow"

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from llmnav.planners.base import drive_options
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 

@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from llmnav.backends.policy import PolicyBackend
-from llmnav.chat import ChatRequest, Message
+from llmnav.core.chat import ChatRequest, Message
 from llmnav.errors import ModelError
 from llmnav.planners.base import Planner, drive_options, planner_class
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 SMALL_IMAGE = {"image_width": 160, "image_height": 120}
 

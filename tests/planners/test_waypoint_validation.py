@@ -6,12 +6,12 @@ import math
 
 import pytest
 
-from llmnav.geometry import Pose2D
+from llmnav.core.geometry import Pose2D
 from llmnav.guard.parse import parse_answer
 from llmnav.mapping.grid import build_grid
 from llmnav.planners.waypoints import PlanRules, map_to_odom, validate_waypoints
 from llmnav.planners.waypoints.answers import WaypointList
-from llmnav.scenario import parse_scenario
+from llmnav.world.scenario import parse_scenario
 
 # An L-shaped pair of corridors: main along x (y in [-2, 2]), side along y (x in [8, 12]).
 L_WORLD = {

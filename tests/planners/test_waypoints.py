@@ -15,11 +15,11 @@ from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import response_schema
 from llmnav.planners.base import drive_options
+from llmnav.planners.prompting import render
 from llmnav.planners.waypoints.answers import WaypointList, target_choice_model
-from llmnav.prompting import render
-from llmnav.runlog import RunRecord, read_run
-from llmnav.runner import EpisodeSpec, exit_code, run_episode
-from llmnav.tasks import SEQUENCE_JOIN
+from llmnav.runs.runlog import RunRecord, read_run
+from llmnav.runs.runner import EpisodeSpec, exit_code, run_episode
+from llmnav.world.tasks import SEQUENCE_JOIN
 
 ROOM_105 = (6.5, 1.1)  # [m] goal point of room 105 in corridor_a
 BOX = 0.5  # [m] side of a box dropped with --obstacle

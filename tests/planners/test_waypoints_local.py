@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from llmnav.mapping.grid import build_grid
 from llmnav.planners.waypoints import validate_waypoints
-from llmnav.scenario import load_scenario
+from llmnav.world.scenario import load_scenario
 
 
 # Not marked slow: measured 15-22 s on 2 cores at load average 5 (model load + one generation: at temperature 0

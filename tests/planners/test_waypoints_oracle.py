@@ -10,17 +10,17 @@ from pathlib import Path
 
 import pytest
 
-from llmnav.chat import ChatRequest, ChatResult, Message, ScoreRequest
-from llmnav.geometry import Pose2D
+from llmnav.core.chat import ChatRequest, ChatResult, Message, ScoreRequest
+from llmnav.core.geometry import Pose2D
 from llmnav.guard.schemas import response_schema
 from llmnav.mapping.grid import build_grid
 from llmnav.planners.base import GroundTruth, drive_options
 from llmnav.planners.waypoints import WaypointPlanner, generate_plan
 from llmnav.planners.waypoints.answers import target_choice_model
 from llmnav.planners.waypoints.oracle import OTHER_LOGPROB, WaypointAnswerKey
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import Scenario, Task, load_scenario
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import Scenario, Task, load_scenario
 
 # (scenario, task) -> the oracle's plan from the task's first start pose: straight within a corridor,
 # through the junction point (7, 0) of corridor_b or (-6.5, -3) / (6.5, -3) of corridor_c otherwise.

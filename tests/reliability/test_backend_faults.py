@@ -27,9 +27,9 @@ from typer.testing import CliRunner
 
 import llmnav.backends.base as backends_base
 from llmnav.cli import app
-from llmnav.metrics import summarize_run
-from llmnav.runlog import read_run
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import read_run
+from llmnav.scoring.metrics import summarize_run
+from llmnav.world.scenario import load_scenario
 
 CATEGORY = "backend faults"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")

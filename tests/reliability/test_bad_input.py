@@ -19,7 +19,7 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.runlog import RunLog
+from llmnav.runs.runlog import RunLog
 
 CATEGORY = "bad input"
 SMALL_ROOM = Path(__file__).parents[1] / "runner" / "small_room.yaml"

@@ -23,10 +23,10 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.metrics import summarize_run
 from llmnav.planners.stepwise.answers import step_answer
-from llmnav.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, RunLog, read_run
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, RunLog, read_run
+from llmnav.scoring.metrics import summarize_run
+from llmnav.world.scenario import load_scenario
 
 CATEGORY = "crash safety"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")

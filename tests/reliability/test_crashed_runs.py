@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from llmnav.baselines.oracle import OraclePlanner
 from llmnav.cli import app
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 CATEGORY = "crashed runs"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")

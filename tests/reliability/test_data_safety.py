@@ -25,7 +25,7 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from llmnav.locking import LOCK_FILE
+from llmnav.runs.locking import LOCK_FILE
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "score"))
 from score_fakes import CountingRunner, config_for, fake_episode, write_run, write_scenario_file  # noqa: E402
@@ -33,7 +33,7 @@ from score_fakes import CountingRunner, config_for, fake_episode, write_run, wri
 from llmnav import ablate as lib  # noqa: E402
 from llmnav.cli import app  # noqa: E402
 from llmnav.errors import BadInputError, FolderLockedError  # noqa: E402
-from llmnav.runlog import MAX_TEXT_CHARS, RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, RunLog, read_run  # noqa: E402
+from llmnav.runs.runlog import MAX_TEXT_CHARS, RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE, RunLog, read_run  # noqa: E402
 
 CATEGORY = "data safety"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
@@ -151,7 +151,7 @@ def test_run_folder_has_one_writer(tmp_path: Path, tally: Any) -> None:
 
 def test_run_log_create_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, tally: Any) -> None:
     """run.jsonl appearing between the check and the create (another writer) is never overwritten."""
-    import llmnav.runlog as runlog
+    import llmnav.runs.runlog as runlog
 
     folder = tmp_path / "run"
     folder.mkdir()
@@ -398,8 +398,8 @@ def aborting_runner(failure: str | None, ran: list[str]) -> Any:
     """A runner whose episodes all end "aborted", marked as the runner marks them (or not at all)."""
     from score_fakes import tiny_scenario
 
-    from llmnav.metrics import summarize_run
-    from llmnav.runlog import write_json_atomic
+    from llmnav.runs.runlog import write_json_atomic
+    from llmnav.scoring.metrics import summarize_run
 
     def run(spec: Any) -> dict[str, Any]:
         ran.append(Path(spec.out_dir).name)

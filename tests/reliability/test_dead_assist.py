@@ -19,10 +19,10 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.backends.openai import OpenAIBackend
-from llmnav.chat import ChatRequest, Message
 from llmnav.cli import app
+from llmnav.core.chat import ChatRequest, Message
 from llmnav.planners.fsm.workers import ThreadWorker
-from llmnav.runlog import read_run
+from llmnav.runs.runlog import read_run
 
 CATEGORY = "dead assist"
 
@@ -113,3 +113,18 @@ def test_what_the_thread_meets_after_close_is_not_printed(thread_crashes: list[s
     quiet = not thread_crashes and worker.died is None and worker.poll() is None
     tally.add(CATEGORY, failures=int(not quiet), crashes=len(thread_crashes))
     assert quiet, (thread_crashes, worker.died)
+
+
+def test_a_dead_model_process_is_reported_as_the_workers_death(tally: Any) -> None:
+    """With an in-process engine the model runs in a process of its own; once it is gone, `died` says why."""
+    from llmnav.planners.fsm.workers import ProcessWorker
+
+    tally.add(CATEGORY, tried=1)
+
+    class Gone:
+        dead = "the model process ended (killed by signal 9)"
+
+    worker = ProcessWorker(Gone(), lambda *_: None)
+    named = worker.died == Gone.dead
+    tally.add(CATEGORY, failures=int(not named))
+    assert named, worker.died

@@ -31,8 +31,8 @@ import pytest
 import llmnav
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
 from llmnav.planners.base import drive_options
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 CATEGORY = "fsm deadline"
 P99_LIMIT_MS = 0.5  # [ms]

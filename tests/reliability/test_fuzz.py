@@ -24,15 +24,15 @@ import numpy as np
 import pytest
 
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
+from llmnav.core.robot_specs import PR2
 from llmnav.guard.parse import parse_answer
 from llmnav.guard.veto import check_motion
-from llmnav.metrics import summarize_run
 from llmnav.planners.base import drive_options
 from llmnav.planners.stepwise.answers import ActionBounds, ActionCommand, StepAction, step_answer
-from llmnav.robot_specs import PR2
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.scoring.metrics import summarize_run
+from llmnav.world.scenario import load_scenario
 
 CATEGORY = "fuzz: stepwise"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")

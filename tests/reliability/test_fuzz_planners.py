@@ -22,7 +22,8 @@ from typing import Any, ClassVar
 import pytest
 
 from llmnav.backends.base import Backend, ChatRequest, ChatResult
-from llmnav.geometry import Pose2D
+from llmnav.core.geometry import Pose2D
+from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.guard.parse import parse_answer
 from llmnav.guard.view import PlannerWorld
 from llmnav.mapping.grid import build_grid
@@ -32,11 +33,10 @@ from llmnav.planners.fsm.answers import VelocitySuggestion
 from llmnav.planners.hybrid.answers import hybrid_choice_model
 from llmnav.planners.waypoints import PlanRules
 from llmnav.planners.waypoints.answers import WaypointList
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import Scenario, load_scenario, parse_scenario
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 from llmnav.sim.world import World
+from llmnav.world.scenario import Scenario, load_scenario, parse_scenario
 
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 PENETRATION_M = 0.01  # [m] overlap tolerated between the footprint and a shape (contact solver slop)

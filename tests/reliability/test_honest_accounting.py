@@ -89,6 +89,19 @@ def test_a_url_without_host_is_bad_input_and_writes_nothing(url: str, tmp_path: 
     assert not sweep.exists()
 
 
+@pytest.mark.parametrize("url", ["http://", "https:///"])
+def test_backends_check_of_a_url_without_host_is_bad_input(
+    url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, tally: Any
+) -> None:
+    """`backends --check openai:m@http://` printed a failed check and exited 1, as if a server were down."""
+    tally.add(CATEGORY, tried=1)
+    monkeypatch.chdir(tmp_path)
+    result = _cli("backends", "--check", f"openai:m@{url}")
+    ok = result.exit_code == EXIT_BAD_INPUT and "no host" in result.output and not any(tmp_path.iterdir())
+    tally.add(CATEGORY, failures=int(not ok))
+    assert ok, (result.exit_code, result.output)
+
+
 @pytest.mark.parametrize("decide", ["score", "auto"])
 def test_a_tokenize_failure_is_a_server_failure(decide: str, tmp_path: Path, server: Any, tally: Any) -> None:
     """One HTTP 500 from /tokenize: `--decide score` exited 2 (bad input), `--decide auto` went on generating

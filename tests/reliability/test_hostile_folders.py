@@ -20,12 +20,12 @@ from typer.testing import CliRunner
 sys.path.insert(0, str(Path(__file__).parents[1] / "score"))
 from score_fakes import config_for, write_scenario_file  # noqa: E402
 
-from llmnav.chat import Image  # noqa: E402
 from llmnav.cli import app  # noqa: E402
+from llmnav.core.chat import Image  # noqa: E402
+from llmnav.core.safefiles import IMAGE_LIMIT  # noqa: E402
 from llmnav.errors import BadInputError  # noqa: E402
-from llmnav.locking import LOCK_FILE, FolderLock  # noqa: E402
-from llmnav.runlog import IMAGES_DIR, RUN_FILE, SUMMARY_FILE, RunLog, read_run  # noqa: E402
-from llmnav.safefiles import IMAGE_LIMIT  # noqa: E402
+from llmnav.runs.locking import LOCK_FILE, FolderLock  # noqa: E402
+from llmnav.runs.runlog import IMAGES_DIR, RUN_FILE, SUMMARY_FILE, RunLog, read_run  # noqa: E402
 
 CATEGORY = "hostile folders"
 LLMNAV = str(Path(sys.executable).parent / "llmnav")

@@ -18,8 +18,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from llmnav import plugins
 from llmnav.cli import app
+from llmnav.core import plugins
 
 CATEGORY = "hostile plugins"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")

@@ -19,7 +19,7 @@ from llmnav.backends.base import ChatRequest, Message, ScoreRequest, get_backend
 from llmnav.backends.replay import ReplayBackend
 from llmnav.cli import app
 from llmnav.errors import BadInputError, ModelError
-from llmnav.runlog import RunLog
+from llmnav.runs.runlog import RunLog
 
 CATEGORY = "hostile replies"
 SMALL_ROOM = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")

@@ -27,7 +27,7 @@ from llmnav import ablate as lib  # noqa: E402
 from llmnav.backends.http import HttpOptions, JsonHttpClient  # noqa: E402
 from llmnav.cli import app  # noqa: E402
 from llmnav.errors import BadInputError, ModelError  # noqa: E402
-from llmnav.runlog import RUN_FILE  # noqa: E402
+from llmnav.runs.runlog import RUN_FILE  # noqa: E402
 
 CATEGORY = "hostile sizes"
 DEEP = "[" * 200_000

@@ -15,8 +15,8 @@ from typing import Any, ClassVar
 import pybullet
 import pytest
 
-from llmnav import plugins
 from llmnav.baselines.oracle import OraclePlanner
+from llmnav.core import plugins
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome
 from llmnav.testing import check_planner
 

@@ -6,18 +6,23 @@ character). A decomposed label scores as its composed form (NFC). Counted as cat
 
 from __future__ import annotations
 
+import json
 import math
 import unicodedata
+from pathlib import Path
 from typing import Any
 
 import pytest
+from typer.testing import CliRunner
 
 from llmnav.backends.forced import continuation_tokens, forced_request, score_continuation
 from llmnav.backends.local import LocalBackend
-from llmnav.chat import ScoreRequest
+from llmnav.cli import app
+from llmnav.core.chat import ScoreRequest
 from llmnav.errors import ModelError
 
 CATEGORY = "scoring scripts"
+SMALL_ROOM = Path(__file__).parents[1] / "runner" / "small_room.yaml"
 PREFIX = "Task: find it\nThe robot drives to the"
 LABELS = (" 箱子", " 消火器", " صندوق", " 🔥", " cafe\u0301", " café", " box")
 
@@ -70,3 +75,20 @@ def test_a_server_that_reports_other_tokens_is_still_a_model_error(tally: Any) -
         with pytest.raises(ModelError, match="returned tokens|no log-probability|no token"):
             score_continuation("p", " x", lambda text: tokens.get(text, [3]), complete)
     assert forced_request([1], [2], 5)["logprobs"] == 5
+
+
+def test_a_scenario_in_chinese_runs_the_default_planner_with_scores(tmp_path: Path, tally: Any) -> None:
+    """The default planner (hybrid, `--decide auto`) on the local model, every label and the task in Chinese."""
+    tally.add(CATEGORY, tried=1)
+    text = SMALL_ROOM.read_text(encoding="utf-8")
+    text = text.replace("label: red box, aliases: [box]", "label: 红色箱子, aliases: [箱子]")
+    scenario = tmp_path / "small_room_zh.yaml"
+    scenario.write_text(text.replace("text: Go to the red box", "text: 去红色箱子"), encoding="utf-8")
+    out = tmp_path / "run"
+    args = ["drive", "--scenario", str(scenario), "--task-id", "T1", "--backend", "local", "-o", "max_iterations=2",
+            "--sensing", "lidar", "--out", str(out), "--quiet"]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    summary = json.loads((out / "summary.json").read_text())
+    scored = summary["outcome"] != "aborted" and summary["planner_metrics"].get("decide") == "score"
+    tally.add(CATEGORY, failures=int(not scored))
+    assert scored and result.exit_code in (0, 1), (summary["outcome"], summary["reason"], result.output)

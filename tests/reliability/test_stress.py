@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import load_scenario
 
 STRESS = Path(__file__).parents[1] / "nav" / "stress_flat.yaml"
 CATEGORY = "stress: collisions"

@@ -25,8 +25,8 @@ from typer.testing import CliRunner
 
 from llmnav.cli import app
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import load_scenario
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import load_scenario
 
 runner = CliRunner()
 SMALL = Path(__file__).parents[1] / "runner" / "small_room.yaml"

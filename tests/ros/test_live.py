@@ -24,7 +24,7 @@ from mcap_ros2.decoder import DecoderFactory
 from websockets.sync.client import connect
 
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 WANTED = {"/scan": 3, "/odom": 3}  # messages of each topic the client waits for

@@ -21,8 +21,8 @@ from typer.testing import CliRunner
 from llmnav.cli import app
 from llmnav.planners.base import drive_options
 from llmnav.ros.mapimport import merge_rectangles
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.scenario import Scenario, load_scenario
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.world.scenario import Scenario, load_scenario
 
 runner = CliRunner()
 MAPS = Path(__file__).parents[1] / "data" / "maps"

@@ -9,7 +9,7 @@ from rich.console import Console
 
 from llmnav.planners.base import StepInfo, drive_options
 from llmnav.reporting.live import LiveView, ProgressView, print_result
-from llmnav.runner import EpisodeSpec
+from llmnav.runs.runner import EpisodeSpec
 
 
 def _console() -> Console:

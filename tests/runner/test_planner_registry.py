@@ -23,8 +23,8 @@ from llmnav.planners.base import (
     planner_names,
     planner_options,
 )
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).parent / "small_room.yaml")
 BUILT_IN = {"stepwise", "waypoints", "fsm", "hybrid", "oracle", "frontier"}
@@ -134,7 +134,7 @@ def test_planner_figures_follow_the_plots_setting(tmp_path: Path) -> None:
 
 def test_no_module_above_the_planners_names_one() -> None:
     # The runner used to special-case the FSM by name; hooks replaced that.
-    runner_source = (Path(__file__).parents[2] / "llmnav" / "runner.py").read_text()
+    runner_source = (Path(__file__).parents[2] / "llmnav" / "runs" / "runner.py").read_text()
     assert '"fsm"' not in runner_source and "'fsm'" not in runner_source
 
 

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from llmnav.cli import app
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).with_name("small_room.yaml"))
 

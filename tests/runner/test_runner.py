@@ -13,8 +13,8 @@ import llmnav.planners.base as planners_base
 from llmnav.cli import app
 from llmnav.errors import ModelError
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, drive_options
-from llmnav.runlog import read_run
-from llmnav.runner import EpisodeSpec, exit_code, run_episode
+from llmnav.runs.runlog import read_run
+from llmnav.runs.runner import EpisodeSpec, exit_code, run_episode
 
 SMALL = str(Path(__file__).with_name("small_room.yaml"))
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from llmnav.errors import BadInputError
-from llmnav.scenario import load_scenario
-from llmnav.tasks import (
+from llmnav.world.scenario import load_scenario
+from llmnav.world.tasks import (
     SEQUENCE_ID,
     adhoc_task,
     default_scenario,

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.scenario import Scenario, list_scenarios, load_scenario
+from llmnav.core.robot_specs import ROBOT_SPECS
+from llmnav.world.scenario import Scenario, list_scenarios, load_scenario
 
 BUNDLED = ["corridor_a", "corridor_b", "corridor_c", "factory", "maze_arena"]
 

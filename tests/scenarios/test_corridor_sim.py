@@ -7,9 +7,9 @@ import math
 
 import pytest
 
-from llmnav.geometry import Pose2D
-from llmnav.scenario import load_scenario
+from llmnav.core.geometry import Pose2D
 from llmnav.sim.world import World
+from llmnav.world.scenario import load_scenario
 
 
 @pytest.mark.parametrize("name", ["corridor_a", "corridor_b", "corridor_c"])

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from llmnav.scenario import Scenario, Shape, Task, load_scenario
+from llmnav.world.scenario import Scenario, Shape, Task, load_scenario
 
 HALF_FOV_DEG = 45.0  # [deg] wider than the camera's 37.6 deg, for margin
 RAYS = 361

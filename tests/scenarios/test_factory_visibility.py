@@ -11,9 +11,9 @@ from collections.abc import Iterator
 
 import pytest
 
-from llmnav.geometry import Pose2D
-from llmnav.scenario import DetectorConfig, Scenario, Task, load_scenario
+from llmnav.core.geometry import Pose2D
 from llmnav.sim.world import World
+from llmnav.world.scenario import DetectorConfig, Scenario, Task, load_scenario
 
 # A point target cannot be detected; the objects that define it stand in for it.
 LANDMARKS = {"T4": {"S", "OB1", "OB2", "OB3"}}

@@ -7,10 +7,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from llmnav.geometry import Pose2D
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.scenario import LabelledObject, Scenario, load_scenario
+from llmnav.core.geometry import Pose2D
+from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.sim.world import World
+from llmnav.world.scenario import LabelledObject, Scenario, load_scenario
 
 ACT_DISTANCE = 0.5  # [m] where the idealised follower stops in front of a wall and obeys its sign
 

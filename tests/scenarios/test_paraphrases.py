@@ -10,8 +10,8 @@ import pytest
 
 from llmnav.ablate import GridSpec, expand
 from llmnav.errors import BadInputError
-from llmnav.scenario import list_scenarios, load_scenario
-from llmnav.tasks import in_wording, resolve_task, task_from_text, task_wordings
+from llmnav.world.scenario import list_scenarios, load_scenario
+from llmnav.world.tasks import in_wording, resolve_task, task_from_text, task_wordings
 
 # The phrases the factory's aliases used to hold: the papers' own task wording.
 TASK_SENTENCES = ("pile of pellets", "pile of dark brown boxes", "red cylindrical fire extinguisher", "red box")

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from llmnav.robot_specs import ROBOT_SPECS
-from llmnav.scenario import Scenario, load_scenario
+from llmnav.core.robot_specs import ROBOT_SPECS
+from llmnav.world.scenario import Scenario, load_scenario
 
 CELL = 0.05  # [m]
 REACH = {"factory": 2.5, "corridor_a": 0.05, "corridor_b": 0.05, "corridor_c": 0.05, "maze_arena": 0.6}

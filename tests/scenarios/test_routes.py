@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 
 from llmnav.errors import ScenarioError
-from llmnav.scenario import SEQUENCE_JOIN, load_scenario, parse_scenario
-from llmnav.tasks import resolve_task, sequence_legs
+from llmnav.world.scenario import SEQUENCE_JOIN, load_scenario, parse_scenario
+from llmnav.world.tasks import resolve_task, sequence_legs
 
 # The bundled routes: (scenario, route id) -> each leg's target object, in order.
 ROUTES = {
@@ -41,7 +41,7 @@ def test_corridor_c_has_the_sources_sp_to_room_107() -> None:
 def _with_route(route: dict[str, Any]) -> dict[str, Any]:
     import yaml
 
-    from llmnav.scenario import resolve_scenario_path
+    from llmnav.world.scenario import resolve_scenario_path
 
     data = yaml.safe_load(resolve_scenario_path("corridor_a").read_text())
     data = copy.deepcopy(data)

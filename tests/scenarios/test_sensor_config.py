@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from llmnav.cli import app
 from llmnav.errors import ScenarioError
-from llmnav.scenario import DetectorConfig, OdometryConfig, parse_scenario
+from llmnav.world.scenario import DetectorConfig, OdometryConfig, parse_scenario
 
 runner = CliRunner()
 

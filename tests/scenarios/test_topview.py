@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from llmnav.reporting.topview import draw_scenario, plot_scenario
-from llmnav.scenario import load_scenario
+from llmnav.world.scenario import load_scenario
 
 
 @pytest.mark.parametrize("name", ["factory", "corridor_c", "maze_arena"])

@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from llmnav.runlog import SUMMARY_FILE, RunLog, read_run, write_json_atomic
-from llmnav.scenario import Scenario, parse_scenario
+from llmnav.runs.runlog import SUMMARY_FILE, RunLog, read_run, write_json_atomic
+from llmnav.world.scenario import Scenario, parse_scenario
 
 SCENARIO_DATA: dict[str, Any] = {
     "name": "tiny",
@@ -153,7 +153,7 @@ def write_run(
         if outcome is not None:
             log.event("end", outcome=outcome, reason="test", metrics=metrics or {})
     if summary and outcome is not None:
-        from llmnav.metrics import summarize_run
+        from llmnav.scoring.metrics import summarize_run
 
         summary_data = summarize_run(read_run(run_dir), scenario or tiny_scenario())
         write_json_atomic(run_dir / SUMMARY_FILE, summary_data)
@@ -165,7 +165,7 @@ def write_run(
 
 def fake_episode(spec: Any) -> dict[str, Any]:
     """A deterministic episode: the final pose depends only on (task, pose, options seed, sectors)."""
-    from llmnav.metrics import summarize_run
+    from llmnav.scoring.metrics import summarize_run
 
     sc = tiny_scenario()
     task_id = spec.task_id or "T1"

@@ -1,4 +1,4 @@
-"""A tiny real ablation through llmnav.runner: the oracle planner (no model), 2 episodes on corridor_a."""
+"""A tiny real ablation through llmnav.runs.runner: the oracle planner (no model), 2 episodes on corridor_a."""
 
 from __future__ import annotations
 

@@ -16,9 +16,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from score_fakes import config_for, tiny_scenario, write_run  # noqa: E402
 
 from llmnav.cli import app  # noqa: E402
-from llmnav.metrics import summarize_run  # noqa: E402
-from llmnav.runlog import RUN_FILE, read_run  # noqa: E402
-from llmnav.runner import exit_code  # noqa: E402
+from llmnav.runs.runlog import RUN_FILE, read_run  # noqa: E402
+from llmnav.runs.runner import exit_code  # noqa: E402
+from llmnav.scoring.metrics import summarize_run  # noqa: E402
 
 AT_TARGET = [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]
 FAR = [[0.0, 0.0, 0.0], [-4.74, 0.0, 0.0]]  # 9.74 m from the target

@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from score_fakes import config_for, write_run  # noqa: E402
 
 from llmnav.cli import app  # noqa: E402
-from llmnav.score_policies import _gap_closed  # noqa: E402
+from llmnav.scoring.policies import _gap_closed  # noqa: E402
 
 HIT, MISS = 4.5, 0.5  # final x: success with score 1; failure 4.5 m away with score 4/9
 ORACLE_T1 = "backend=policy:oracle (oracle answers)"

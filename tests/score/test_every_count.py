@@ -9,8 +9,9 @@ import pytest
 
 from llmnav.planners.fsm.tables import FSM_TABLE
 from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
-from llmnav.score import MISSING, Run, declared_table, episodes_table, path_table
-from llmnav.tasks import resolve_task
+from llmnav.runs.folders import Run
+from llmnav.scoring.score import MISSING, declared_table, episodes_table, path_table
+from llmnav.world.tasks import resolve_task
 
 START = resolve_task("factory", None, "T1", 2).start.pose().as_list()  # the oracle's path starts here
 FACTORY_T1_POSE2 = {"scenario": "factory", "start_pose": START, "start_pose_index": 2}

@@ -22,13 +22,14 @@ from typer.testing import CliRunner
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.cli import app
-from llmnav.declarations import Column, ScoreTable
+from llmnav.core.declarations import Column, ScoreTable
 from llmnav.errors import LlmnavError
-from llmnav.failures import FAILURE_CAUSES, failure_cause
 from llmnav.planners.base import drive_options
 from llmnav.planners.stepwise.answers import step_answer
-from llmnav.runner import EpisodeSpec, run_episode
-from llmnav.score import declared_table, load_runs
+from llmnav.runs.folders import load_runs
+from llmnav.runs.runner import EpisodeSpec, run_episode
+from llmnav.scoring.failures import FAILURE_CAUSES, failure_cause
+from llmnav.scoring.score import declared_table
 
 SMALL = Path(__file__).parents[1] / "runner" / "small_room.yaml"
 PEN = """\
@@ -161,7 +162,7 @@ def test_the_collisions_column_shows_a_run_that_collided(suite: Path) -> None:
 
 def test_collision_is_counted_from_the_end_reason_when_no_action_records_it() -> None:
     # a velocity controller (the FSM) ends on "collided with X" without an `action` event
-    from llmnav.metrics import count_collisions
+    from llmnav.scoring.metrics import count_collisions
 
     assert count_collisions([], {}, "collided with barrel_2") == (1, ["barrel_2"])
     assert count_collisions([{"collided": True, "collision_with": "wall-east"}], {}, "collided with wall-east") == (
@@ -197,8 +198,8 @@ def test_every_end_the_planners_write_maps_to_one_cause(summary: dict[str, Any],
 def test_a_summary_written_before_these_keys_scores_from_its_log(suite: Path, tmp_path: Path) -> None:
     import shutil
 
-    from llmnav.metrics import RESCORED_KEYS
-    from llmnav.score import load_run
+    from llmnav.runs.folders import load_run
+    from llmnav.scoring.metrics import RESCORED_KEYS
 
     new = (*RESCORED_KEYS, "collisions", "collided_with")
     for name in ("collide", "cap"):

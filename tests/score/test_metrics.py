@@ -11,8 +11,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from score_fakes import config_for, tiny_scenario, write_run  # noqa: E402
 
-from llmnav.geometry import Pose2D, path_length  # noqa: E402
-from llmnav.metrics import (  # noqa: E402
+from llmnav.core.geometry import Pose2D, path_length  # noqa: E402
+from llmnav.runs.runlog import read_run  # noqa: E402
+from llmnav.scoring.metrics import (  # noqa: E402
     best_target,
     distance_score,
     heading_score,
@@ -20,7 +21,6 @@ from llmnav.metrics import (  # noqa: E402
     summarize_run,
     total_rotation,
 )
-from llmnav.runlog import read_run  # noqa: E402
 
 
 def test_distance_score_hand_values() -> None:

@@ -1,4 +1,4 @@
-"""The source papers' tables (`llmnav score --table NAME`, `llmnav.score_papers`): each in the layout fixed
+"""The source papers' tables (`llmnav score --table NAME`, `llmnav.scoring.papers`): each in the layout fixed
 below, from run folders written with the real RunLog, and the waypoint legs from a route driven in the
 simulator with oracle answers."""
 
@@ -14,9 +14,10 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.runlog import SUMMARY_FILE, RunLog, read_run, write_json_atomic
-from llmnav.score import load_runs, varying_keys
-from llmnav.score_papers import PAPER_TABLES, table_names
+from llmnav.runs.folders import load_runs
+from llmnav.runs.runlog import SUMMARY_FILE, RunLog, read_run, write_json_atomic
+from llmnav.scoring.papers import PAPER_TABLES, table_names
+from llmnav.scoring.score import varying_keys
 from tests.score.score_fakes import config_for, tiny_scenario, write_run
 
 runner = CliRunner()
@@ -115,7 +116,7 @@ def test_score_by_start_pose(tmp_path: Path) -> None:
 def route_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Route RA of corridor_a (five legs) driven by the waypoint planner with oracle answers."""
     from llmnav.planners.base import drive_options
-    from llmnav.runner import EpisodeSpec, run_episode
+    from llmnav.runs.runner import EpisodeSpec, run_episode
 
     root = tmp_path_factory.mktemp("route")
     spec = EpisodeSpec(scenario="corridor_a", task_id="RA", options=drive_options("waypoints"),
@@ -176,7 +177,8 @@ def test_failed_plans_are_marked_and_left_out_of_the_averages(tmp_path: Path) ->
 def test_waypoint_table_leaves_failed_plans_out_of_execution_and_path() -> None:
     """The per-command table (`--table waypoints`): the same rule, and replans as counts."""
     from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
-    from llmnav.score import Run, declared_table
+    from llmnav.runs.folders import Run
+    from llmnav.scoring.score import declared_table
 
     def run(failed: bool, execution_s: float, path_m: float) -> Run:
         metrics = {"planning_time_s": 1.0, "execution_time_s": execution_s, "wgsr": 100.0, "collision_events": 0,
@@ -212,7 +214,7 @@ def fsm_run(root: Path, name: str, assist: str, e_pos: float, eta: float, loop_m
         metrics = {"assist": assist, "e_pos_m": e_pos, "eta": eta, "tick_latency_ms": {"mean": loop_ms},
                    "model_latency_ms": None, "r_acc": None, "r_use": 0.0}  # fmt: skip
         log.event("end", outcome="completed", reason="stopped at the stop sign", metrics=metrics)
-    from llmnav.metrics import summarize_run
+    from llmnav.scoring.metrics import summarize_run
 
     write_json_atomic(run_dir / SUMMARY_FILE, summarize_run(read_run(run_dir), tiny_scenario()))
 

@@ -16,9 +16,11 @@ sys.path.insert(0, str(Path(__file__).parent))
 from score_fakes import config_for, write_run, write_scenario_file  # noqa: E402
 
 from llmnav.cli import app  # noqa: E402
-from llmnav.runlog import RunLog  # noqa: E402
-from llmnav.score import build_tables, compare_groups, load_runs, select_table  # noqa: E402
-from llmnav.score_runs import spool_rows, write_csv  # noqa: E402
+from llmnav.runs.folders import load_runs  # noqa: E402
+from llmnav.runs.runlog import RunLog  # noqa: E402
+from llmnav.scoring.runs_table import spool_rows, write_csv  # noqa: E402
+from llmnav.scoring.score import compare_groups, select_table
+from llmnav.scoring.tables import build_tables  # noqa: E402
 
 
 def _free_config(text: str, target: dict[str, Any], scenario_file: Path) -> dict[str, Any]:
@@ -41,12 +43,11 @@ def _make(root: Path) -> None:
 
 
 def _with_tokens(run_dir: Path) -> Path:
-    """A run whose two model calls report prompt and completion tokens (and one a cost)."""
+    """A run whose two model calls report prompt and completion tokens."""
     with RunLog(run_dir, config_for("T1")) as log:
-        for step, cost in ((1, 0.002), (2, None)):
-            meta = {"cost_usd": cost} if cost is not None else {}
+        for step in (1, 2):
             reply = {"text": "{}", "latency_s": 0.1, "model": "m", "prompt_tokens": 100 * step,
-                     "completion_tokens": 7, "meta": meta}  # fmt: skip
+                     "completion_tokens": 7, "meta": {}}  # fmt: skip
             log.event("llm_call", step=step, purpose="action", request={"messages": []}, reply=reply)
         log.event("pose", pose=[0, 0, 0])
         log.event("end", outcome="completed", reason="test", metrics={})
@@ -84,7 +85,9 @@ def test_runs_table_a_row_per_run(tmp_path: Path) -> None:
         "free",
         "",
     )
-    assert (tok["prompt_tokens"], tok["completion_tokens"], tok["cost_usd"]) == ("300", "14", "0.002")
+    assert (tok["prompt_tokens"], tok["completion_tokens"]) == ("300", "14")
+    priced = load_runs([tmp_path / "runs" / "tok"])[0].summary  # the cost as llmnav prices the run
+    assert (tok["cost_usd"], tok["cost_note"]) == (str(priced["cost_usd"]), priced["cost_note"])
     assert by_name["b1"]["prompt_tokens"] == ""  # not reported: unknown, not 0
     for column in rows[0]:  # a column with nothing to show is left out
         assert any(r[column] != "" for r in rows), column

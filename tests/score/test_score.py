@@ -14,7 +14,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from score_fakes import config_for, write_run, write_scenario_file  # noqa: E402
 
 from llmnav.cli import app  # noqa: E402
-from llmnav.score import build_tables, compare_groups, find_run_dirs, load_runs, varying_keys  # noqa: E402
+from llmnav.runs.folders import find_run_dirs, load_runs  # noqa: E402
+from llmnav.scoring.score import compare_groups, varying_keys
+from llmnav.scoring.tables import build_tables  # noqa: E402
 
 
 def _make_runs(root: Path) -> None:

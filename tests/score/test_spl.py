@@ -26,10 +26,10 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.cli import app
-from llmnav.metrics import summarize_run
-from llmnav.runlog import RUN_FILE, SUMMARY_FILE, read_run
-from llmnav.scenario import load_scenario
-from llmnav.score import load_run
+from llmnav.runs.folders import load_run
+from llmnav.runs.runlog import RUN_FILE, SUMMARY_FILE, read_run
+from llmnav.scoring.metrics import summarize_run
+from llmnav.world.scenario import load_scenario
 
 ROOM = """\
 name: divided_room

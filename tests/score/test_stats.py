@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from llmnav.stats import compare, compare_summary, describe, hedges_g_summary, mean_sd, welch_summary
+from llmnav.scoring.stats import compare, compare_summary, describe, hedges_g_summary, mean_sd, welch_summary
 
 # Source C, Table 6, e_pos: FSM 0.246 ± 0.078 vs FSM+LLM 0.159 ± 0.069 m, N = 60 each; published
 # t = 6.52, g = 1.18. The inputs are rounded to 3 decimals, so each lies within ± 0.0005 of its printed

@@ -7,7 +7,7 @@ import io
 from rich.console import Console
 
 from llmnav.reporting.tables import print_tables
-from llmnav.score import Table
+from llmnav.scoring.score import Table
 
 WIDE = 500  # [characters] a cell wider than any terminal default (the old pipe width was 240)
 

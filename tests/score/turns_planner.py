@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any, ClassVar
 
-from llmnav.declarations import Column, Declarations, ScoreTable
+from llmnav.core.declarations import Column, Declarations, ScoreTable
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
 
 TURNS_TABLE = ScoreTable(

@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-from llmnav.scenario import Scenario, parse_scenario
 from llmnav.sim.world import World
+from llmnav.world.scenario import Scenario, parse_scenario
 
 WALL_X = 3.0  # [m] centre of the east wall
 WALL_T = 0.2  # [m] wall thickness

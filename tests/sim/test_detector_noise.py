@@ -16,10 +16,10 @@ import math
 import numpy as np
 import pytest
 
-from llmnav.geometry import Pose2D
-from llmnav.scenario import DetectorConfig
+from llmnav.core.geometry import Pose2D
 from llmnav.sim.sensors import DETECTOR_SIZE, Detection
 from llmnav.sim.world import World
+from llmnav.world.scenario import DetectorConfig
 
 N = 2000  # readings per statistic
 BALL = (2.0, 0.9)  # [m] the ball's centre in the test room (tests/sim/conftest.py)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
-from llmnav.geometry import Pose2D, wrap_angle
-from llmnav.scenario import OdometryConfig
+from llmnav.core.geometry import Pose2D, wrap_angle
 from llmnav.sim.world import World
+from llmnav.world.scenario import OdometryConfig
 
 
 def test_front_one_metre(world: World) -> None:

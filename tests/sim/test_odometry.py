@@ -11,10 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from llmnav.geometry import Pose2D, wrap_angle
-from llmnav.scenario import OdometryConfig
+from llmnav.core.geometry import Pose2D, wrap_angle
 from llmnav.sim.robot import wheel_odometry
 from llmnav.sim.world import World
+from llmnav.world.scenario import OdometryConfig
 
 
 def test_exact_wheels_give_the_true_step() -> None:
@@ -129,7 +129,7 @@ def test_drift_is_seeded_and_never_touches_the_true_pose(make_room) -> None:
 
 
 def test_worlds_without_a_published_map_have_drift_on() -> None:
-    from llmnav.scenario import load_scenario
+    from llmnav.world.scenario import load_scenario
 
     for name in ("factory", "maze_arena"):  # sensed worlds: the pose comes from odometry alone
         assert load_scenario(name).sensors.odometry == OdometryConfig.typical(), name

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import time
 
-from llmnav.geometry import Pose2D
-from llmnav.scenario import load_scenario
+from llmnav.core.geometry import Pose2D
 from llmnav.sim.world import World
+from llmnav.world.scenario import load_scenario
 
 
 def test_realtime_world_takes_at_least_its_simulated_time():

@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from llmnav.geometry import Pose2D
-from llmnav.scenario import LidarConfig
+from llmnav.core.geometry import Pose2D
 from llmnav.sim.world import World
+from llmnav.world.scenario import LidarConfig
 
 
 def _ray(scan, angle_deg: float) -> float:
@@ -78,7 +78,7 @@ def test_detection_bearing_sign_and_offset(world: World) -> None:
 
 
 def test_detector_max_distance_and_dropout(make_room) -> None:
-    from llmnav.scenario import DetectorConfig
+    from llmnav.world.scenario import DetectorConfig
 
     with World(make_room(), detector=DetectorConfig(max_distance_m=2.4)) as w:
         assert {d.object_id for d in w.detector.detect()} == {"ball"}  # ghost is 2.69 m away

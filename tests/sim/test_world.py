@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from llmnav.geometry import Pose2D
-from llmnav.robot_specs import BURGER, PR2
+from llmnav.core.geometry import Pose2D
+from llmnav.core.robot_specs import BURGER, PR2
 from llmnav.sim.world import World
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from llmnav.backends.replay import ReplayBackend, write_script
 from llmnav.planners.base import DriveOptions, drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 
 SMALL = str(Path(__file__).parents[1] / "runner" / "small_room.yaml")
 HOSTILE = "</script><script>alert(1)</script><img src=x onerror=alert(2)>"

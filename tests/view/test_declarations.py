@@ -14,7 +14,7 @@ from llmnav.view.page import run_page
 
 TURNS = """
 from typing import ClassVar
-from llmnav.declarations import Declarations
+from llmnav.core.declarations import Declarations
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
 
 

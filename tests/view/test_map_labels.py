@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from llmnav.reporting.topview import draw_scenario
-from llmnav.scenario import list_scenarios, load_scenario
 from llmnav.view.basemap import AXES_BOX, DPI, page_size
+from llmnav.world.scenario import list_scenarios, load_scenario
 
 SCENARIOS = list_scenarios()
 

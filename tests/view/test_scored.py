@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from llmnav.planners.base import drive_options
-from llmnav.runner import EpisodeSpec, run_episode
+from llmnav.runs.runner import EpisodeSpec, run_episode
 from llmnav.view.api import write_view
 from llmnav.view.model import build_run_view
 

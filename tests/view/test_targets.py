@@ -8,8 +8,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parents[1] / "score"))
 from score_fakes import config_for, tiny_scenario, write_run, write_scenario_file  # noqa: E402
 
-from llmnav.metrics import SUCCESS_RADIUS_M  # noqa: E402
-from llmnav.runlog import read_run  # noqa: E402
+from llmnav.runs.runlog import read_run  # noqa: E402
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M  # noqa: E402
 
 
 def _run(tmp_path: Path) -> Path:

@@ -1,7 +1,7 @@
 """Regenerate the spoken-command WAV fixtures (needs Debian's espeak-ng and sox; run by hand).
 
 Each command is synthesised by espeak-ng and stored as 11 025 Hz, 16-bit mono PCM (≈ 30–50 KB): small enough
-to commit, and it exercises the resampling path of `llmnav.voice.read_wav`.
+to commit, and it exercises the resampling path of `llmnav.sensing.voice.read_wav`.
 Usage: .venv/bin/python tests/voice/make_fixtures.py
 """
 

@@ -13,8 +13,8 @@ from typer.testing import CliRunner
 
 from llmnav.cli import app
 from llmnav.errors import BadInputError
-from llmnav.tasks import task_from_text
-from llmnav.voice import parse_number, read_wav, scenarios_for, spoken_numbers, transcribe
+from llmnav.sensing.voice import parse_number, read_wav, scenarios_for, spoken_numbers, transcribe
+from llmnav.world.tasks import task_from_text
 
 sys.path.insert(0, str(Path(__file__).parent))
 from cases import COMMANDS, REJECTED  # noqa: E402
@@ -137,8 +137,8 @@ def test_drive_with_unknown_spoken_command_moves_nothing(tmp_path):
 def test_missing_voice_extra_is_one_clear_line(monkeypatch):
     import builtins
 
-    from llmnav import voice
     from llmnav.errors import ModelUnavailableError
+    from llmnav.sensing import voice
 
     real_import = builtins.__import__
 

@@ -29,7 +29,7 @@ Modules: `control` (the pure tick and its constants), `assist` (state line, the 
 hold), `workers` (the model's thread or process under `--realtime`), `stats` (counters and metrics),
 `options` (its own options model, `FsmOptions`), `tables` (its score table and view declarations),
 `planner` (the loop).
-The oracle's answers live one layer below, in `llmnav.planners.fsm_oracle`.
+The oracle's answers live one layer below, in `llmnav.planners.fsm.oracle`.
 """
 
 from llmnav.planners.fsm.assist import (

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from llmnav.chat import ChatRequest, ChatResult, Message
+from llmnav.core.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
 from llmnav.planners.fsm.answers import VelocityBox, velocity_schema
 from llmnav.planners.fsm.control import FsmConfig
@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from llmnav.guard.ask import GuardedAnswer
     from llmnav.planners.base import DriveOptions, EpisodeContext
     from llmnav.planners.fsm.stats import FsmStats
-    from llmnav.runlog import RunLog
+    from llmnav.runs.runlog import RunLog
 
 ANSWER_MAX_TOKENS = 12  # `[-60,-800]` is 10 tokens with its end token; a margin, no runaway
 Verdict = Literal["accepted", "stale", "bounds", "parse", "error"]
@@ -96,7 +96,7 @@ def answer_schema(cfg: FsmConfig) -> dict[str, Any]:
 
 def system_prompt(cfg: FsmConfig) -> str:
     """The fixed system prompt: the state line's legend and the box, in the answer's units."""
-    from llmnav.prompting import render
+    from llmnav.planners.prompting import render
 
     return render(
         "fsm_velocity",
@@ -228,14 +228,14 @@ class AssistPipeline:
             return
         backend.check_schema(self.schema)  # a grammar that cannot compile ends the episode before tick 0
         if opts.realtime:
-            from llmnav.observe import call_model
+            from llmnav.planners.observe import call_model
 
             self.worker = ThreadWorker(lambda request: call_model(ctx, request, purpose="suggestion", step=None))
             self.stats.model_in = "thread"
 
     def warm(self) -> None:
         """Pay the guard's one-time costs (imports, schema build) before the clock starts."""
-        from llmnav.observe import call_model  # noqa: F401 - imported by the worker's first call
+        from llmnav.planners.observe import call_model  # noqa: F401 - imported by the worker's first call
 
         judge("[0,0]", self.box)
         judge("```json\n{}\n```", self.box)
@@ -253,7 +253,7 @@ class AssistPipeline:
         if polled is None:
             return
         stamp, result, error, latency = polled
-        died = getattr(self.worker, "died", None)
+        died = self.worker.died
         if died is not None and self.stats.assist_failed is None:
             self._degrade(died)
         fixed = self.ctx.options.model_latency
@@ -347,14 +347,14 @@ class AssistPipeline:
 
     def _record(self, request: ChatRequest, result: ChatResult | None, error: str | None) -> None:
         """The model process's call, logged as `call_model` logs one."""
-        from llmnav.observe import llm_call_fields
+        from llmnav.planners.observe import llm_call_fields
 
         caching = bool(self.ctx.backend and self.ctx.backend.caching)
         self.outbox.append(("llm_call", llm_call_fields(request, "suggestion", None, result, error, caching)))
 
     def _call_virtual(self, request: ChatRequest, now: float) -> Suggestion:
         """Call between ticks with the simulation frozen; charge the latency to simulation time."""
-        from llmnav.observe import call_model
+        from llmnav.planners.observe import call_model
 
         started = time.perf_counter()
         fixed = self.ctx.options.model_latency

@@ -6,6 +6,7 @@ import contextlib
 import time
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from llmnav.core.realtime import frozen_heap, realtime_priority
 from llmnav.errors import BadInputError
 from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, Planner, StepInfo
 from llmnav.planners.fsm.assist import AssistPipeline, answer_schema, state_message
@@ -13,15 +14,14 @@ from llmnav.planners.fsm.control import ControlState, FsmConfig, Fusion, Inputs,
 from llmnav.planners.fsm.options import FsmOptions
 from llmnav.planners.fsm.stats import FsmStats, log_metrics, run_metrics, stop_point
 from llmnav.planners.fsm.tables import FSM_DECLARATIONS
-from llmnav.realtime import frozen_heap, realtime_priority
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.chat import AnswerKey
+    from llmnav.core.chat import AnswerKey
     from llmnav.planners.base import GroundTruth
-    from llmnav.runlog import RunRecord
-    from llmnav.scenario import Scenario, Task
+    from llmnav.runs.runlog import RunRecord
     from llmnav.sim.sensors import Detection
+    from llmnav.world.scenario import Scenario, Task
 
 
 class FsmPlanner(Planner):
@@ -187,8 +187,8 @@ class FsmPlanner(Planner):
         return log_metrics(record, scenario)
 
     def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
-        """The velocity a perfect assistant would suggest to each state line (`llmnav.planners.fsm_oracle`)."""
-        from llmnav.planners.fsm_oracle import FsmAnswerKey
+        """The velocity a perfect assistant would suggest to each state line (`llmnav.planners.fsm.oracle`)."""
+        from llmnav.planners.fsm.oracle import FsmAnswerKey
 
         return FsmAnswerKey(truth, self.cfg)
 

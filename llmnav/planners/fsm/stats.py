@@ -12,9 +12,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
-    from llmnav.runlog import RunRecord
-    from llmnav.scenario import Scenario, Task
+    from llmnav.core.geometry import Pose2D
+    from llmnav.runs.runlog import RunRecord
+    from llmnav.world.scenario import Scenario, Task
 
 
 @dataclass
@@ -28,7 +28,7 @@ class FsmStats:
     accepted: int = 0
     ticks_using: int = 0
     missed_deadlines: int = 0
-    scheduling: str = "simulated"  # the loop thread's policy under --realtime (llmnav.realtime)
+    scheduling: str = "simulated"  # the loop thread's policy under --realtime (llmnav.core.realtime)
     model_in: str = "loop"  # where the model runs: called between ticks, a worker "thread" or a "process"
     assist_failed: str | None = None  # what ended the model's worker mid-episode (the run went on without it)
 
@@ -77,7 +77,7 @@ def log_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
     can make A* a little longer than a path that hugs a wall). Nothing for an episode whose `end` event
     carries no FSM metrics (one aborted before its first tick); eta is None when A* finds no path.
     """
-    from llmnav.geometry import path_length
+    from llmnav.core.geometry import path_length
 
     ends = record.of_type("end")
     metrics = ends[-1].get("metrics") if ends else None
@@ -104,7 +104,7 @@ def stop_point(scenario: Scenario, task: Task, d_goal: float) -> tuple[float, fl
 
     A target with an explicit goal point (or a point target) is used as it is.
     """
-    from llmnav.planners.fsm_oracle import sign_stop_point
+    from llmnav.planners.fsm.oracle import sign_stop_point
 
     if not task.targets:
         return None

@@ -6,7 +6,7 @@ accepted or rejected (stale, bounds, parse) pooled over a group, and the median 
 
 from __future__ import annotations
 
-from llmnav.declarations import Column, Declarations, ScoreTable
+from llmnav.core.declarations import Column, Declarations, ScoreTable
 
 FSM_TABLE = ScoreTable(
     name="fsm",

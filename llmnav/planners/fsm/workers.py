@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from llmnav.chat import ChatRequest, ChatResult
+from llmnav.core.chat import ChatRequest, ChatResult
 from llmnav.errors import LlmnavError, one_line
 
 Record = Callable[[ChatRequest, ChatResult | None, str | None], None]
@@ -96,7 +96,7 @@ class ProcessWorker:
         only make its answers staler, 3-4 s against 0.9 s at load 7), else MODEL_NICE below it.
         """
         from llmnav.backends.isolated import MODEL_NICE, ModelProcess
-        from llmnav.realtime import available_priority
+        from llmnav.core.realtime import available_priority
 
         nice = MODEL_NICE if available_priority() == "normal" else 0
         process = ModelProcess(backend.spec, backend.options, nice=nice)
@@ -124,6 +124,11 @@ class ProcessWorker:
         message = None if error is None else str(error)
         self._record(request, result, message)
         return stamp, result, message, latency
+
+    @property
+    def died(self) -> str | None:
+        """Why the model's process cannot answer any more (killed, crashed), once it cannot."""
+        return getattr(self._process, "dead", None)
 
     def close(self) -> None:
         """Stop the model's process."""

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from llmnav.geometry import Point, Pose2D
+from llmnav.core.geometry import Point, Pose2D
 from llmnav.guard.legs import Action, drive_leg
 from llmnav.mapping.astar import densify
 from llmnav.planners.hybrid.memory import Memory, believed_pose, in_odometry_frame, look

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from llmnav.geometry import Point, Pose2D
+from llmnav.core.geometry import Point, Pose2D
 
 if TYPE_CHECKING:
     from llmnav.nav.localize import Localizer
@@ -52,7 +52,7 @@ def start_memory(ctx: EpisodeContext) -> Memory:
     Empty when sensed; else the scenario's names (and, with a published map, every labelled object's
     goal point).
     """
-    from llmnav.tasks import named_objects
+    from llmnav.world.tasks import named_objects
 
     if ctx.information == "sensed":
         from llmnav.nav.localize import Localizer
@@ -95,7 +95,7 @@ def in_odometry_frame(ctx: EpisodeContext, memory: Memory, x: float, y: float) -
 
 def remember(ctx: EpisodeContext, memory: Memory, pose: Pose2D, detections: list[Detection]) -> set[str]:
     """Add detections seen from `pose` to the landmark memory; the ids it did not know before."""
-    from llmnav.tasks import names_in_text
+    from llmnav.world.tasks import names_in_text
 
     new: set[str] = set()
     for det in detections:

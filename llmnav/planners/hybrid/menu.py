@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from llmnav.geometry import Point, Pose2D
+from llmnav.core.geometry import Point, Pose2D
 from llmnav.mapping.frontiers import frontier_clusters, goal_cells
 from llmnav.planners.hybrid.memory import Memory, relevance_order
 

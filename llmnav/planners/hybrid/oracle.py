@@ -24,7 +24,8 @@ The hybrid asks two kinds of question, and a perfect model answers both from the
   true bearing of the nearest target; else Finish.
 
 What the hybrid can find is still what its own sensors reveal: a target it never detects cannot be
-chosen, and a point target (no landmark to name) is beyond its menu. That is the planner's ceiling.
+chosen, and a point target is reachable only as a relational place between or beside landmarks it has
+seen (scored decisions). That is the planner's ceiling.
 """
 
 from __future__ import annotations
@@ -37,10 +38,10 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.planners.hybrid.menu import SECTORS
 from llmnav.planners.hybrid.scoring import FRONTIER_PROMPT, INTENT_PROMPT, INTENTS, ROOM_PROMPT
-from llmnav.relevance import CONTENT_FREE_TASK, TARGET_PROMPT
+from llmnav.sensing.relevance import CONTENT_FREE_TASK, TARGET_PROMPT
 
 if TYPE_CHECKING:
-    from llmnav.chat import ChatRequest, ScoreRequest
+    from llmnav.core.chat import ChatRequest, ScoreRequest
     from llmnav.planners.base import GroundTruth
 
 MATCH, MISMATCH, NEUTRAL = 0.0, -20.0, -10.0  # [nats] see the module docstring

@@ -10,8 +10,9 @@ well-described options under a grammar (docs/sources.md, M), so each decision of
 - go to a landmark — every labelled object when the scenario publishes its map (corridor worlds, as in
   the waypoint source), otherwise only objects the detector has seen (the nearest `max_landmarks`),
   each with distance, direction and (with `--menu-order relevance`) whether its name matches the task;
-- explore a frontier cluster of the robot's own LiDAR map (the nearest `max_frontiers`; not offered
-  when the map is published);
+- explore a frontier cluster of the robot's own LiDAR map (the first `max_frontiers` by `-o explore`:
+  nearest, most useful, or scored by what has been seen near it; not offered when the map is published);
+- (scored decisions) a relational place between or beside landmarks already seen;
 - rotate 360° to look around;
 - finish.
 The answer's schema restricts `option` to the listed numbers, and it still passes the guard.
@@ -21,7 +22,7 @@ eight directions, because the navigation stack does the driving and every digit 
 words mean is said once in the system prompt, which the prompt cache keeps. A decision after the first
 then reads about 90–120 new prompt tokens (docs/fast-decisions.md).
 
-What the planner knows follows the episode's information mode (llmnav.knowledge):
+What the planner knows follows the episode's information mode (llmnav.world.knowledge):
 - `map` (corridor worlds): the published map's walls and objects; landmarks are its labelled objects.
 - `sensed` (the default without a published map): pose from odometry, corrected by matching each LiDAR
   scan to its own LiDAR map (`-o localize=true`, the default; `llmnav.nav.localize`), which integrates
@@ -48,7 +49,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from llmnav.declarations import Declarations
+from llmnav.core.declarations import Declarations
 from llmnav.errors import BadInputError
 from llmnav.guard.legs import Action
 from llmnav.mapping.frontiers import sensed_grid
@@ -72,8 +73,8 @@ from llmnav.planners.hybrid.prompt import ask_choice, scored_choice, sends_image
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.chat import AnswerKey
-    from llmnav.geometry import Pose2D
+    from llmnav.core.chat import AnswerKey
+    from llmnav.core.geometry import Pose2D
     from llmnav.mapping.grid import OccupancyGrid
     from llmnav.planners.base import GroundTruth
     from llmnav.planners.hybrid.menu import Option
@@ -150,8 +151,8 @@ class HybridPlanner(Planner):
         self, ctx: EpisodeContext, maps: _Maps, memory: Memory, executor: Executor
     ) -> EpisodeOutcome:
         """The decide-execute loop of `run`."""
-        from llmnav.observe import observe
         from llmnav.planners.hybrid.scoring import ScoredChooser
+        from llmnav.planners.observe import observe
 
         world, scenario = ctx.world, ctx.scenario
         json_errors = vetoes = 0

@@ -12,15 +12,15 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from llmnav.chat import ChatRequest, Message
+from llmnav.core.chat import ChatRequest, Message
 
 if TYPE_CHECKING:
-    from llmnav.observe import Observation
     from llmnav.planners.base import EpisodeContext
     from llmnav.planners.hybrid.answers import HybridChoice
     from llmnav.planners.hybrid.memory import Memory
     from llmnav.planners.hybrid.menu import Option
     from llmnav.planners.hybrid.scoring import Decision, ScoredChooser
+    from llmnav.planners.observe import Observation
 
 
 def choice_schema(options: list[Option]) -> tuple[Any, dict[str, Any]]:
@@ -52,7 +52,7 @@ def ask_choice(
 ) -> tuple[int | None, int]:
     """The model's option number through the guard (bounded corrections); (None, errors) on failure."""
     from llmnav.guard.ask import GuardedAnswer, ask_guarded
-    from llmnav.prompting import render
+    from llmnav.planners.prompting import render
 
     model, schema = choice_schema(options)
     menu = "\n".join(f"{o.number}. {o.text}" for o in options)

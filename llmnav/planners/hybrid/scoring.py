@@ -5,7 +5,7 @@ the menu), but it can tell how likely a text is as the continuation of the task.
 asks the backend for log-probabilities, never for an answer (Ahn et al. 2022, SayCan; docs/sources.md):
 
 - **Relevance of a landmark** is the domain-conditional pointwise mutual information of its name
-  with the task (`llmnav.relevance`; Holtzman et al. 2021): log P(" <name>" | TARGET_PROMPT with the
+  with the task (`llmnav.sensing.relevance`; Holtzman et al. 2021): log P(" <name>" | TARGET_PROMPT with the
   task) minus log P(" <name>" | the same prompt with the content-free task "N/A"). Subtracting the
   content-free term removes the model's prior for short, frequent names. Both terms depend only on the
   task and the name, so each name is scored once per episode, when it first appears on the menu.
@@ -20,10 +20,14 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
 3. Every known landmark gets the value PMI - `distance_cost` x distance [m] (the affordance term: between
    equally relevant landmarks, such as two oil barrels, the nearer wins). The best one is the target.
 4. A target is sure when its PMI reaches `sure_pmi`. An unsure one is not taken while there is more to
-   see: explore the frontier worth the most first (its length discounted by the drive to it), at most
-   max(`explore_budget`, the world's area / `explore_area_m2`) times in an episode. Exploring
-   ends early when something new comes into view, and the decision is made again (such an exploration is
-   not counted against the budget).
+   see: explore a frontier first, at most max(`explore_budget`, the world's area / `explore_area_m2`)
+   times in an episode. Which frontier (`-o explore`): the nearest; the most useful (its length
+   discounted by the drive to it); or, `scored`, the one of highest `frontier_value`: the utility times
+   the likelihood ratio of its description ("the bedroom with the bed and the wardrobe": the landmarks
+   seen within `describe_radius_m` of it and the room they suggest) with the task, the PMI after
+   FRONTIER_PROMPT against the content-free task (docs/frontier-values.md). Exploring ends early when
+   something new comes into view, and the decision is made again (such an exploration is not
+   counted against the budget).
 5. Once the budget is spent (or nothing is left to explore), a target whose PMI reaches `min_pmi` (the
    task makes it e times likelier) is taken. Below that there is nothing to take: explore on while
    frontiers remain (the budget only bounds the search before an unsure target is taken), then look
@@ -31,6 +35,12 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
    never driven to or finished at, and neither is anything when nothing was seen at all.
 6. At the target: an unsure one gets one more look around from there (a better match may come into
    view), then Finish. Otherwise go to the target.
+
+Relational places ("spot between the stairs and the oil barrel", "spot beside the stairs"; built from the
+landmarks seen, `menu.relational_options`) join the landmarks in step 3, scored like names after
+TARGET_PROMPT (with their spot in the request, for oracle answers); one counts only where its PMI exceeds
+that of each landmark it names, so a relation is taken when the task asks for it, not as a nearer stand-in
+for its landmark.
 
 `sure_pmi` and `min_pmi` were set on task wordings that are not part of this repository (targets scored
 6-12 nats, unrelated landmarks up to 5), never on the bundled tasks.
@@ -45,8 +55,8 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
-from llmnav.chat import ScoreRequest
-from llmnav.relevance import CONTENT_FREE_TASK, TARGET_PROMPT, TextRelevance
+from llmnav.core.chat import ScoreRequest
+from llmnav.sensing.relevance import CONTENT_FREE_TASK, TARGET_PROMPT, TextRelevance
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeContext
@@ -215,11 +225,7 @@ class ScoredChooser:
         """
         decision = self._choose(candidates, turned=turned, step=step, explored=explored)
         if not decision.frontiers:
-            decision.frontiers = [
-                {"option": c.number, "near": list(c.names), "utility": round(c.utility, 3)}
-                for c in candidates
-                if c.kind == "frontier"
-            ]
+            decision.frontiers = [_row(c) for c in candidates if c.kind == "frontier"]
         return decision
 
     def _choose(
@@ -306,14 +312,7 @@ class ScoredChooser:
             values = [frontier_value(c.utility, p) for c, p in zip(frontiers, pmi, strict=True)]
             best = max(zip(values, frontiers, strict=True), key=lambda item: (item[0], -item[1].distance_m))[1]
             rows = [
-                {
-                    "option": c.number,
-                    "near": list(c.names),
-                    "description": text,
-                    "utility": round(c.utility, 3),
-                    "pmi": round(p, 3),
-                    "value": round(v, 3),
-                }
+                _row(c) | {"description": text, "pmi": round(p, 3), "value": round(v, 3)}
                 for c, text, p, v in zip(frontiers, texts, pmi, values, strict=True)
             ]
         decision = Decision(best.number, f"{why}: explore", intent, scores)
@@ -348,7 +347,7 @@ class ScoredChooser:
         if not names:
             return UNDESCRIBED
         things = _listed(names)
-        room = self.room(things)
+        room = self.room(_listed(tuple(sorted(names))))  # one question per set of landmarks, in any order
         return f"the {room} with {things}" if room else things
 
     def room(self, things: str) -> str:
@@ -370,6 +369,14 @@ class ScoredChooser:
         with_task = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=self.task), continuations, where))
         free = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=CONTENT_FREE_TASK), continuations, where))
         return [a.logprob - b.logprob for a, b in zip(with_task.scores, free.scores, strict=True)]
+
+
+def _row(frontier: Candidate) -> dict[str, Any]:
+    """A frontier as the decision logs it: option, where [m], what is near it, its utility."""
+    row: dict[str, Any] = {"option": frontier.number}
+    if frontier.place is not None:
+        row["at"] = [round(frontier.place[0], 2), round(frontier.place[1], 2)]
+    return row | {"near": list(frontier.names), "utility": round(frontier.utility, 3)}
 
 
 PLACE_CACHE_M = 0.5  # [m] a relational place's spot moves this little as its landmarks are seen again

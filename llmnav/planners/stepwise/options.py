@@ -7,7 +7,7 @@ from typing import ClassVar, Literal
 from pydantic import Field, field_validator
 
 from llmnav.planners.base import CliFlag, DriveOptions
-from llmnav.prompting import stepwise_variants
+from llmnav.planners.prompting import stepwise_variants
 
 
 class StepwiseOptions(DriveOptions):

@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from llmnav.geometry import wrap_angle
+from llmnav.core.geometry import wrap_angle
 from llmnav.guard.veto import VETO_PREFIX
 from llmnav.mapping.grid import GridConfig
 from llmnav.mapping.targets import OracleConfig, oracle_path
@@ -32,8 +32,8 @@ from llmnav.planners.base import GeneratedAnswers
 from llmnav.planners.stepwise.answers import ActionCommand, step_answer
 
 if TYPE_CHECKING:
-    from llmnav.chat import ChatRequest
-    from llmnav.geometry import Pose2D
+    from llmnav.core.chat import ChatRequest
+    from llmnav.core.geometry import Pose2D
     from llmnav.planners.base import GroundTruth
 
 CONFIRMED = "CONFIRMED"

@@ -24,19 +24,19 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from llmnav.chat import ChatRequest, Message
-from llmnav.declarations import Declarations
+from llmnav.core.chat import ChatRequest, Message
+from llmnav.core.declarations import Declarations
 from llmnav.guard.ask import GuardedAnswer, ask_guarded
 from llmnav.guard.legs import Action
 from llmnav.guard.schemas import response_schema
 from llmnav.guard.veto import VetoResult, veto_message
-from llmnav.observe import Observation, observe
 from llmnav.planners.base import MODEL_OPTIONS, EpisodeContext, EpisodeOutcome, Information, Outcome, Planner, StepInfo
+from llmnav.planners.observe import Observation, observe
 from llmnav.planners.stepwise.answers import ActionBounds, ActionCommand, StepAction
 from llmnav.planners.stepwise.options import StepwiseOptions
 
 if TYPE_CHECKING:
-    from llmnav.chat import AnswerKey
+    from llmnav.core.chat import AnswerKey
     from llmnav.planners.base import GroundTruth
     from llmnav.sim.motion import MotionResult
 
@@ -135,7 +135,7 @@ class _Episode:
     """The state of one stepwise episode."""
 
     def __init__(self, ctx: EpisodeContext[StepwiseOptions]) -> None:
-        from llmnav import prompting
+        from llmnav.planners import prompting
 
         self.ctx = ctx
         self.options = ctx.options

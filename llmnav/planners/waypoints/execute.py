@@ -13,10 +13,10 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from llmnav.chat import ChatRequest, ChatResult
-from llmnav.declarations import Column, Declarations, ScoreTable
+from llmnav.core.chat import ChatRequest, ChatResult
+from llmnav.core.declarations import Column, Declarations, ScoreTable
+from llmnav.core.geometry import Point, Pose2D
 from llmnav.errors import BadInputError, InvalidActionError
-from llmnav.geometry import Point, Pose2D
 from llmnav.guard.legs import drive_leg
 from llmnav.planners.base import (
     EpisodeContext,
@@ -33,10 +33,10 @@ from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, g
 from llmnav.planners.waypoints.validate import validate_waypoints
 
 if TYPE_CHECKING:
-    from llmnav.chat import AnswerKey
+    from llmnav.core.chat import AnswerKey
     from llmnav.planners.base import GroundTruth
-    from llmnav.scenario import Scenario
     from llmnav.sim.motion import MotionResult
+    from llmnav.world.scenario import Scenario
 
 
 @dataclass(frozen=True)
@@ -138,8 +138,8 @@ class WaypointPlanner(Planner):
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Ground, plan, validate, execute, replan — per leg of the command sequence."""
         from llmnav.mapping.grid import build_grid
-        from llmnav.observe import call_model
-        from llmnav.tasks import sequence_legs
+        from llmnav.planners.observe import call_model
+        from llmnav.world.tasks import sequence_legs
 
         world, scenario, opts, cfg = ctx.world, ctx.scenario, ctx.options, self.cfg
         if not scenario.corridors:

@@ -5,18 +5,18 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from llmnav.chat import ChatRequest, Message
+from llmnav.core.chat import ChatRequest, Message
 from llmnav.errors import InvalidActionError
 from llmnav.guard.ask import CallContext, GuardedAnswer, ask_guarded
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from llmnav.geometry import Point
+    from llmnav.core.geometry import Point
     from llmnav.planners.waypoints.answers import TargetChoice
     from llmnav.planners.waypoints.plan import ModelCall
-    from llmnav.relevance import Scorer
-    from llmnav.scenario import LabelledObject, Scenario, Task
+    from llmnav.sensing.relevance import Scorer
+    from llmnav.world.scenario import LabelledObject, Scenario, Task
 
 
 def ground_target(
@@ -34,16 +34,16 @@ def ground_target(
     """The object a command refers to: exact-name match first, else the model's scores or its pick.
 
     With `score` (a backend that scores continuations), the candidate whose label the command makes
-    likeliest (`llmnav.relevance`, PMI) is the target, logged as a `grounding` event with every label's
+    likeliest (`llmnav.sensing.relevance`, PMI) is the target, logged as a `grounding` event with every label's
     PMI; without it, the model picks an id from the listed objects.
     `near` (the final waypoint of a plan made already) settles an ambiguous command without a model call
     when exactly one candidate's goal point lies within `tolerance_m` [m] of it. The model's pick goes
     through `ask_guarded` (`max_tries` replies at most); `on_event` receives its `guard` events.
     """
     from llmnav.guard.schemas import response_schema
+    from llmnav.planners.prompting import render
     from llmnav.planners.waypoints.answers import target_choice_model
-    from llmnav.prompting import render
-    from llmnav.tasks import named_objects
+    from llmnav.world.tasks import named_objects
 
     if task.targets and len(task.targets) == 1 and task.targets[0].object:
         return scenario.object(task.targets[0].object)
@@ -56,7 +56,7 @@ def ground_target(
         if len(close) == 1:
             return close[0]
     if score is not None:
-        from llmnav.relevance import most_relevant
+        from llmnav.sensing.relevance import most_relevant
 
         labels = list(dict.fromkeys(o.label for o in candidates))
         best, pmi = most_relevant(score, task.text, labels)

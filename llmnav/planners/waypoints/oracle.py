@@ -33,17 +33,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from llmnav.geometry import Point
+from llmnav.core.geometry import Point
 from llmnav.mapping.astar import astar, line_of_sight
 from llmnav.mapping.grid import GridConfig, build_grid, nearest_free_cell
 from llmnav.planners.waypoints.validate import PlanRules
-from llmnav.tasks import sequence_legs
+from llmnav.world.tasks import sequence_legs
 
 if TYPE_CHECKING:
-    from llmnav.chat import ChatRequest, ScoreRequest
+    from llmnav.core.chat import ChatRequest, ScoreRequest
     from llmnav.mapping.grid import OccupancyGrid
     from llmnav.planners.base import GroundTruth
-    from llmnav.scenario import Scenario, Task
+    from llmnav.world.scenario import Scenario, Task
 
 _NUMBER = r"(-?\d+(?:\.\d+)?)"
 _TARGET = re.compile(rf'Target "[^"]*": x = {_NUMBER}, y = {_NUMBER}')
@@ -81,7 +81,7 @@ class WaypointAnswerKey:
     def grid(self) -> OccupancyGrid:
         """The true map (with any `--obstacle` box), inflated to `keep_clear_m` (and the slack)."""
         if self._grid is None:
-            from llmnav.robot_specs import ROBOT_SPECS
+            from llmnav.core.robot_specs import ROBOT_SPECS
 
             scenario = self.truth.scenario
             # build_grid inflates by the robot radius plus the margin: make the sum the distance to keep

@@ -12,17 +12,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from llmnav.chat import ChatRequest, ChatResult, Message
-from llmnav.geometry import Point
+from llmnav.core.chat import ChatRequest, ChatResult, Message
+from llmnav.core.geometry import Point
 from llmnav.guard.ask import CallContext, ask_guarded
 from llmnav.planners.waypoints.validate import PlanRules
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.guard.parse import GuardResult
     from llmnav.mapping.grid import OccupancyGrid
     from llmnav.planners.waypoints.answers import WaypointList
-    from llmnav.scenario import LabelledObject, Scenario, WaypointRules
+    from llmnav.world.scenario import LabelledObject, Scenario, WaypointRules
 
 ModelCall = Callable[[ChatRequest, str], ChatResult]  # (request, purpose) -> reply
 
@@ -127,8 +127,8 @@ def generate_plan(
     the guard's events (one `guard` event per reply).
     """
     from llmnav.guard.parse import correction_message, parse_answer
+    from llmnav.planners.prompting import render
     from llmnav.planners.waypoints.answers import WaypointList
-    from llmnav.prompting import render
 
     clock = PlanningClock(call)
     rules = scenario.waypoint_rules

@@ -11,11 +11,11 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from llmnav.geometry import Point
+from llmnav.core.geometry import Point
 
 if TYPE_CHECKING:
     from llmnav.mapping.grid import OccupancyGrid
-    from llmnav.scenario import Scenario, WaypointRules
+    from llmnav.world.scenario import Scenario, WaypointRules
 
 # No map is near this size: a longer segment (a point at 1e308) leaves the map within it, so only its
 # first part is sampled; sampling all of it would overflow the step count or loop for hours.

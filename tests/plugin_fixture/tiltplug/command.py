@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from llmnav.runlog import read_run
+from llmnav.runs.runlog import read_run
 
 
 def report(run_dir: Annotated[Path, typer.Argument(help="A run folder of the tilt planner.")]) -> None:

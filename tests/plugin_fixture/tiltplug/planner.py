@@ -7,7 +7,7 @@ from typing import ClassVar
 
 from pydantic import Field
 
-from llmnav.chat import ChatRequest, Message
+from llmnav.core.chat import ChatRequest, Message
 from llmnav.guard.parse import parse_answer
 from llmnav.guard.schemas import response_schema
 from llmnav.planners.base import CliFlag, DriveOptions, EpisodeContext, EpisodeOutcome, Planner

@@ -22,11 +22,11 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from llmnav.backends.base import answerer
-from llmnav.metrics import CONDITION_KEYS
-from llmnav.score import (
+from llmnav.runs.folders import Run
+from llmnav.scoring.metrics import CONDITION_KEYS
+from llmnav.scoring.score import (
     COMMON_COLUMNS,
     MISSING,
-    Run,
     Table,
     _hashable,
     _num,
@@ -36,7 +36,7 @@ from llmnav.score import (
     condition_label,
     is_oracle,
 )
-from llmnav.stats import mean_sd
+from llmnav.scoring.stats import mean_sd
 
 ALL_TASKS = "All tasks"
 GAP_EPSILON = 1e-9  # a ceiling no further above the floor than rounding leaves no gap to close

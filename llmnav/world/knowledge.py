@@ -25,7 +25,7 @@ from llmnav.errors import BadInputError
 from llmnav.planners.base import Information, planner_class
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Scenario
+    from llmnav.world.scenario import Scenario
 
 INFORMATION_MODES: tuple[Information, ...] = get_args(Information)
 

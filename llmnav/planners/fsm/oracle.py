@@ -22,14 +22,14 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from llmnav.geometry import wrap_angle
+from llmnav.core.geometry import wrap_angle
 from llmnav.planners.base import GeneratedAnswers
 
 if TYPE_CHECKING:
-    from llmnav.chat import ChatRequest
+    from llmnav.core.chat import ChatRequest
     from llmnav.planners.base import GroundTruth
     from llmnav.planners.fsm.control import FsmConfig
-    from llmnav.scenario import LabelledObject, Scenario
+    from llmnav.world.scenario import LabelledObject, Scenario
 
 
 def sign_stop_point(scenario: Scenario, obj: LabelledObject, d_goal: float) -> tuple[float, float]:

@@ -1,13 +1,13 @@
 """`llmnav score`: read run folders, group them by task and condition, and build the sources' tables.
 
 Pipeline: `find_run_dirs` (recursive) → `load_runs` (summary.json, or `summarize_run` for runs cut short) →
-`build_tables` (the episode and path-length tables every run has, the tables each planner declares (see
-`llmnav.declarations`), and the null-policy, floor/model/ceiling and wording tables of
-`llmnav.score_policies`; only those with data) and `compare_groups` (`--compare KEY=A
-KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in `llmnav.reporting.tables`. Tables are plain data
-(`Table`): formatted cells for display and raw numbers for JSON and CSV. Whatever cannot be computed (a
-scenario that does not load, an oracle that fails) is noted on its `Run` and listed by `problems`, never
-silently dropped.
+the tables: the episode and path-length tables every run has and the tables each planner declares (see
+`llmnav.core.declarations`) here, the null-policy, floor/model/ceiling and wording tables in
+`llmnav.scoring.policies`, all of them gathered by `llmnav.scoring.tables.build_tables` (only those with data);
+and `compare_groups` (`--compare KEY=A KEY=B`). Rendering (rich, markdown, CSV, JSON) lives in
+`llmnav.reporting.tables`. Tables are plain data (`Table`): formatted cells for display and raw numbers for
+JSON and CSV. Whatever cannot be computed (a scenario that does not load, an oracle that fails) is noted on
+its `Run` and listed by `problems`, never silently dropped.
 """
 
 from __future__ import annotations
@@ -17,122 +17,33 @@ import statistics
 from collections import defaultdict
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.backends.base import answerer
-from llmnav.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
+from llmnav.core.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
 from llmnav.errors import BadInputError
-from llmnav.failures import FAILURE_CAUSES
-from llmnav.metrics import (
-    CONDITION_KEYS,
-    RESCORED_KEYS,
-    SUCCESS_RADIUS_M,
-    aborted_without_result,
-    summarize_run,
+from llmnav.runs.folders import (
+    START_POSE_KEY,
+    Run,
+    load_scenario_of,
 )
-from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, RunRecord, read_run
-from llmnav.scenario import SEQUENCE_JOIN
-from llmnav.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
-from llmnav.tasks import ADHOC_ID
+from llmnav.scoring.failures import FAILURE_CAUSES
+from llmnav.scoring.metrics import (
+    CONDITION_KEYS,
+    SUCCESS_RADIUS_M,
+)
+from llmnav.scoring.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
+from llmnav.world.scenario import SEQUENCE_JOIN
 
 if TYPE_CHECKING:
-    from llmnav.backends.prices import PriceTable
-    from llmnav.geometry import Pose2D
-    from llmnav.scenario import Scenario, Task
+    from llmnav.core.geometry import Pose2D
+    from llmnav.world.scenario import Scenario, Task
 
 NA = "N.A."  # the task has no target to score against
 MISSING = "—"  # no data: no summary has the value (baseline unavailable, ...); never a value that exists
 ORACLE_MARK = " (oracle answers)"
-START_POSE_KEY = "start_pose"  # `--by start_pose`: the stepwise source's Tables 3–7 report per start position
 FAILED = "failed"  # a failed plan's cell: the waypoint source leaves failed plans out of its averages
 CACHE_MARK = " (from cache)"  # a run some of whose model answers came from the reply cache (`--cache`)
-
-
-@dataclass
-class Run:
-    """One run folder as `score` sees it: its summary and its configuration line."""
-
-    run_dir: Path
-    summary: dict[str, Any]
-    config: dict[str, Any]
-    problems: list[str] = field(default_factory=list)  # what could not be computed for this run, and why
-
-    @property
-    def task(self) -> str:
-        """Task id; a free-text task (typed, no scenario's id) by its text, so two of them are never pooled."""
-        task_id = self.summary.get("task_id")
-        text = self.summary.get("task_text")
-        if text and (not task_id or task_id == ADHOC_ID or self.wording == "free"):
-            return str(text)
-        return str(task_id or text or "?")
-
-    def task_record(self, scenario: Scenario) -> Task:
-        """The run's task: the scenario's of its id, else the one its configuration line records (free text)."""
-        from llmnav.scenario import Task
-
-        task_id = str(self.summary.get("task_id") or "")
-        if task_id and task_id != ADHOC_ID and self.wording != "free":
-            return scenario.task(task_id)
-        logged = self.config.get("task")
-        if not isinstance(logged, dict):
-            raise BadInputError("the config line records no task")
-        fields = {k: logged[k] for k in ("id", "text", "kind", "difficulty", "targets") if k in logged}
-        return Task.model_validate(fields)
-
-    @property
-    def condition(self) -> dict[str, Any]:
-        """The run's condition values (llmnav.metrics.CONDITION_KEYS), then every other logged option.
-
-        Any planner option may be an ablation factor (`alpha`, `max_replans`, ...): its value comes from
-        the configuration line, a list written as on the command line (`lidar+image`).
-        """
-        found = dict(self.summary.get("condition") or {})
-        options = self.config.get("options")
-        for key, value in options.items() if isinstance(options, dict) else ():
-            if key not in found:
-                found[key] = "+".join(map(str, value)) if isinstance(value, list) else value
-        return found
-
-    def value(self, key: str) -> Any:
-        """A grouping key's value: a condition key, or `start_pose` (the 1-based start pose index)."""
-        if key == START_POSE_KEY:
-            return self.summary.get("start_pose_index")
-        return self.condition.get(key)
-
-    @property
-    def planner(self) -> str:
-        """Planner name."""
-        return str(self.summary.get("planner") or self.condition.get("planner") or "?")
-
-    @property
-    def metrics(self) -> dict[str, Any]:
-        """The planner's own metrics."""
-        return dict(self.summary.get("planner_metrics") or {})
-
-    @property
-    def wording(self) -> str | None:
-        """The task record's `wording` (bundled | paraphrase:K | free); None in runs that predate it."""
-        task = self.config.get("task")
-        value = task.get("wording") if isinstance(task, dict) else None
-        return str(value) if value is not None else None
-
-    @property
-    def episode(self) -> tuple[Any, ...]:
-        """What makes two runs the same episode: scenario, task, its wording and text, start pose."""
-        return (
-            self.summary.get("scenario"),
-            self.task,
-            self.wording,
-            self.summary.get("task_text"),
-            self.summary.get("start_pose_index"),
-        )
-
-    def problem(self, text: str) -> None:
-        """Note something that could not be computed (reported on stderr by `llmnav score`)."""
-        if text not in self.problems:
-            self.problems.append(text)
 
 
 @dataclass
@@ -145,144 +56,6 @@ class Table:
     records: list[dict[str, Any]] = field(default_factory=list)
     note: str = ""
     name: str = ""  # short id for `--table` (episodes, path, a planner's declared table, ...)
-
-
-# --- loading ------------------------------------------------------------------------------------
-
-
-def find_run_dirs(paths: Sequence[Path]) -> list[Path]:
-    """Every run folder (a folder holding run.jsonl) at or below the given paths, sorted, deduplicated."""
-    found: set[Path] = set()
-    for path in paths:
-        path = Path(path)
-        if not path.exists():
-            raise BadInputError(f"{path}: no such file or folder")
-        if path.is_file():
-            if path.name != RUN_FILE:
-                raise BadInputError(f"{path}: not a run folder or ablation folder")
-            found.add(path.parent.resolve())
-            continue
-        found.update(
-            p.parent.resolve()
-            for p in path.rglob(RUN_FILE)
-            # an ablation's superseded attempts (kept, not results) count only when named directly
-            if p.parent == path or not (p.parent / SUPERSEDED_FILE).exists()
-        )
-    if not found:
-        raise BadInputError(f"no run folders (with {RUN_FILE}) under {', '.join(str(p) for p in paths)}")
-    return sorted(found)
-
-
-@lru_cache(maxsize=16)
-def _scenario(name_or_path: str) -> Scenario | str:
-    """The scenario, or why it cannot be loaded (cached either way: many runs share one)."""
-    from llmnav.errors import LlmnavError, one_line
-    from llmnav.scenario import load_scenario
-
-    try:
-        return load_scenario(name_or_path)
-    except (LlmnavError, OSError) as err:
-        return one_line(err)
-
-
-def load_scenario_of(config: dict[str, Any]) -> tuple[Scenario | None, str | None]:
-    """The run's scenario (its recorded file, else its bundled name), or None and why not."""
-    reasons = []
-    for key in ("scenario_file", "scenario"):
-        value = config.get(key)
-        if value:
-            loaded = _scenario(str(value))
-            if not isinstance(loaded, str):
-                return loaded, None
-            reasons.append(f"scenario '{value}' cannot be loaded: {loaded}")
-    return None, ("; ".join(reasons) or "the config line names no scenario")
-
-
-def scenario_of(config: dict[str, Any]) -> Scenario | None:
-    """The run's scenario; None when it cannot be loaded (see `load_scenario_of` for why)."""
-    return load_scenario_of(config)[0]
-
-
-# Keys a summary written before collisions, SPL and failure causes were recorded lacks: computed from the log.
-_COLLISION_KEYS = ("collisions", "collided_with")
-
-
-def load_run(run_dir: Path, success_radius_m: float | None = None, prices: PriceTable | None = None) -> Run:
-    """A run's summary: summary.json when the run ended, else computed from its (cut-short) log.
-
-    `success_radius_m` [m]: success, oracle success, SPL, Soft-SPL and the failure cause are recomputed from
-    the log at this radius (`--success-radius`). A summary written before some of these keys existed gets
-    them computed from its log the same way (`llmnav.metrics.summarize_run`). `prices` (`--prices`): the
-    cost is recomputed from the log with this table instead of the one the run was priced with.
-    """
-    return run_from_record(read_run(run_dir), success_radius_m, prices)
-
-
-def run_from_record(
-    record: RunRecord, success_radius_m: float | None = None, prices: PriceTable | None = None
-) -> Run:
-    """`load_run` of a log already read (the per-run table also sums the log's token counts)."""
-    run_dir = record.run_dir
-    summary = record.summary
-    problems = []
-    if summary is None or "outcome" not in summary:
-        scenario, why = load_scenario_of(record.config)
-        if scenario is None:
-            problems.append(f"{why}; its targets are scored only where the log records them as points")
-        summary = summarize_run(record, scenario, success_radius_m=success_radius_m or SUCCESS_RADIUS_M)
-    else:
-        missing = [k for k in (*RESCORED_KEYS, *_COLLISION_KEYS) if k not in summary]
-        if success_radius_m is not None or missing:
-            scenario, why = load_scenario_of(record.config)
-            fresh = summarize_run(record, scenario, success_radius_m=success_radius_m or SUCCESS_RADIUS_M)
-            redo = RESCORED_KEYS if success_radius_m is not None else ()
-            if "collided_with" in missing:  # older counts missed contacts only the end reason reported
-                redo = (*redo, *_COLLISION_KEYS, "failure_cause")
-            summary = {**summary, **{k: fresh[k] for k in dict.fromkeys((*missing, *redo))}}
-            if scenario is None and summary.get("task_kind") == "target":
-                problems.append(f"{why}; no SPL or Soft-SPL")
-    if "cost_usd" not in summary or prices is not None:  # a summary from before costs were: priced now
-        from llmnav.backends.prices import load_prices, run_cost
-
-        summary = {**summary, **run_cost(record.config, record.of_type("llm_call"), prices or load_prices())}
-    # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
-    if summary.get("task_kind") == "target" and summary.get("score") is None and not aborted_without_result(summary):
-        problems.append("no score: the task's targets could not be resolved")
-    return Run(Path(run_dir), summary, record.config, problems)
-
-
-def load_runs(paths: Sequence[Path], success_radius_m: float | None = None) -> list[Run]:
-    """Every run below the given paths (BadInputError at the first that cannot be read)."""
-    return [load_run(d, success_radius_m) for d in find_run_dirs(paths)]
-
-
-def read_runs(
-    paths: Sequence[Path], success_radius_m: float | None = None, prices: PriceTable | None = None
-) -> tuple[list[Run], list[str]]:
-    """Every readable run below the given paths, and "folder: why" for each that is not.
-
-    One damaged log among thousands must not cancel the tables of the rest; when none can be read, the
-    first one's error is raised (a single broken run named on the command line is an error).
-    `success_radius_m` and `prices`: as for `load_run`.
-    """
-    runs: list[Run] = []
-    broken: list[tuple[Path, BadInputError]] = []
-    for run_dir in find_run_dirs(paths):
-        try:
-            runs.append(load_run(run_dir, success_radius_m, prices))
-        except BadInputError as err:
-            broken.append((run_dir, err))
-    if broken and not runs:
-        raise broken[0][1]
-    from llmnav.errors import one_line
-
-    return runs, [f"{run_dir}: {one_line(err)}" for run_dir, err in broken]
-
-
-def split_aborted(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
-    """(the model's results, the runs aborted by a server failure or a crash): the latter never enter a mean."""
-    results = [r for r in runs if not aborted_without_result(r.summary)]
-    return results, [r for r in runs if aborted_without_result(r.summary)]
 
 
 # --- grouping -----------------------------------------------------------------------------------
@@ -490,8 +263,8 @@ def _start_key(run: Run) -> tuple[str, Any]:
 
 def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
     """Oracle shortest-path length per (task, start pose); None where unavailable (noted on the run)."""
+    from llmnav.core.geometry import Pose2D
     from llmnav.errors import one_line
-    from llmnav.geometry import Pose2D
 
     lengths: dict[tuple[str, Any], float | None] = {}
     for run in runs:
@@ -521,9 +294,9 @@ def task_of_run(scenario: Scenario, run: Run) -> Task:
     """The task a run drove: the scenario's (a route too) by id, else its logged text resolved again.
 
     A sequence of `--task` commands (id `SEQ`) and free text (id `adhoc`) are no scenario task: their text
-    is (`llmnav.tasks`), so they are resolved from it as `drive` did.
+    is (`llmnav.world.tasks`), so they are resolved from it as `drive` did.
     """
-    from llmnav.tasks import SEQUENCE_ID, sequence_task, task_from_text
+    from llmnav.world.tasks import SEQUENCE_ID, sequence_task, task_from_text
 
     try:
         return scenario.task(run.task)
@@ -543,9 +316,9 @@ def sequence_oracle_length(scenario: Scenario, task: Task, start: Pose2D) -> flo
 
     Each leg starts where the oracle's previous one ended, as the robot's did where the last leg ended.
     """
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.mapping.targets import oracle_path
-    from llmnav.tasks import sequence_legs
+    from llmnav.world.tasks import sequence_legs
 
     total, here = 0.0, start
     for leg in sequence_legs(scenario, task):
@@ -568,7 +341,7 @@ def path_table(
 ) -> Table | None:
     """Source A, Table 2 style, successful runs only: path length and its ratio to Oracle and to each reference.
 
-    The references default to every installed planner's (see `llmnav.declarations.ReferencePath`).
+    The references default to every installed planner's (see `llmnav.core.declarations.ReferencePath`).
     """
     successful = [r for r in runs if r.summary.get("success") and _num(r.summary.get("path_length_m")) is not None]
     if not successful:
@@ -624,7 +397,7 @@ def path_table(
 
 
 def _read(run: Run, source: str, where: Sequence[str]) -> Any:
-    """A value of the run's planner metrics or summary at a dotted path (see `llmnav.declarations.Column`)."""
+    """A value of the run's planner metrics or summary at a dotted path (see `llmnav.core.declarations.Column`)."""
     value: Any = run.metrics if source == "metrics" else run.summary
     for part in where:
         if not isinstance(value, dict):  # a number where a mapping was expected stands for itself
@@ -732,34 +505,8 @@ def declared_tables(runs: Sequence[Run], keys: Sequence[str], declared: Mapping[
     return [t for t in tables if t is not None]
 
 
-def build_tables(runs: Sequence[Run], group_keys: Sequence[str] | None = None) -> list[Table]:
-    """Every table that has data; groups are told apart by `group_keys` (default: the varying keys).
-
-    The planners' own tables come from what each installed planner declares (`llmnav.declarations`);
-    a run whose planner is not installed is in the common tables (and noted as a problem).
-    """
-    from llmnav.score_policies import ceiling_table, null_policy_table, wording_spread_table, wording_table
-
-    keys = list(group_keys) if group_keys is not None else varying_keys(runs)
-    results, aborted = split_aborted(runs)
-    declared = installed_declarations()
-    for run in runs:
-        if run.planner not in declared:
-            run.problem(f"planner '{run.planner}' is not installed (or fails to load): its own tables are left out")
-    common = (episodes_table(results, keys), path_table(results, keys, reference_paths(declared)))
-    tables = [t for t in common if t is not None]
-    tables += declared_tables(results, keys, declared)
-    policies = (null_policy_table, ceiling_table, wording_table, wording_spread_table)
-    tables += [t for t in (b(results, keys) for b in policies) if t is not None]
-    tables += [t for t in (failures_table(runs, keys), aborted_table(aborted, keys)) if t is not None]
-    from llmnav.score_cost import cost_table
-
-    tables += [t for t in (cost_table(runs, keys),) if t is not None]
-    return tables
-
-
 def failures_table(runs: Sequence[Run], keys: Sequence[str]) -> Table | None:
-    """Per condition: how many runs failed, and of what (`failure_cause`, see `llmnav.failures`).
+    """Per condition: how many runs failed, and of what (`failure_cause`, see `llmnav.scoring.failures`).
 
     Every run counts, those aborted by a backend or server failure too (cause `outage`).
     """

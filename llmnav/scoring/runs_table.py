@@ -1,7 +1,7 @@
 """`llmnav score --table runs`: one row per run, streamed, for pandas and spreadsheets.
 
 Pipeline: `iter_run_dirs` walks the folders in sorted order one directory at a time (no list of every
-run) → `run_row` reads one run (`llmnav.score.run_from_record`: the same summary, rescoring and problems
+run) → `run_row` reads one run (`llmnav.runs.folders.run_from_record`: the same summary, rescoring and problems
 as the aggregate tables) and flattens it into a row → `spool_rows` writes each row to a temporary JSON
 Lines file while noting which columns hold a value → `write_rows` writes CSV, JSON or a Markdown/rich
 table from the spool. Memory stays that of one run and the column names, whatever the number of runs;
@@ -18,20 +18,24 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
+from llmnav.core.safefiles import SUMMARY_LIMIT, UnsafeFileError, read_text
+from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import BadInputError, one_line
-from llmnav.runlog import RUN_FILE, SUPERSEDED_FILE, dumps, read_run
-from llmnav.safefiles import SUMMARY_LIMIT, UnsafeFileError, read_text
-from llmnav.safefiles import loads as bounded_loads
-from llmnav.score import Run, run_from_record
+from llmnav.runs.folders import Run, run_from_record
+from llmnav.runs.runlog import RUN_FILE, SUPERSEDED_FILE, dumps, read_run
+
+if TYPE_CHECKING:
+    from llmnav.backends.prices import PriceTable
 
 TABLE_NAME = "runs"
 MANIFEST_FILE = "manifest.json"  # an ablation folder's episode list (llmnav.ablate.manifest), read for trials
 TITLE = "Runs (one row per run)"
 NOTE = (
-    "one row per run folder; options as logged; tokens and cost summed over the run's model calls "
-    "(cost only where the backend reported one); a column empty in every row is left out"
+    "one row per run folder; options as logged; tokens summed over the run's model calls (where the backend "
+    "counts them); cost_usd as llmnav priced the run (docs/cost-and-cache.md); a column empty in every row "
+    "is left out"
 )
 
 # Shown by the terminal table (every column is in the CSV and JSON).
@@ -60,7 +64,7 @@ def _walk_sorted(folder: Path, top: bool) -> Iterator[Path]:
 
 
 def iter_run_dirs(paths: Sequence[Path]) -> Iterator[Path]:
-    """Every run folder at or below the given paths, like `llmnav.score.find_run_dirs` but streamed.
+    """Every run folder at or below the given paths, like `llmnav.runs.folders.find_run_dirs` but streamed.
 
     A path inside another given path is skipped (its runs come with the outer one); an ablation's
     superseded attempts count only when named directly.
@@ -103,26 +107,20 @@ def _trials(folder: Path) -> dict[str, int]:
 # --- one run, one row ----------------------------------------------------------------------------
 
 
-def _tokens_and_cost(events: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Prompt and completion tokens summed over the model calls, and the cost where a backend reported one.
+def _tokens(events: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Prompt and completion tokens summed over the model calls.
 
     None where no call reported the count (a policy, a backend that does not count): unknown, not zero.
     """
-    sums: dict[str, float | None] = {"prompt_tokens": None, "completion_tokens": None, "cost_usd": None}
+    sums: dict[str, float | None] = {"prompt_tokens": None, "completion_tokens": None}
     for event in events:
         if event.get("type") != "llm_call":
             continue
         reply = event.get("reply")
         if not isinstance(reply, dict):
             continue
-        meta = reply.get("meta")
-        meta = meta if isinstance(meta, dict) else {}
-        values = {
-            "prompt_tokens": reply.get("prompt_tokens"),
-            "completion_tokens": reply.get("completion_tokens"),
-            "cost_usd": reply.get("cost_usd", meta.get("cost_usd")),
-        }
-        for key, value in values.items():
+        for key in sums:
+            value = reply.get(key)
             if isinstance(value, (int, float)) and not isinstance(value, bool):
                 sums[key] = (sums[key] or 0) + value
     return sums
@@ -181,7 +179,11 @@ def run_row(run: Run, events: Sequence[dict[str, Any]] = ()) -> dict[str, Any]:
         "latency_s_mean": summary.get("latency_s_mean"),
         "json_errors": summary.get("json_errors"),
         "safety_vetoes": summary.get("safety_vetoes"),
-        **_tokens_and_cost(events),
+        **_tokens(events),
+        # as llmnav priced the run (docs/cost-and-cache.md): None with a note saying why when unknown
+        "cost_usd": summary.get("cost_usd"),
+        "cost_note": summary.get("cost_note"),
+        "cache_hits": summary.get("cache_hits"),
     }
     for key, value in run.condition.items():  # the condition keys, then every other logged option
         if key not in row:
@@ -218,13 +220,17 @@ def spool_rows(
     paths: Sequence[Path],
     success_radius_m: float | None = None,
     progress: Callable[[int], None] | None = None,
+    prices: PriceTable | None = None,
 ) -> Spool:
-    """Read every run below `paths` into a spool (a temporary file, removed when closed)."""
+    """Read every run below `paths` into a spool (a temporary file, removed when closed).
+
+    `success_radius_m` and `prices` (`--prices`): as for `llmnav.runs.folders.load_run`.
+    """
     spool = Spool(tempfile.TemporaryFile("w+", encoding="utf-8", prefix="llmnav-runs-"))
     for run_dir in iter_run_dirs(paths):
         try:
             record = read_run(run_dir)
-            run = run_from_record(record, success_radius_m)
+            run = run_from_record(record, success_radius_m, prices)
         except BadInputError as err:
             spool.broken.append(f"{run_dir}: {one_line(err)}")
             continue

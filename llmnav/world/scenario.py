@@ -17,9 +17,9 @@ from typing import Annotated, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from llmnav.core.geometry import Pose2D
+from llmnav.core.resources import resource_dir
 from llmnav.errors import BadInputError, ScenarioError
-from llmnav.geometry import Pose2D
-from llmnav.resources import resource_dir
 
 RGBA = tuple[float, float, float, float]
 Vec2 = tuple[float, float]
@@ -185,7 +185,7 @@ class Task(_Strict):
 
     `paraphrases` are other wordings of the same task, as people would say them (same targets and start
     poses); `wording` says which wording `text` is: "bundled" (the scenario's), "paraphrase:<k>" (1-based)
-    or "free" (typed by a user). Files leave `wording` out; `llmnav.tasks` sets it.
+    or "free" (typed by a user). Files leave `wording` out; `llmnav.world.tasks` sets it.
     """
 
     id: Annotated[str, Field(max_length=MAX_NAME_CHARS)]
@@ -412,7 +412,7 @@ class Scenario(_Strict):
     obstacles: list[Obstacle] = []
     objects: list[LabelledObject] = []
     corridors: list[Corridor] = []
-    # Whether planners are handed the map (llmnav.knowledge); None: "map" where corridors are listed.
+    # Whether planners are handed the map (llmnav.world.knowledge); None: "map" where corridors are listed.
     default_information: Literal["map", "sensed"] | None = None
     tasks: Annotated[list[Task], Field(max_length=MAX_TASKS)] = []
     routes: Annotated[list[Route], Field(max_length=MAX_TASKS)] = []
@@ -500,7 +500,7 @@ def _check_consistency(sc: Scenario) -> list[tuple[str, str]]:
         if not sc.bounds.contains(*obs.center):
             problems.append((f"obstacles[{i}].center", f"obstacle at {list(obs.center)} is outside bounds"))
     # A start pose must leave the robot's footprint clear of everything solid.
-    from llmnav.robot_specs import ROBOT_SPECS  # local: keep scenario loading free of pybullet
+    from llmnav.core.robot_specs import ROBOT_SPECS  # local: keep scenario loading free of pybullet
 
     radius = ROBOT_SPECS[sc.robot].radius_m
     solids = sc.solid_shapes()

@@ -20,7 +20,7 @@ import re
 from dataclasses import dataclass
 
 from llmnav.errors import BadInputError
-from llmnav.scenario import (
+from llmnav.world.scenario import (
     SEQUENCE_JOIN,
     LabelledObject,
     Scenario,

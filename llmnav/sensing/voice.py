@@ -27,7 +27,7 @@ import numpy as np
 from llmnav.errors import BadInputError, ModelUnavailableError
 
 if TYPE_CHECKING:
-    from llmnav.scenario import Scenario
+    from llmnav.world.scenario import Scenario
 
 SAMPLE_RATE = 16_000  # [Hz] what the acoustic model expects
 LOG_BASE = 1.0001  # pocketsphinx's log base: scores come back as LOG_BASE ** raw
@@ -323,6 +323,6 @@ def transcribe(path: Path, scenarios: list[Scenario], *, free: bool = False) -> 
 
 def scenarios_for(scenario: str | None) -> list[Scenario]:
     """The scenario named, or every bundled one (the task then picks the scenario, as typed text does)."""
-    from llmnav.scenario import list_scenarios, load_scenario
+    from llmnav.world.scenario import list_scenarios, load_scenario
 
     return [load_scenario(scenario)] if scenario else [load_scenario(n) for n in list_scenarios()]

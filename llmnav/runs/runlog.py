@@ -27,7 +27,7 @@ Event vocabulary (field `type`; every event also has `t_wall` [s since start] an
 
 Any event may carry `truncated`: a list of {field, chars, sha256} for strings longer than MAX_TEXT_CHARS,
 which are logged as their head and tail only (a model may answer megabytes; corrections re-send it).
-A run folder is written by one process at a time (a lock file, `llmnav.locking`) and must be new or empty.
+A run folder is written by one process at a time (a lock file, `llmnav.runs.locking`) and must be new or empty.
 """
 
 from __future__ import annotations
@@ -43,12 +43,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from llmnav.chat import Image
+from llmnav.core.chat import Image
+from llmnav.core.geometry import logged_pose
+from llmnav.core.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, read_text, write_bytes, write_text
+from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import BadInputError, FolderLockedError, RunFolderError, expand_secrets
-from llmnav.geometry import logged_pose
-from llmnav.locking import LOCK_FILE, FolderLock, locked_by
-from llmnav.safefiles import LOG_LIMIT, SUMMARY_LIMIT, UnsafeFileError, read_text, write_bytes, write_text
-from llmnav.safefiles import loads as bounded_loads
+from llmnav.runs.locking import LOCK_FILE, FolderLock, locked_by
 
 RUN_FILE = "run.jsonl"
 SUMMARY_FILE = "summary.json"

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
 
 FRONT_RAYS = 7  # readings averaged for the front distance (the stepwise source's central 7)
 FRONT_WINDOW_DEG = 10.0  # [deg] the central readings must lie within ± this of straight ahead
@@ -167,7 +167,7 @@ def detections_text(detections: Iterable[Any]) -> str:
     return "\n".join(lines)
 
 
-describe_detections = detections_text  # the name llmnav.observe uses
+describe_detections = detections_text  # the name llmnav.planners.observe uses
 
 
 def pose_text(pose: Pose2D) -> str:

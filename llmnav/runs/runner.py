@@ -39,7 +39,7 @@ from llmnav.planners.base import (
     as_planner_options,
     drive_options,
 )
-from llmnav.scenario import resolve_scenario_path
+from llmnav.world.scenario import resolve_scenario_path
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -47,11 +47,11 @@ if TYPE_CHECKING:
     from llmnav.backends.base import Backend
     from llmnav.backends.policy import PolicyBackend
     from llmnav.backends.prices import PriceTable
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.planners.base import Planner
-    from llmnav.runlog import RunLog, RunRecord
-    from llmnav.scenario import Scenario, Task
+    from llmnav.runs.runlog import RunLog, RunRecord
     from llmnav.sim.world import World
+    from llmnav.world.scenario import Scenario, Task
 
 TRAJECTORY_FILE = "trajectory.png"
 # Errors that end an episode "aborted" without saying anything about navigation: no answer came.
@@ -64,9 +64,9 @@ class EpisodeSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    scenario: str  # bundled name or path; "" lets the task pick it (see llmnav.tasks)
+    scenario: str  # bundled name or path; "" lets the task pick it (see llmnav.world.tasks)
     task_id: str | None = None
-    task_text: str | None = None  # several legs joined by llmnav.tasks.SEQUENCE_JOIN form a sequence
+    task_text: str | None = None  # several legs joined by llmnav.world.tasks.SEQUENCE_JOIN form a sequence
     start_pose: int = 1  # 1-based index into the task's start poses
     options: DriveOptions = Field(default_factory=drive_options)  # the planner's own Options model
     backend: str = "local"
@@ -103,7 +103,7 @@ def _file_hash(path: Path) -> str:
 
 def prompt_hashes(planner: Planner, options: DriveOptions) -> dict[str, str]:
     """Hashes of the prompt templates a planner renders (its `templates` hook)."""
-    from llmnav import prompting
+    from llmnav.planners import prompting
 
     return {name: prompting.template_hash(name, planner.prompt_package) for name in planner.templates(options)}
 
@@ -191,8 +191,8 @@ def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
 
 def _check_obstacles(scenario: Scenario, start: Pose2D, options: DriveOptions) -> None:
     """Added obstacles inside the world and clear of the robot's start (bad input, before any folder)."""
-    from llmnav.robot_specs import ROBOT_SPECS
-    from llmnav.scenario import check_added_obstacles
+    from llmnav.core.robot_specs import ROBOT_SPECS
+    from llmnav.world.scenario import check_added_obstacles
 
     robot = ROBOT_SPECS.get(scenario.robot)
     clearance = (robot.radius_m if robot else 0.3) + _ADDED_OBSTACLE_SIZE_M * math.sqrt(0.5)
@@ -217,10 +217,10 @@ def run_episode(
     can show the result first. The summary names the trajectory's path already. A run that crashed
     draws its figures at once, as without `later`.
     """
-    from llmnav.knowledge import resolve_information
     from llmnav.planners.base import get_planner
-    from llmnav.runlog import RunLog
-    from llmnav.tasks import SEQUENCE_JOIN, resolve_task
+    from llmnav.runs.runlog import RunLog
+    from llmnav.world.knowledge import resolve_information
+    from llmnav.world.tasks import SEQUENCE_JOIN, resolve_task
 
     texts = spec.task_text.split(SEQUENCE_JOIN) if spec.task_text else None
     resolved = resolve_task(spec.scenario or None, texts, spec.task_id, spec.start_pose)
@@ -319,10 +319,10 @@ def _run_logged(
 ) -> dict[str, Any]:
     """Run the planner inside an open log; always end the log, summary and plot (or leave the plot to `later`).
 
-    The planner gets the scenario as its information mode lets it see it (llmnav.knowledge); the
+    The planner gets the scenario as its information mode lets it see it (llmnav.world.knowledge); the
     summary is computed on the full scenario.
     """
-    from llmnav.knowledge import scenario_view
+    from llmnav.world.knowledge import scenario_view
 
     recorder = None
     if spec.record_hz is not None:
@@ -379,8 +379,8 @@ def _run_logged(
         iterations=outcome.iterations,
         metrics=outcome.metrics,
     )
-    from llmnav.metrics import summarize_run
-    from llmnav.runlog import read_run
+    from llmnav.runs.runlog import read_run
+    from llmnav.scoring.metrics import summarize_run
 
     log.check_written()  # a full disk: one error, no summary of a log that stops early
     record = read_run(log.run_dir)
@@ -473,7 +473,7 @@ def exit_code(summary: dict[str, Any]) -> int:
     0 the task succeeded; 1 it was not achieved (completed far from the target, or failed); 3 the model
     failed (no valid action, every motion vetoed); 4 the backend or its server failed (no answer came).
     """
-    from llmnav.metrics import aborted_by_infrastructure
+    from llmnav.scoring.metrics import aborted_by_infrastructure
 
     if aborted_by_infrastructure(summary):
         return EXIT_INFRASTRUCTURE

@@ -61,7 +61,7 @@ def failure_cause(summary: Mapping[str, Any], last_action: Mapping[str, Any] | N
     """The one cause of a run that did not succeed (one of FAILURE_CAUSES); None for a successful run.
 
     `summary` needs `success`, `outcome`, `reason`, `collisions`, `cut_short` and `planner_metrics` (as
-    `llmnav.metrics.summarize_run` writes them); `last_action` is the run's last `action` event, if any.
+    `llmnav.scoring.metrics.summarize_run` writes them); `last_action` is the run's last `action` event, if any.
     """
     if summary.get("success"):
         return None

@@ -1,6 +1,6 @@
 """The source papers' tables in their own rows and columns: `llmnav score DIRS --table NAME`.
 
-`llmnav.score` builds llmnav's own tables (one row per task and condition, every metric a column). The
+`llmnav.scoring.score` builds llmnav's own tables (one row per task and condition, every metric a column). The
 sources print theirs differently, and a reader comparing numbers needs the same layout (docs/sources.md,
 docs/paper-tables.md):
 
@@ -30,15 +30,14 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from llmnav.errors import BadInputError
-from llmnav.runlog import read_run
-from llmnav.scenario import SEQUENCE_JOIN
-from llmnav.score import (
+from llmnav.runs.folders import Run, load_scenario_of
+from llmnav.runs.runlog import read_run
+from llmnav.scoring.score import (
     CACHE_MARK,
     FAILED,
     MISSING,
     NA,
     ORACLE_MARK,
-    Run,
     Table,
     _fmt,
     _num,
@@ -50,10 +49,10 @@ from llmnav.score import (
     group_runs,
     installed_declarations,
     is_oracle,
-    load_scenario_of,
     task_of_run,
 )
-from llmnav.stats import compare, describe
+from llmnav.scoring.stats import compare, describe
+from llmnav.world.scenario import SEQUENCE_JOIN
 
 NOT_RUN = "not run"  # a leg after one that failed: the episode ended before it
 START_LABEL = "SP"  # the start point, as the waypoint source names it
@@ -180,7 +179,7 @@ def _leg_names(run: Run, commands: Sequence[str]) -> list[str]:
     The leg's first target's label; the command text where the scenario cannot be loaded or the target is
     a point.
     """
-    from llmnav.tasks import sequence_legs
+    from llmnav.world.tasks import sequence_legs
 
     scenario, _why = load_scenario_of(run.config)
     if scenario is None:
@@ -455,7 +454,7 @@ PAPER_TABLES: dict[str, Callable[[Sequence[Run], Sequence[str]], Table | None]] 
     "fsm-compare": fsm_compare_table,
     "fsm-velocity": fsm_velocity_table,
 }
-# llmnav's own tables (`llmnav.score.build_tables`, `--compare`) whatever the planners declare
+# llmnav's own tables (`llmnav.scoring.tables.build_tables`, `--compare`) whatever the planners declare
 OWN_TABLES = ("runs", "episodes", "path", "null_policies", "ceiling", "wording", "wording_spread", "failures",
               "aborted", "cost", "comparison")  # fmt: skip
 

@@ -11,7 +11,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from llmnav.score import MISSING, Run, Table, condition_fields, group_runs
+from llmnav.runs.folders import Run
+from llmnav.scoring.score import MISSING, Table, condition_fields, group_runs
 
 COLUMNS = ["Condition", "N", "Calls", "Cache hits", "Prompt tokens", "Completion tokens", "Cost [USD]", "USD/run"]
 ALL_RUNS = "all runs"

@@ -27,8 +27,8 @@ from pathlib import Path
 from string import Template
 from typing import Any
 
+from llmnav.core.resources import resource_dir
 from llmnav.errors import PromptTemplateError
-from llmnav.resources import resource_dir
 
 # The stepwise planner's system-prompt variants (docs/sources.md, A). "self-check" is the full prompt plus the
 # `self_check` follow-up after every answer, so as a system prompt it resolves to `full`.

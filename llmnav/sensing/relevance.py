@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from llmnav.chat import ScoreRequest, ScoreResult
+from llmnav.core.chat import ScoreRequest, ScoreResult
 
 # The prompts are plain text (no chat template): the model continues them. No example, no alias and no
 # answer: the task's own words are all the model gets.

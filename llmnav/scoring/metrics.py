@@ -1,7 +1,7 @@
 """Episode metrics: the stepwise source's score, success, path length and the per-run summary.
 
 Every number in `summary.json` comes from `summarize_run`, which reads only the run log (the event
-vocabulary of `llmnav.runlog`) and the scenario. The runner calls it when an episode ends; `llmnav score`
+vocabulary of `llmnav.runs.runlog`) and the scenario. The runner calls it when an episode ends; `llmnav score`
 calls it on runs that were cut short. Definitions (see docs/metrics.md):
 
 - score S = distance_score(d) * heading_score(alpha) at the final pose, for the best acceptable target
@@ -16,7 +16,7 @@ calls it on runs that were cut short. Definitions (see docs/metrics.md):
 - SPL = S * l / max(p, l) and Soft-SPL = progress * l / max(p, l), with l the shortest collision-free path
   from the start to within the success radius of the nearest acceptable target (the oracle's grid), p the
   true path length and progress = clip(1 - d_T / d_0, 0, 1) over the same geodesic distance;
-- failure_cause: one cause per failed run (`llmnav.failures`).
+- failure_cause: one cause per failed run (`llmnav.scoring.failures`).
 The success radius is 2.5 m unless `llmnav score --success-radius` asks for another.
 """
 
@@ -28,14 +28,14 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from llmnav.failures import failure_cause
-from llmnav.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
+from llmnav.core.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
+from llmnav.scoring.failures import failure_cause
 
 if TYPE_CHECKING:
     from llmnav.backends.prices import PriceTable
     from llmnav.planners.base import EpisodeOutcome
-    from llmnav.runlog import RunRecord
-    from llmnav.scenario import Scenario
+    from llmnav.runs.runlog import RunRecord
+    from llmnav.world.scenario import Scenario
 
 SUCCESS_RADIUS_M = 2.5  # [m] d at or below which distance_score is 1 and a completed run succeeds
 DISTANCE_DECAY_BASE = 1.5  # distance_score = base ** -(d - radius) beyond the radius

@@ -17,16 +17,16 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
-from llmnav.chat import ChatRequest, ChatResult, Image, Message, ScoreRequest, ScoreResult
+from llmnav.core.chat import ChatRequest, ChatResult, Image, Message, ScoreRequest, ScoreResult
 from llmnav.errors import LlmnavError, one_line
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
-    from llmnav.geometry import Pose2D
+    from llmnav.core.geometry import Pose2D
     from llmnav.guard.view import PlannerWorld
-    from llmnav.perception import LidarSummary
     from llmnav.planners.options import DriveOptions
-    from llmnav.runlog import RunLog
+    from llmnav.runs.runlog import RunLog
+    from llmnav.sensing.perception import LidarSummary
     from llmnav.sim.sensors import Detection, LidarScan
 
 
@@ -60,7 +60,7 @@ class Observation:
 
 def lidar_summary(scan: LidarScan, options: DriveOptions) -> LidarSummary:
     """The scan's front distance and sectors, per `--lidar-sectors` and `--lidar-fov`."""
-    from llmnav.perception import summarize_scan
+    from llmnav.sensing.perception import summarize_scan
 
     return summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
 
@@ -122,7 +122,7 @@ def observe(
     `image_needed=False`: the caller sends the model no image (a text-only backend), so the camera frame,
     the costliest reading, is not rendered, and the observation has none.
     """
-    from llmnav.perception import detections_text
+    from llmnav.sensing.perception import detections_text
 
     sensing = set(options.sensing)
     scan = world.lidar.scan()

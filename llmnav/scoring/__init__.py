@@ -1,0 +1,1 @@
+"""Scoring runs: metrics, statistics, failure causes and every table `llmnav score` prints."""

@@ -1,0 +1,1 @@
+"""Turning sensor data into text a model reads: LiDAR summaries, relevance, speech."""
