@@ -195,7 +195,7 @@ def model_generating_beside(out: Path) -> Iterator[Path]:
     code = (
         "from llmnav.backends.local import LocalBackend\n"
         "from llmnav.backends.base import ChatRequest, Message\n"
-        "from llmnav.guard.schemas import VelocitySuggestion\n"
+        "from llmnav.planners.fsm.answers import VelocitySuggestion\n"
         "busy = LocalBackend()\n"
         "request = ChatRequest(messages=(Message('system', \"You advise a robot's speed.\"),"
         " Message('user', '{\"distance\": 0.8}')), json_schema=VelocitySuggestion.model_json_schema(),"
