@@ -7,7 +7,18 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from llmnav.commands.common import cli_errors, console, err_console, esc, parse_option_pairs, path_option, print_table
+from llmnav.commands.common import (
+    CacheOption,
+    DropImagesOption,
+    PricesOption,
+    cli_errors,
+    console,
+    err_console,
+    esc,
+    parse_option_pairs,
+    path_option,
+    print_table,
+)
 from llmnav.commands.planner_flags import GIVEN, SweepFlags, declared_flags
 from llmnav.errors import BadInputError
 
@@ -86,17 +97,9 @@ def ablate(
         ),
     ] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="List the episodes and stop.")] = False,
-    drop_images: Annotated[
-        bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
-    ] = False,
-    cache: Annotated[
-        str | None,
-        typer.Option("--cache", help="Reply cache folder for HTTP backends: a repeated request is not sent again."),
-    ] = None,
-    prices: Annotated[
-        str | None,
-        typer.Option("--prices", help="Price table (TOML) for cost_usd; default $LLMNAV_PRICES, else the bundled one."),
-    ] = None,
+    drop_images: DropImagesOption = False,
+    cache: CacheOption = None,
+    prices: PricesOption = None,
     max_cost: Annotated[
         float | None,
         typer.Option(

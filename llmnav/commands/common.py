@@ -18,7 +18,7 @@ import os
 import sys
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar
+from typing import Annotated, Any, ParamSpec, TypeVar
 
 import typer
 from rich.console import Console
@@ -136,6 +136,20 @@ class _Stdout(io.TextIOBase):
 stdout = _Stdout()
 console = Console(file=stdout, _environ=_ConsoleEnviron())  # type: ignore[arg-type]
 err_console = Console(stderr=True, _environ=_ConsoleEnviron())
+
+
+# Options that serve every backend the same way in `drive` and `ablate`: declared once here.
+DropImagesOption = Annotated[
+    bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
+]
+CacheOption = Annotated[
+    str | None,
+    typer.Option("--cache", help="Reply cache folder for HTTP backends: a repeated request is not sent again."),
+]
+PricesOption = Annotated[
+    str | None,
+    typer.Option("--prices", help="Price table (TOML) for cost_usd; default $LLMNAV_PRICES, else the bundled one."),
+]
 
 
 def print_data(text: str) -> None:

@@ -12,6 +12,9 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from llmnav.commands.common import (
+    CacheOption,
+    DropImagesOption,
+    PricesOption,
     cli_errors,
     console,
     err_console,
@@ -148,17 +151,9 @@ def drive(
     view_page: Annotated[
         bool, typer.Option("--view", help="Write the run's HTML page (view.html) at the end and print its path.")
     ] = False,
-    drop_images: Annotated[
-        bool, typer.Option("--drop-images", help="A server that takes no images: go on without them.")
-    ] = False,
-    cache: Annotated[
-        str | None,
-        typer.Option("--cache", help="Reply cache folder for HTTP backends: a repeated request is not sent again."),
-    ] = None,
-    prices: Annotated[
-        str | None,
-        typer.Option("--prices", help="Price table (TOML) for cost_usd; default $LLMNAV_PRICES, else the bundled one."),
-    ] = None,
+    drop_images: DropImagesOption = False,
+    cache: CacheOption = None,
+    prices: PricesOption = None,
     record_hz: Annotated[
         float | None,
         typer.Option(
