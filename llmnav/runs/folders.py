@@ -113,17 +113,25 @@ class Run:
 # --- loading ------------------------------------------------------------------------------------
 
 
+def named_folder(path: Path) -> Path:
+    """The folder a path given on the command line names: itself, or the folder of the run.jsonl it is."""
+    path = Path(path)
+    if not path.exists():
+        raise BadInputError(f"{path}: no such file or folder")
+    if path.is_file():
+        if path.name != RUN_FILE:
+            raise BadInputError(f"{path}: not a run folder or ablation folder")
+        return path.parent
+    return path
+
+
 def find_run_dirs(paths: Sequence[Path]) -> list[Path]:
     """Every run folder (a folder holding run.jsonl) at or below the given paths, sorted, deduplicated."""
     found: set[Path] = set()
-    for path in paths:
-        path = Path(path)
-        if not path.exists():
-            raise BadInputError(f"{path}: no such file or folder")
-        if path.is_file():
-            if path.name != RUN_FILE:
-                raise BadInputError(f"{path}: not a run folder or ablation folder")
-            found.add(path.parent.resolve())
+    for given in paths:
+        path = named_folder(given)
+        if path != Path(given):  # a run.jsonl named directly: that one run
+            found.add(path.resolve())
             continue
         found.update(
             p.parent.resolve()

@@ -23,7 +23,7 @@ from typing import IO, TYPE_CHECKING, Any
 from llmnav.core.safefiles import SUMMARY_LIMIT, UnsafeFileError, read_text
 from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import BadInputError, one_line
-from llmnav.runs.folders import Run, run_from_record
+from llmnav.runs.folders import Run, named_folder, run_from_record
 from llmnav.runs.runlog import RUN_FILE, SUPERSEDED_FILE, dumps, read_run
 
 if TYPE_CHECKING:
@@ -69,16 +69,7 @@ def iter_run_dirs(paths: Sequence[Path]) -> Iterator[Path]:
     A path inside another given path is skipped (its runs come with the outer one); an ablation's
     superseded attempts count only when named directly.
     """
-    roots: list[Path] = []
-    for path in paths:
-        path = Path(path)
-        if not path.exists():
-            raise BadInputError(f"{path}: no such file or folder")
-        if path.is_file():
-            if path.name != RUN_FILE:
-                raise BadInputError(f"{path}: not a run folder or ablation folder")
-            path = path.parent
-        roots.append(path.resolve())
+    roots = [named_folder(path).resolve() for path in paths]
     kept = sorted({r for r in roots if not any(r != o and r.is_relative_to(o) for o in roots)})
     found = False
     for root in kept:
