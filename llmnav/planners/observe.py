@@ -35,7 +35,6 @@ class Observation:
     """One reading of the sensors at a decision point."""
 
     step: int
-    pose: Pose2D  # ground truth (logged, never shown to the stepwise model)
     odom: Pose2D
     scan: LidarScan  # always taken: the veto needs it
     front_m: float | None  # [m] straight-ahead distance of the LiDAR summary
@@ -138,7 +137,6 @@ def observe(
         det_text = detections_text(detections)
     obs = Observation(
         step=step,
-        pose=world.robot.pose(),
         odom=world.robot.odom(),
         scan=scan,
         front_m=front,
@@ -150,7 +148,7 @@ def observe(
     log.event(
         "observation",
         step=step,
-        pose=obs.pose.as_list(),
+        pose=world.robot.pose().as_list(),  # the true pose, for scoring and the viewer only: the planner gets none
         odom=obs.odom.as_list(),
         lidar_front_m=None if front is None else round(front, 4),
         lidar_text=sectors,

@@ -22,6 +22,9 @@ from .test_hybrid import MenuReader, first
 TRUTH = {"robot": {"pose"}, "world": {"scenario", "labelled", "object_bodies", "body_names"}}
 
 
+LOGGED_OBSERVATION = ("robot.pose", "observe.py", "observe")  # the observation event's true pose, for scoring
+
+
 class Spy:
     """Passes every attribute through; records the ones in `truth` read directly by planner code."""
 
@@ -125,7 +128,9 @@ def test_hybrid_sensed_finds_the_boxes_without_reading_ground_truth(
     summary = run_episode(spec, backend_obj=reader)
     (ctx,) = contexts
     assert ctx.information == "sensed" and ctx.scenario.objects == [] and ctx.scenario.walls == []
-    assert reads == []  # no true pose, no world internals: only odometry, LiDAR, detector and motion
+    # no true pose, no world internals: only odometry, LiDAR, detector and motion; the observation logger
+    # (llmnav/planners/observe.py) reads the true pose into the run log alone, never into what it returns
+    assert set(reads) <= {LOGGED_OBSERVATION}
     assert summary["information"] == "sensed" and summary["outcome"] == "completed", summary["reason"]
     assert summary["success"] and summary["collisions"] == 0
     config = read_run(tmp_path / "run").config
@@ -156,7 +161,7 @@ def test_stepwise_sensed_reads_the_true_pose_only_to_log_it(
     summary = run_episode(spec, backend_obj=replay)
     assert contexts[0].information == "sensed" and contexts[0].scenario.objects == []
     assert summary["information"] == "sensed"
-    expected = {("robot.pose", "stepwise/planner.py", "_log_action")}
+    expected = {("robot.pose", "stepwise/planner.py", "_log_action"), LOGGED_OBSERVATION}
     assert reads and {(what, where, fn) for what, where, fn in reads} == expected
 
 
