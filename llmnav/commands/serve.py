@@ -22,6 +22,21 @@ def _stop_on_sigterm(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt  # `kill PID` stops the server as cleanly as Ctrl-C
 
 
+_HANDLERS = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _stop_on_sigterm}
+
+
+def _take_back_signals() -> None:
+    """Make Ctrl-C and SIGTERM Python's again where llama.cpp's own server thread installed its handlers.
+
+    That thread may do so after `start` returned, and a SIGINT then goes to llama.cpp and the process never
+    stops (three servers in one loaded full-suite run ignored it for 60 s; not reproduced alone), so the
+    main thread checks while it waits.
+    """
+    for sig, handler in _HANDLERS.items():
+        if signal.getsignal(sig) is not handler:
+            signal.signal(sig, handler)
+
+
 @cli_errors
 def serve(
     model: Annotated[
@@ -71,8 +86,9 @@ def serve(
     server = LlamaServer(options)
     info = server.start(lambda path: err_console.print(f"loading {path} …", highlight=False, soft_wrap=True))
     try:
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, _stop_on_sigterm)
+        main = threading.current_thread() is threading.main_thread()
+        if main:
+            _take_back_signals()
         typer.echo(info.url)
         typer.echo(f"--backend {info.backend_spec}")
         names = ", ".join((info.name, *info.aliases))
@@ -86,7 +102,10 @@ def serve(
             err_console.print(f"listening on {info.host}: other machines can reach it, with the key", highlight=False)
         if info.has_key:
             err_console.print(f"clients must send the key: set {CLIENT_KEY_VARIABLE} to it", highlight=False)
-        threading.Event().wait()  # until Ctrl-C / SIGTERM
+        idle = threading.Event()
+        while not idle.wait(0.2):  # until Ctrl-C / SIGTERM
+            if main:
+                _take_back_signals()
     except KeyboardInterrupt:
         pass
     finally:
