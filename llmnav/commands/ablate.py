@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+from rich.table import Table
 
 from llmnav.commands.common import (
     CacheOption,
@@ -252,8 +254,6 @@ def _say_layout(layout: Any) -> None:
 
 def _usable_workers(workers: int) -> int:
     """`workers`, capped at the cores this process may run on (more processes only share them)."""
-    import os
-
     try:
         cores = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # not Linux
@@ -276,8 +276,6 @@ def _note_inapplicable(spec: Any) -> None:
 
 
 def _print_plan(ablation: Ablation) -> None:
-    from rich.table import Table
-
     from llmnav.ablate import describe_episodes
 
     table = Table(title=esc(f"{ablation.grid.default_name()}: {ablation.size} episodes → {ablation.root}"))

@@ -26,6 +26,7 @@ from llmnav.commands.common import (
     print_data,
 )
 from llmnav.commands.planner_flags import GIVEN, DriveFlags, flag_of
+from llmnav.commands.transcribe import audio_task
 from llmnav.errors import BadInputError
 from llmnav.planners import DEFAULT_PLANNER
 
@@ -192,7 +193,6 @@ def drive(
     if task_audio is not None:
         if texts or task_id is not None:
             raise BadInputError("give --task-audio alone, without --task or --task-id")
-        from llmnav.commands.transcribe import audio_task
 
         # Transcribed before anything is built or moves: an unknown command ends here with exit 2.
         texts = [audio_task(task_audio, scenario, asr_free, quiet=json_output)]

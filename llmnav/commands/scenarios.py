@@ -21,6 +21,7 @@ from llmnav.commands.common import (
     print_listing,
     print_table,
 )
+from llmnav.core.safefiles import write_text
 from llmnav.errors import BadInputError, one_line
 
 if TYPE_CHECKING:
@@ -174,7 +175,6 @@ def generate_command(
 ) -> None:
     """Generate a building (rooms, doorways, furniture by room type, tasks with checked start poses)."""
     from llmnav.buildings.generate import Request, generate_suite
-    from llmnav.core.safefiles import write_text
 
     path = path_option(out, "--out")
     assert path is not None
@@ -208,8 +208,6 @@ def check_command(
     files: Annotated[list[str], typer.Argument(help="Scenario files, or folders of them (*.yaml).")],
 ) -> None:
     """Check start-pose clearance, target reachability for the robot's footprint and hidden targets."""
-    from pathlib import Path
-
     from llmnav.buildings.check import check_file
 
     failed = False

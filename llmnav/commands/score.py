@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 from enum import StrEnum
@@ -11,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from llmnav.commands.common import chart_folder_option, check_output_path, cli_errors, console, err_console, esc
-from llmnav.core.safefiles import write_text
+from llmnav.core.safefiles import atomic_text, write_text
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -139,9 +140,6 @@ def runs_table(
     paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None, prices: PriceTable | None
 ) -> None:
     """`--table runs`: a row per run, streamed through a spool file (see `llmnav.scoring.runs_table`)."""
-    import contextlib
-
-    from llmnav.core.safefiles import atomic_text
     from llmnav.scoring.runs_table import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
 
     spool = spool_rows(paths, success_radius, prices=prices)

@@ -16,6 +16,7 @@ from typing import Annotated
 import typer
 
 from llmnav.commands.common import cli_errors, err_console
+from llmnav.errors import BadInputError, validation_message
 
 
 def _stop_on_sigterm(signum: int, frame: FrameType | None) -> None:
@@ -68,7 +69,6 @@ def serve(
     """Serve a model over HTTP (OpenAI-compatible) so runs and sweep workers can share one loaded copy."""
     from pydantic import ValidationError
 
-    from llmnav.errors import BadInputError, validation_message
     from llmnav.serve import CLIENT_KEY_VARIABLE, KEY_VARIABLE, LOOPBACK, LlamaServer, ServeOptions, check_host
 
     key = api_key or os.environ.get(KEY_VARIABLE, "").strip() or None

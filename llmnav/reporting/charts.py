@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import BadInputError
+from llmnav.scoring.stats import describe, wilson_interval
 
 if TYPE_CHECKING:
     from llmnav.runs.folders import Run
@@ -52,8 +53,6 @@ LABEL_CHARS = 16  # a tick label's line length: about what fits under a bar 1.6 
 def condition_figure(task: str, groups: Sequence[tuple[str, Sequence[Run]]], keys: Sequence[str]) -> Any:
     """One task's figure: a bar per condition, its label wrapped to the bar's width (never tilted into the next)."""
     import matplotlib.pyplot as plt
-
-    from llmnav.scoring.stats import describe, wilson_interval
 
     labels = [cond for cond, _ in groups]
     score_mean, score_sd, rate, rate_err = [], [], [], []

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import printable
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 from llmnav.world.scenario import Scenario, Shape, Task
 
 if TYPE_CHECKING:
@@ -337,8 +338,6 @@ def plot_scenario(scenario: Scenario, path: str | Path, *, task: Task | None = N
         draw_scenario(ax, scenario)
         _draw_start_poses(ax, scenario, task)
         if task is not None and task.kind == "target":
-            from llmnav.scoring.metrics import SUCCESS_RADIUS_M
-
             draw_targets(ax, scenario.target_points(task), SUCCESS_RADIUS_M)
         title = scenario.name if task is None else f"{scenario.name} - {task.id}: {task.text}"
         ax.set_title(printable(title), fontsize=10)

@@ -12,7 +12,9 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.core.geometry import Pose2D
 from llmnav.errors import LlmnavError, printable
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 
 if TYPE_CHECKING:
     from llmnav.runs.runlog import RunRecord
@@ -30,7 +32,6 @@ def oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tu
     if task.kind != "target":
         return None
     try:
-        from llmnav.core.geometry import Pose2D
         from llmnav.mapping.targets import oracle_path
 
         path = oracle_path(scenario, task, Pose2D.from_list(start))
@@ -63,7 +64,6 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
 def draw_record(ax: Any, record: RunRecord, scenario: Scenario, task: Task) -> None:
     """The run on `ax`: top view, target and success radius, oracle path, driven path, numbered steps."""
     from llmnav.reporting.topview import draw_scenario, draw_targets, label_fontsize, place_labels
-    from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 
     poses = record.poses()
     draw_scenario(ax, scenario, labels=False)  # object names last, placed clear of the run's markers

@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from llmnav.runs.runlog import read_run
+
 PROFILE_FILE = "velocity_profile.png"  # where the FSM planner leaves the figure in its run folder
 
 
@@ -30,8 +32,6 @@ def well_formed_cmd(record: dict[str, Any]) -> bool:
 
 def plot_velocity_profile(run_dir: Path, out: Path) -> Path | None:
     """Draw linear and angular velocity from the run's `cmd` records; None when there are none."""
-    from llmnav.runs.runlog import read_run
-
     records = [e for e in read_run(run_dir).of_type("planner") if e.get("kind") == "cmd" and well_formed_cmd(e)]
     if not records:
         return None

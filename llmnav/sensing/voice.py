@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 from functools import lru_cache
 from pathlib import Path
+from pathlib import Path as _Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -256,8 +257,6 @@ def _decoder(mode: str) -> Any:
     """One decoder per mode ("grammar", "free", "phones"), kept: each load takes about a second."""
     ps = _pocketsphinx()
     if mode == "phones":
-        from pathlib import Path as _Path
-
         model_dir = _Path(ps.__file__).parent / "model" / "en-us"
         return ps.Decoder(logfn="/dev/null", allphone=str(model_dir / "en-us-phone.lm.bin"))
     return ps.Decoder(logfn="/dev/null")

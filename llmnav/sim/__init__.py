@@ -1,14 +1,14 @@
 """The PyBullet simulation: world, robot, sensors and motion. It knows nothing of LLMs."""
 
+import os
+import sys
+
 
 def _import_pybullet_quietly() -> None:
     """Import pybullet with stderr closed for a moment.
 
     It prints its build time on import: before every error message, and once per worker process.
     """
-    import os
-    import sys
-
     if "pybullet" in sys.modules:
         return
     try:

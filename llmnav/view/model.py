@@ -20,6 +20,7 @@ decision says what it lacks. Nothing here renders HTML (see `llmnav.view.page`).
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 from dataclasses import dataclass, field
@@ -28,7 +29,11 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.core.declarations import Declarations, declarations_of
 from llmnav.core.geometry import logged_pose
+from llmnav.errors import BadInputError
+from llmnav.reporting.trajectory import oracle_points
+from llmnav.reporting.velocity import well_formed_cmd
 from llmnav.runs.runlog import IMAGES_DIR, RunRecord, read_run
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 from llmnav.sensing.relevance import CONTENT_FREE_TASK
 
 if TYPE_CHECKING:
@@ -206,8 +211,6 @@ class RunView:
     @property
     def success_radius_m(self) -> float:
         """[m] The radius success was judged at (the summary's, else the default)."""
-        from llmnav.scoring.metrics import SUCCESS_RADIUS_M
-
         value = _number(self.summary.get("success_radius_m"))
         return value if value is not None and value > 0 else SUCCESS_RADIUS_M
 
@@ -480,8 +483,6 @@ def _reading_ahead(record: RunRecord) -> bool:
 
 def _place_by_time(steps: list[StepView], record: RunRecord) -> None:
     """Give decisions without poses the trajectory sample logged last before them (by sim time)."""
-    import bisect
-
     samples = [
         (float(e["t_sim"]), pose)
         for e in record.of_type("pose")
@@ -562,8 +563,6 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
 
 
 def _profile(record: RunRecord) -> CommandProfile:
-    from llmnav.reporting.velocity import well_formed_cmd
-
     planner = record.of_type("planner")
     cmds = [e for e in planner if e.get("kind") == "cmd" and well_formed_cmd(e)]
     return CommandProfile(
@@ -578,7 +577,6 @@ def _profile(record: RunRecord) -> CommandProfile:
 
 def _declarations(record: RunRecord) -> Declarations:
     """What the run's planner declares, through the registry; the log's own content when it is not installed."""
-    from llmnav.errors import BadInputError
     from llmnav.planners.base import planner_class
 
     name = record.config.get("planner") or as_dict(record.config.get("options")).get("planner")
@@ -628,7 +626,6 @@ def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
 
 def build_run_view(run_dir: Path) -> RunView:
     """Read a run folder for its page; raises BadInputError when it is no readable run."""
-    from llmnav.reporting.trajectory import oracle_points
     from llmnav.runs.folders import run_from_record, scenario_of
 
     run_dir = Path(run_dir)

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from llmnav.core.geometry import Point, Pose2D
+from llmnav.nav.localize import Localizer
 
 if TYPE_CHECKING:
-    from llmnav.nav.localize import Localizer
     from llmnav.planners.base import EpisodeContext
     from llmnav.sim.sensors import Detection
 
@@ -55,8 +55,6 @@ def start_memory(ctx: EpisodeContext) -> Memory:
     from llmnav.world.tasks import named_objects
 
     if ctx.information == "sensed":
-        from llmnav.nav.localize import Localizer
-
         return Memory(localizer=Localizer() if ctx.options.localize else None)
     scenario = ctx.scenario
     wanted = {o.id for o in named_objects(scenario, ctx.task.text)} if relevance_order(ctx) else set()

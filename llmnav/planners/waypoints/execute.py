@@ -27,6 +27,7 @@ from llmnav.planners.base import (
     decides_by_scores,
     fallback_mark,
 )
+from llmnav.planners.observe import call_model
 from llmnav.planners.waypoints.ground import ground_target
 from llmnav.planners.waypoints.options import WaypointOptions
 from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, generate_plan
@@ -138,7 +139,6 @@ class WaypointPlanner(Planner):
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Ground, plan, validate, execute, replan — per leg of the command sequence."""
         from llmnav.mapping.grid import build_grid
-        from llmnav.planners.observe import call_model
         from llmnav.world.tasks import sequence_legs
 
         world, scenario, opts, cfg = ctx.world, ctx.scenario, ctx.options, self.cfg
