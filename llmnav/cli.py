@@ -120,12 +120,14 @@ def _usage_errors() -> tuple[type[Exception], ...]:
     """Click's exception base: typer >= 0.25 vendors its own click, older versions use click itself."""
     kinds: list[type[Exception]] = []
     try:
+        # optional: older typer versions may lack typer.exceptions (see the docstring)
         from typer.exceptions import TyperException
 
         kinds.append(TyperException)
     except ImportError:
         pass
     try:
+        # deferred: click (about 0.03 s) loads only when a command fails, and may not be installed
         import click
 
         kinds.append(click.ClickException)

@@ -97,6 +97,7 @@ def check_backend(cls: type[Backend], arg: str | None = None) -> None:
 
 
 def _check_declarations(cls: type[Planner[Any]]) -> None:
+    # deferred: the planner registry brings pydantic (about 0.1 s); `import llmnav.testing` stays light
     from llmnav.planners.base import DriveOptions, Planner, planner_class
     from llmnav.world.knowledge import INFORMATION_MODES
 
@@ -122,6 +123,7 @@ def _run_probe(
     cls: type[Planner[Any]], scenario: str, task_id: str | None, backend: str, options: dict[str, Any], run_dir: Path
 ) -> tuple[dict[str, Any], list[tuple[str, str]], list[str]]:
     """One short episode through the real runner: the context walked when the planner starts, its motions audited."""
+    # deferred: the runner brings pydantic and yaml (about 0.15 s); `import llmnav.testing` stays light
     from llmnav.planners.base import drive_options
     from llmnav.runs.runner import EpisodeSpec, run_episode
     from llmnav.world.scenario import load_scenario
@@ -163,6 +165,7 @@ class _MotionAudit:
         self._saved: list[tuple[type, str, Any]] = []
 
     def __enter__(self) -> _MotionAudit:
+        # deferred: the guard and the simulator bring numpy and pybullet; `import llmnav.testing` stays light
         from llmnav.guard.motion import GuardedMotion
         from llmnav.sim.motion import Motion
 
@@ -262,6 +265,7 @@ def _check_log(cls: type[Planner[Any]], run_dir: Path) -> None:
 
 def _check_hooks_on_a_cut_log(cls: type[Planner[Any]], run_dir: Path, folder: Path, scenario_name: str) -> None:
     """`summarize` and `figures` on the log of a run killed half-way: numbers or nothing, never a crash."""
+    # deferred: the scenario loader brings pydantic and yaml (about 0.15 s); `import llmnav.testing` stays light
     from llmnav.world.scenario import load_scenario
 
     lines = (run_dir / RUN_FILE).read_text().splitlines()

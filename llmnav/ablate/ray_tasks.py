@@ -241,6 +241,7 @@ def _import_ray(address: str) -> Any:
         if AUTH_MODE not in os.environ and _token_at_hand():
             os.environ[AUTH_MODE] = "token"  # what `ray start` does when it finds the token
     try:
+        # deferred: Ray is the optional 'ray' extra (about 0.6 s to import)
         import ray
     except ImportError:
         raise BadInputError("--ray needs Ray: pip install 'llmnav[ray]' (on every node of a cluster)") from None
@@ -371,6 +372,7 @@ def connect(address: str) -> tuple[Any, bool]:
         _restore_auth()
         return ray, False
     if address == LOCAL:
+        # deferred: Ray is the optional 'ray' extra
         from ray._private import ray_constants
 
         if ray_constants.ENABLE_RAY_CLUSTER:
@@ -390,6 +392,7 @@ def connect(address: str) -> tuple[Any, bool]:
             raise BadInputError(f"--ray local: Ray chose {node_ip}, not loopback; not running the sweep")
         return ray, True
     if is_loopback(address):
+        # deferred: Ray is the optional 'ray' extra
         from ray._private import ray_constants
 
         if ray_constants.ENABLE_RAY_CLUSTER:

@@ -45,6 +45,7 @@ def hf_directory(arg: str) -> Path:
 
 def _import_stack() -> tuple[Any, Any]:
     try:
+        # deferred: torch and transformers are the optional 'hf' extra (seconds to import)
         import torch
         import transformers
     except ImportError:

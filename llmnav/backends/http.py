@@ -272,6 +272,7 @@ class JsonHttpClient:
         headers: dict[str, str] | None = None,
         secrets: Iterable[str] = (),
     ) -> None:
+        # deferred: httpx (about 0.1 s) loads only when an HTTP backend builds its client
         import httpx
 
         self.label = label  # backend name, the prefix of every error message
@@ -341,6 +342,7 @@ class JsonHttpClient:
         retries: bool,
     ) -> HttpReply:
         """`request` without the cache."""
+        # deferred: httpx (about 0.1 s), as in the client's constructor
         import httpx
 
         url = f"{self.base_url}{path}"
@@ -422,6 +424,7 @@ class JsonHttpClient:
         timeout bounds each read, not the reply: a server trickling a byte every second would otherwise
         hold an attempt (and the run) for as long as it likes.
         """
+        # deferred: httpx (about 0.1 s), as in the client's constructor
         import httpx
 
         own = time.perf_counter() + (timeout.read or 0.0) + (timeout.connect or 0.0)
@@ -472,6 +475,7 @@ class JsonHttpClient:
 
 
 def _timeout_reason(err: httpx.TimeoutException, timeout_s: float) -> str:
+    # deferred: httpx (about 0.1 s), as in the client's constructor
     import httpx
 
     if isinstance(err, httpx.ConnectTimeout):
@@ -746,6 +750,7 @@ class HttpBackend(Backend):
 
 def _probe_image() -> Image:
     """A small plain red JPEG (the image `check` sends)."""
+    # deferred: OpenCV and numpy (about 0.2 s) load only for the image check's probe
     import cv2
     import numpy as np
 

@@ -134,6 +134,7 @@ def _check(spec: str, senses: tuple[str, ...] | None = None, output_format: str 
     its result but marked "not needed" and does not fail. `json`/`tsv`: one record per check, `ok` null
     for one not needed.
     """
+    # deferred: the HTTP backends bring pydantic (about 0.1 s), only with --check
     from llmnav.backends.base import Check, backend_class
     from llmnav.backends.http import IMAGES_CHECK
 

@@ -67,6 +67,7 @@ def serve(
     verbose: Annotated[bool, typer.Option("--verbose", help="Let llama.cpp log to stderr.")] = False,
 ) -> None:
     """Serve a model over HTTP (OpenAI-compatible) so runs and sweep workers can share one loaded copy."""
+    # deferred: the server brings pydantic (about 0.1 s), not for `llmnav --help`
     from pydantic import ValidationError
 
     from llmnav.serve import CLIENT_KEY_VARIABLE, KEY_VARIABLE, LOOPBACK, LlamaServer, ServeOptions, check_host

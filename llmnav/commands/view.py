@@ -35,6 +35,7 @@ def view(
     size: Annotated[str, typer.Option("--size", help="Screenshot window size WIDTHxHEIGHT in pixels.")] = "1280x800",
 ) -> None:
     """Write one self-contained HTML page of a run (or of a sweep); optionally a video of the run."""
+    # deferred: the page writer brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.view.api import write_view
 
     width, height = _size(size)  # bad flags fail before anything is written

@@ -133,6 +133,7 @@ def human_render_problem() -> str | None:
     """Why a window cannot open here (no display, or an OpenCV built without a GUI), or None."""
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         return "render_mode='human' needs a display (DISPLAY is not set); use 'rgb_array'"
+    # deferred: OpenCV (about 0.13 s) loads only for render_mode='human'
     import cv2
 
     if "GUI:                           NONE" in cv2.getBuildInformation():
@@ -305,6 +306,7 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
             return None
         frame = self._render_frame()
         if self.render_mode == "human":
+            # deferred: OpenCV (about 0.13 s) loads only for render_mode='human'
             import cv2
 
             cv2.imshow("llmnav", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
@@ -323,6 +325,7 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         if world is not None:
             world.close()
         if self.render_mode == "human":
+            # deferred: OpenCV (about 0.13 s) loads only for render_mode='human'
             import cv2
 
             cv2.destroyAllWindows()
@@ -482,6 +485,7 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
 
     def _render_frame(self) -> np.ndarray:
         """Top view (drawn once with llmnav's scenario drawing, then the robot per frame) + camera."""
+        # deferred: OpenCV (about 0.13 s) loads only when a frame is rendered
         import cv2
 
         if self._background is None:

@@ -60,6 +60,7 @@ class Observation:
 
 def lidar_summary(scan: LidarScan, options: DriveOptions) -> LidarSummary:
     """The scan's front distance and sectors, per `--lidar-sectors` and `--lidar-fov`."""
+    # deferred: perception brings numpy (about 0.1 s), only when the robot observes
     from llmnav.sensing.perception import summarize_scan
 
     return summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
@@ -122,6 +123,7 @@ def observe(
     `image_needed=False`: the caller sends the model no image (a text-only backend), so the camera frame,
     the costliest reading, is not rendered, and the observation has none.
     """
+    # deferred: perception brings numpy (about 0.1 s), only when the robot observes
     from llmnav.sensing.perception import detections_text
 
     sensing = set(options.sensing)

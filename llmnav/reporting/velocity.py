@@ -35,9 +35,11 @@ def plot_velocity_profile(run_dir: Path, out: Path) -> Path | None:
     records = [e for e in read_run(run_dir).of_type("planner") if e.get("kind") == "cmd" and well_formed_cmd(e)]
     if not records:
         return None
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred with matplotlib: pyplot comes after the Agg backend is chosen
     import matplotlib.pyplot as plt
 
     t = [float(e.get("t_sim", 0.0)) for e in records]

@@ -106,6 +106,7 @@ class _Writer:
     """An MCAP writer that registers each topic's schema and channel on its first message."""
 
     def __init__(self, stream: io.BytesIO, messages: RosMessages, *, ros_only: bool) -> None:
+        # deferred: mcap is the optional 'ros' extra
         from mcap.writer import CompressionType, Writer
 
         self._writer = Writer(stream, compression=CompressionType.ZSTD)

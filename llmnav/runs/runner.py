@@ -255,7 +255,7 @@ def run_episode(
                 backend.close()
             raise
     try:
-        # Imported only now: pybullet prints a banner on stderr, which bad input above must not precede.
+        # deferred: pybullet prints a banner on stderr, which bad input above must not precede
         from llmnav.sim.world import World
 
         with World(scenario, seed=spec.options.seed, **_world_configs(scenario, spec.options)) as world:
@@ -279,6 +279,7 @@ def run_episode(
             # the key and URL credentials the backend holds are never logged or shown, even when echoed
             live = None
             if spec.foxglove_port is not None:  # the export's topics while it drives; a busy port fails here
+                # deferred: the live view brings numpy (about 0.1 s), only with foxglove_port
                 from llmnav.ros.live import LiveView
 
                 live = LiveView(spec.foxglove_port, spec.out_dir)
@@ -318,6 +319,7 @@ def _run_logged(
     """
     recorder = None
     if spec.record_hz is not None:
+        # deferred: the recorder brings numpy (about 0.1 s), only with record_hz
         from llmnav.ros.record import Recorder
 
         recorder = Recorder(world, log, spec.record_hz, spec.options.seed)
@@ -334,6 +336,7 @@ def _run_logged(
     if recorder is not None:
         recorder.log_map(scenario)
         recorder.sample(world.sim_time)
+    # deferred: the guarded layer brings numpy and pybullet (about 0.2 s), only when an episode runs
     from llmnav.guard.view import PlannerWorld
 
     known = scenario_view(scenario, information, knows_map=planner.knows_map)
@@ -406,6 +409,7 @@ def _attach_answer_key(
     oracle = oracle_backend(backend)
     if oracle is None:
         return
+    # deferred: the oracle's map brings numpy (about 0.1 s), only with an oracle backend
     from llmnav.mapping.targets import with_added_obstacles
 
     truth = GroundTruth(

@@ -361,6 +361,7 @@ def reach_metrics(
     closest = min((math.hypot(p[0] - x, p[1] - y) for p in poses for x, y in targets), default=None)
     shortest = final_distance = None
     if scenario is not None and targets:
+        # deferred: the oracle's map brings numpy (about 0.1 s), only when a scenario is given
         from llmnav.mapping.targets import goal_distance, with_added_obstacles
 
         known = with_added_obstacles(scenario, obstacles)

@@ -313,6 +313,7 @@ def sequence_oracle_length(scenario: Scenario, task: Task, start: Pose2D) -> flo
 
     Each leg starts where the oracle's previous one ended, as the robot's did where the last leg ended.
     """
+    # deferred: the oracle path brings numpy (about 0.1 s), only for command sequences
     from llmnav.mapping.targets import oracle_path
 
     total, here = 0.0, start

@@ -278,6 +278,7 @@ def polyline_length(points: list[tuple[float, float]] | list[list[float]]) -> fl
 
 def reasoning_of(reply: str) -> str:
     """The `reasoning` field of a reply parsed again (logs from before the guard logged its value)."""
+    # deferred: the guard's parser brings pydantic (about 0.1 s), only for old logs
     from llmnav.guard.parse import parse_answer
 
     result: Any = parse_answer(reply, dict[str, Any])
@@ -577,6 +578,7 @@ def _profile(record: RunRecord) -> CommandProfile:
 
 def _declarations(record: RunRecord) -> Declarations:
     """What the run's planner declares, through the registry; the log's own content when it is not installed."""
+    # deferred: the planner registry brings pydantic (about 0.1 s), only when a run is read
     from llmnav.planners.base import planner_class
 
     name = record.config.get("planner") or as_dict(record.config.get("options")).get("planner")
@@ -607,6 +609,7 @@ def _mark_missing(steps: list[StepView], model_planner: bool) -> None:
 
 def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
     """The run's task: the scenario's own when the id is one of its tasks, else rebuilt from the record."""
+    # deferred: pydantic and yaml (about 0.15 s) load only when a run is read
     from pydantic import ValidationError
 
     from llmnav.world.scenario import Task
@@ -626,6 +629,7 @@ def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
 
 def build_run_view(run_dir: Path) -> RunView:
     """Read a run folder for its page; raises BadInputError when it is no readable run."""
+    # deferred: run folders bring pydantic and yaml (about 0.15 s), only when a run is read
     from llmnav.runs.folders import run_from_record, scenario_of
 
     run_dir = Path(run_dir)

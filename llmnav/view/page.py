@@ -61,6 +61,7 @@ def environment() -> Environment:
 
     Undefined values render empty: a field an older or partial log lacks must not break the page.
     """
+    # deferred: jinja2 (about 0.04 s) loads only when a page is rendered
     from jinja2 import Environment, PackageLoader, select_autoescape
 
     env = Environment(
@@ -250,6 +251,7 @@ def run_context(view: RunView) -> dict[str, Any]:
     added = [(p[0], p[1]) for p in (as_pose(o) for o in (raw if isinstance(raw, list) else [])) if p is not None]
     scenario = view.scenario
     if scenario is not None and added:
+        # deferred: numpy (about 0.1 s) loads only for a run with added obstacles
         from llmnav.mapping.targets import with_added_obstacles
 
         scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
@@ -321,6 +323,7 @@ def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, Any]]:
     HTML, not a picture: each condition's label is text in its own row, wrapped to the column's width, so
     long labels (a backend URL, several factors) never run into each other, and a reader can copy them.
     """
+    # deferred: scoring brings pydantic and yaml (about 0.15 s), only for a sweep's page
     from llmnav.scoring.score import UNIT_RANGE, group_runs
 
     by_task: dict[str, list[dict[str, Any]]] = {}
@@ -344,6 +347,7 @@ def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, Any]]:
 
 def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> list[dict[str, Any]]:
     """Per condition: a task × start-pose grid of successes, each cell linking to its runs' pages."""
+    # deferred: scoring brings pydantic and yaml (about 0.15 s), only for a sweep's page
     from llmnav.scoring.score import group_runs
 
     conditions: dict[str, dict[str, list[Run]]] = {}
@@ -377,6 +381,7 @@ def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> l
 
 def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict[str, Any]:
     """Everything the sweep template needs; writes the run pages that are missing."""
+    # deferred: llmnav.ablate and scoring bring pydantic and yaml (about 0.15 s), only for a sweep's page
     from llmnav.ablate import MANIFEST_FILE
     from llmnav.runs.folders import read_runs, split_aborted
     from llmnav.scoring.score import varying_keys
@@ -438,6 +443,7 @@ def run_own_file(path: Path) -> str | None:
 
     Those are never replaced by a page or a video, --force or not.
     """
+    # deferred: llmnav.ablate brings pydantic and yaml (about 0.15 s), only when a page is written
     from llmnav.ablate import MANIFEST_FILE
 
     target = path.absolute()

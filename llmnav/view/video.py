@@ -74,6 +74,7 @@ class CameraRenderer:
         """The BGR view from `pose` [x, y, yaw], or None (no scenario or pose, or the world cannot be built)."""
         if self.failed or pose is None or len(pose) < 3:
             return None
+        # deferred: numpy (about 0.1 s) loads only when camera views are rendered
         import numpy as np
 
         try:
@@ -87,6 +88,7 @@ class CameraRenderer:
         return np.ascontiguousarray(np.asarray(rgb)[:, :, 2::-1])
 
     def _build(self) -> Any:
+        # deferred: pybullet (about 0.1 s) loads only when camera views are rendered
         from llmnav.sim.world import World
 
         assert self.view.scenario is not None
@@ -109,6 +111,7 @@ def _camera(view: RunView, step: StepView | None, renderer: CameraRenderer | Non
 
     The image sent to the model, else one `renderer` draws for the video (labelled as such).
     """
+    # deferred: OpenCV (about 0.13 s) and numpy load only when a video is made
     import cv2
     import numpy as np
 
@@ -210,6 +213,7 @@ def _compose(
     fps: float,
     renderer: CameraRenderer | None,
 ) -> Iterator[np.ndarray]:
+    # deferred: OpenCV (about 0.13 s) and numpy load only when a video is made
     import cv2
     import numpy as np
 
@@ -273,6 +277,7 @@ def _actions(step: StepView | None) -> int:
 
 def writable_codec(probe_dir: Path) -> str | None:
     """The first of `CODECS` this OpenCV build can write to an .mp4 here (None: none can)."""
+    # deferred: OpenCV (about 0.13 s) loads only when a video is made
     import cv2
 
     # A codec without an encoder makes FFmpeg and OpenCV print several error lines: quiet while probing.
@@ -369,6 +374,7 @@ def render_video(
 def _write_mp4(
     view: RunView, tmp: Path, codec: str, fps: float, sps: float, width: int, height: int, render_camera: bool
 ) -> VideoInfo:
+    # deferred: OpenCV (about 0.13 s) loads only when a video is made
     import cv2
 
     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*codec), fps, (width, height))
@@ -385,6 +391,7 @@ def _write_mp4(
 def _write_gif(
     view: RunView, tmp: Path, fps: float, sps: float, width: int, height: int, render_camera: bool
 ) -> VideoInfo:
+    # deferred: OpenCV (about 0.13 s) and Pillow load only when a GIF is made
     import cv2
     from PIL import Image
 

@@ -44,6 +44,7 @@ def ground_target(
     when exactly one candidate's goal point lies within `tolerance_m` [m] of it. The model's pick goes
     through `ask_guarded` (`max_tries` replies at most); `on_event` receives its `guard` events.
     """
+    # deferred: llmnav.world.tasks brings yaml (about 0.02 s), only when a target is grounded
     from llmnav.world.tasks import named_objects
 
     if task.targets and len(task.targets) == 1 and task.targets[0].object:
