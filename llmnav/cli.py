@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import importlib
+import logging
 import sys
 from collections.abc import Callable
 
 import typer
+
+from llmnav.commands.common import err_console, esc, fail
+from llmnav.core import plugins
+from llmnav.errors import printable
 
 # (command name, module in llmnav.commands, function): one line per command keeps this file a table of contents.
 _COMMANDS: list[tuple[str, str, str]] = [
@@ -55,8 +60,6 @@ def plugin_commands(builtins: dict[str, str]) -> tuple[dict[str, object], dict[s
     Typer app, name → one-line problem): a clash with a built-in or another distribution, or a target that
     fails to load, is refused there and troubles no other command.
     """
-    from llmnav.core import plugins
-
     commands: dict[str, object] = {}
     problems: dict[str, str] = {}
     for name, registered in sorted(plugins.registrations(COMMAND_GROUP).items()):
@@ -105,8 +108,6 @@ def make_app() -> typer.Typer:
 
 def _refuse(problem: str) -> Callable[[], None]:
     def refused() -> None:
-        from llmnav.commands.common import fail
-
         raise fail(problem)
 
     return refused
@@ -119,12 +120,14 @@ def _usage_errors() -> tuple[type[Exception], ...]:
     """Click's exception base: typer >= 0.25 vendors its own click, older versions use click itself."""
     kinds: list[type[Exception]] = []
     try:
+        # optional: older typer versions may lack typer.exceptions (see the docstring)
         from typer.exceptions import TyperException
 
         kinds.append(TyperException)
     except ImportError:
         pass
     try:
+        # deferred: click (about 0.03 s) loads only when a command fails, and may not be installed
         import click
 
         kinds.append(click.ClickException)
@@ -138,9 +141,6 @@ def _show_retries() -> None:
 
     A hanging server can take minutes over its retries; even under --quiet the user sees why.
     """
-    import logging
-
-    from llmnav.errors import printable
 
     class OneLine(logging.Formatter):
         def format(self, record: logging.LogRecord) -> str:
@@ -156,8 +156,6 @@ def _show_retries() -> None:
 
 def main() -> None:
     """Console-script entry point: usage errors (bad flags or values) become one line and exit 2."""
-    from llmnav.commands.common import err_console, esc
-
     _show_retries()
 
     try:

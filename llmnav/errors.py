@@ -5,10 +5,14 @@ The CLI turns any `LlmnavError` into a one-line message and an exit code; anythi
 
 from __future__ import annotations
 
+import base64
 import functools
+import html
+import json
 import re
 from collections.abc import Iterable
 from typing import Any
+from urllib.parse import quote, quote_plus
 
 
 class LlmnavError(Exception):
@@ -114,11 +118,6 @@ def secret_forms(secret: str) -> set[str]:
     the standard and URL-safe alphabets, padded or not (HTTP Basic auth sends `user:password` so);
     JSON-escaped (a run-log line) and HTML-escaped (a page).
     """
-    import base64
-    import html
-    import json
-    from urllib.parse import quote, quote_plus
-
     raw = secret.encode("utf-8", errors="surrogatepass")
     encoded = [base64.b64encode(raw).decode(), base64.urlsafe_b64encode(raw).decode()]
     forms = {secret, quote(secret, safe=""), quote(secret), quote_plus(secret), html.escape(secret)}

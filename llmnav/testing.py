@@ -27,8 +27,12 @@ from dataclasses import fields, is_dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.backends.base import Backend, parse_spec
+from llmnav.core.declarations import Declarations
+from llmnav.errors import LlmnavError
+from llmnav.runs.runlog import RUN_FILE, read_run
+
 if TYPE_CHECKING:
-    from llmnav.backends.base import Backend
     from llmnav.core.geometry import Pose2D
     from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner
 
@@ -68,9 +72,6 @@ def check_planner(
 
 def check_backend(cls: type[Backend], arg: str | None = None) -> None:
     """Check a backend class: spec round-trip, options that forbid extras, narrow errors on bad input."""
-    from llmnav.backends.base import Backend, parse_spec
-    from llmnav.errors import LlmnavError
-
     assert issubclass(cls, Backend), f"{cls!r} is not a llmnav Backend"
     assert isinstance(getattr(cls, "name", None), str) and cls.name, f"{cls.__name__}: no `name`"
     backend = cls(arg)
@@ -96,7 +97,7 @@ def check_backend(cls: type[Backend], arg: str | None = None) -> None:
 
 
 def _check_declarations(cls: type[Planner[Any]]) -> None:
-    from llmnav.core.declarations import Declarations
+    # deferred: the planner registry brings pydantic (about 0.1 s); `import llmnav.testing` stays light
     from llmnav.planners.base import DriveOptions, Planner, planner_class
     from llmnav.world.knowledge import INFORMATION_MODES
 
@@ -122,6 +123,7 @@ def _run_probe(
     cls: type[Planner[Any]], scenario: str, task_id: str | None, backend: str, options: dict[str, Any], run_dir: Path
 ) -> tuple[dict[str, Any], list[tuple[str, str]], list[str]]:
     """One short episode through the real runner: the context walked when the planner starts, its motions audited."""
+    # deferred: the runner brings pydantic and yaml (about 0.15 s); `import llmnav.testing` stays light
     from llmnav.planners.base import drive_options
     from llmnav.runs.runner import EpisodeSpec, run_episode
     from llmnav.world.scenario import load_scenario
@@ -163,6 +165,7 @@ class _MotionAudit:
         self._saved: list[tuple[type, str, Any]] = []
 
     def __enter__(self) -> _MotionAudit:
+        # deferred: the guard and the simulator bring numpy and pybullet; `import llmnav.testing` stays light
         from llmnav.guard.motion import GuardedMotion
         from llmnav.sim.motion import Motion
 
@@ -245,8 +248,6 @@ def _children(obj: Any) -> Iterator[tuple[str, Any]]:
 
 
 def _check_log(cls: type[Planner[Any]], run_dir: Path) -> None:
-    from llmnav.runs.runlog import read_run
-
     record = read_run(run_dir)
     assert record.complete, f"{cls.name}: the run log has no end event"
     assert record.config.get("planner") == cls.name, f"{cls.name}: config names {record.config.get('planner')!r}"
@@ -264,7 +265,7 @@ def _check_log(cls: type[Planner[Any]], run_dir: Path) -> None:
 
 def _check_hooks_on_a_cut_log(cls: type[Planner[Any]], run_dir: Path, folder: Path, scenario_name: str) -> None:
     """`summarize` and `figures` on the log of a run killed half-way: numbers or nothing, never a crash."""
-    from llmnav.runs.runlog import RUN_FILE, read_run
+    # deferred: the scenario loader brings pydantic and yaml (about 0.15 s); `import llmnav.testing` stays light
     from llmnav.world.scenario import load_scenario
 
     lines = (run_dir / RUN_FILE).read_text().splitlines()

@@ -16,7 +16,10 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from llmnav.backends.base import get_backend, parse_spec
+from llmnav.backends.prices import FREE_BACKENDS, estimate, free
 from llmnav.errors import BadInputError, LlmnavError
+from llmnav.planners.base import planner_class
 
 if TYPE_CHECKING:
     from llmnav.ablate.grid import Episode
@@ -60,9 +63,6 @@ class Budget:
     def billing(self, spec: str) -> dict[str, Any]:
         """Who bills a backend spec (built once per spec: HTTP backends build without any request)."""
         if spec not in self._billing:
-            from llmnav.backends.base import get_backend, parse_spec
-            from llmnav.backends.prices import FREE_BACKENDS
-
             name = parse_spec(spec)[0]
             if name in FREE_BACKENDS:  # never load a local model only to learn that it is free
                 self._billing[spec] = {"free": f"{name} backend"}
@@ -76,9 +76,6 @@ class Budget:
 
     def episode_cost(self, ep: Episode, ablation: Ablation) -> tuple[float | None, str]:
         """[USD] one pending episode is expected to cost, or None with the reason it cannot be priced."""
-        from llmnav.backends.prices import estimate, free
-        from llmnav.planners.base import planner_class
-
         if not planner_class(ep.options.planner).needs_backend:
             return 0.0, "no model"
         billing = self.billing(ep.backend)

@@ -2,11 +2,21 @@
 
 from __future__ import annotations
 
+import ctypes
+import multiprocessing
 import os
+import signal
+import sys
+import threading
+import time
 from collections.abc import Callable, Generator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING, Any
 
+from llmnav.backends.local import THREADS_ENV, pool_threads
 from llmnav.errors import BadInputError, LlmnavError, one_line
+from llmnav.runs.runner import run_episode
 
 if TYPE_CHECKING:
     from llmnav.ablate.grid import Episode
@@ -36,9 +46,7 @@ def execute_episode(runner: Runner, spec: EpisodeSpec) -> tuple[dict[str, Any] |
 
 
 def default_runner() -> Runner:
-    """`llmnav.runs.runner.run_episode` (imported when first needed)."""
-    from llmnav.runs.runner import run_episode
-
+    """`llmnav.runs.runner.run_episode`."""
     return run_episode
 
 
@@ -55,8 +63,6 @@ _WORKER_THREAD_VARS = (
 
 def worker_model_threads(workers: int) -> int:
     """Threads for an embedded model in each of `workers` processes (the local backend's measured rule)."""
-    from llmnav.backends.local import pool_threads
-
     return pool_threads(workers)
 
 
@@ -66,8 +72,6 @@ def _init_worker(model_threads: int, parent_pid: int, env: dict[str, str]) -> No
     `env`: variables for this worker only (where a shared model is served). A `kill -9` of the sweep must
     not leave workers running episodes nobody records.
     """
-    from llmnav.backends.local import THREADS_ENV
-
     for name in _WORKER_THREAD_VARS:
         os.environ.setdefault(name, "1")
     os.environ.setdefault(THREADS_ENV, str(model_threads))
@@ -84,14 +88,7 @@ def exit_with_parent(parent_pid: int, poll_s: float = 0.2) -> None:
     The kernel's parent-death signal on Linux, and a watchdog thread everywhere (it also covers a parent
     that died before the signal was armed).
     """
-    import signal
-    import sys
-    import threading
-    import time
-
     if sys.platform.startswith("linux"):
-        import ctypes
-
         try:
             libc = ctypes.CDLL(None, use_errno=True)
             libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
@@ -116,10 +113,6 @@ def run_pool(
     error, then `WorkerDiedError` ends the sweep with one line. The manifest keeps every finished
     episode; running the same sweep again resumes it.
     """
-    import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-    from concurrent.futures.process import BrokenProcessPool
-
     context = multiprocessing.get_context("spawn")
     count = min(workers, len(specs))
     executor = ProcessPoolExecutor(

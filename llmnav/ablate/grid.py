@@ -10,26 +10,30 @@ import re
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from llmnav.backends.base import backend_class
+from llmnav.backends.http import redact
+from llmnav.core.safefiles import SUMMARY_LIMIT, read_bytes
 from llmnav.errors import BadInputError, redact_userinfo, validation_message
 from llmnav.planners.base import (
     DEFAULT_PLANNER,
     DriveOptions,
     check_option_value,
     drive_options,
+    get_planner,
     option_names,
     option_value,
     planner_class,
     planner_taking,
     usable_planner_names,
 )
-
-if TYPE_CHECKING:
-    from llmnav.runs.runner import EpisodeSpec
+from llmnav.runs.runner import EpisodeSpec, prompt_hashes
+from llmnav.world.scenario import load_scenario, resolve_scenario_path
+from llmnav.world.tasks import worded_text
 
 # Factors of every grid; any planner option may be a factor too (see `GridSpec`).
 CORE_FACTORS: tuple[str, ...] = ("planner", "backend")
@@ -161,9 +165,6 @@ class Episode:
         `plots`: write each run's trajectory.png; `dir_name`: the folder under `root` when not the
         episode's first choice.
         """
-        from llmnav.runs.runner import EpisodeSpec
-        from llmnav.world.tasks import worded_text
-
         text = worded_text(scenario, self.task_id, str(self.factors.get("wording", "bundled")))
         return EpisodeSpec(
             scenario=scenario,
@@ -261,8 +262,6 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 def load_grid_file(path: Path) -> dict[str, Any]:
     """The raw mapping of a grid YAML file (validated later, merged with flags)."""
-    from llmnav.core.safefiles import SUMMARY_LIMIT, read_bytes
-
     try:
         raw = read_bytes(Path(path).resolve(), limit=SUMMARY_LIMIT, what=f"--grid {path}")  # no FIFO, no /dev/zero
         data = yaml.load(raw.decode("utf-8"), _UniqueKeyLoader)  # a SafeLoader
@@ -345,8 +344,6 @@ def condition(
     Scenario file content, task and its wording, start pose, trial, backend spec (model and URL; secrets
     redacted), every option (seed included) and the prompt templates used.
     """
-    from llmnav.backends.http import redact
-
     return {
         "scenario_sha256": scenario_hash,
         "task": task_id,
@@ -370,17 +367,12 @@ def _prompt_hashes(options: DriveOptions) -> dict[str, str]:
 
 @lru_cache(maxsize=256)
 def _prompt_hashes_cached(options_json: str) -> tuple[tuple[str, str], ...]:
-    from llmnav.planners.base import get_planner
-    from llmnav.runs.runner import prompt_hashes
-
     options = drive_options(**json.loads(options_json))
     return tuple(sorted(prompt_hashes(get_planner(options.planner), options).items()))
 
 
 def check_backend(spec: str) -> None:
     """Refuse a backend spec naming no installed backend (what the real run would refuse, before any work)."""
-    from llmnav.backends.base import backend_class
-
     cls, arg = backend_class(spec)  # unknown, clashing or broken: a one-line BackendSpecError
     cls.check_arg(arg)  # and an argument no run could use (`openai:m@http://`)
 
@@ -410,9 +402,6 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
 
     BadInputError before anything is built when the grid holds more than `max_episodes`.
     """
-    from llmnav.world.scenario import load_scenario, resolve_scenario_path
-    from llmnav.world.tasks import worded_text
-
     scenario = load_scenario(grid.scenario)
     scenario_hash = hashlib.sha256(resolve_scenario_path(grid.scenario).read_bytes()).hexdigest()
     if grid.tasks == "all":

@@ -18,6 +18,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from llmnav.backends.base import parse_spec
+from llmnav.backends.local import HF_PREFIX, model_threads
+from llmnav.errors import ModelUnavailableError
+from llmnav.serve import gguf_path
+
 LayoutName = Literal["auto", "shared", "per-worker"]
 LAYOUTS: tuple[str, ...] = ("auto", "shared", "per-worker")
 
@@ -69,11 +74,6 @@ class Layout:
 
 def local_models(backends: list[str]) -> set[str]:
     """The GGUF files that the `local` backends among `backends` load (transformers models excluded)."""
-    from llmnav.backends.base import parse_spec
-    from llmnav.backends.local import HF_PREFIX
-    from llmnav.errors import ModelUnavailableError
-    from llmnav.serve import gguf_path
-
     paths = set()
     for spec in backends:
         name, arg = parse_spec(spec)
@@ -98,8 +98,6 @@ def choose(
     `runs_backends`: whether the episode runner builds the backends the specs name (a custom runner
     with a backend of its own has no model to share unless the layout is asked for).
     """
-    from llmnav.backends.local import model_threads
-
     if ray:
         return Layout(workers, "ray", chosen=requested)
     if not runs_backends and requested == "auto":

@@ -10,6 +10,7 @@ from typing import Any, Literal
 from llmnav.ablate.grid import MAX_EPISODES, Episode, GridSpec, expand
 from llmnav.ablate.layout import Layout
 from llmnav.errors import redact_userinfo
+from llmnav.runs.folders import load_run
 from llmnav.runs.runlog import SUMMARY_FILE, write_json_atomic
 
 MANIFEST_FILE = "manifest.json"
@@ -172,8 +173,6 @@ def plan(grid: GridSpec, root: Path, max_episodes: int = MAX_EPISODES) -> Ablati
 
 def results_runs(ablation: Ablation) -> list[Any]:
     """The finished episodes as `llmnav.runs.folders.Run`s (for the closing tables)."""
-    from llmnav.runs.folders import load_run
-
     runs = []
     for ep in ablation.episodes:
         if ablation.entries[ep.key].status == "done":

@@ -33,19 +33,25 @@ episode, never an exception out of the sweep.
 
 from __future__ import annotations
 
+import ipaddress
+import json
 import logging
 import os
 import re
+import secrets
 import shutil
 import socket
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.ablate.executors import _WORKER_THREAD_VARS, Result, Runner, execute_episode
+from llmnav.backends.base import parse_spec
+from llmnav.backends.local import THREADS_ENV
 from llmnav.core.safefiles import write_bytes
 from llmnav.errors import BadInputError, one_line
 from llmnav.runs.locking import LOCK_FILE
@@ -85,9 +91,6 @@ def forwarded_env(environ: dict[str, str] | None = None) -> dict[str, str]:
 
 def model_threads(backend: str, environ: dict[str, str] | None = None) -> int:
     """CPUs one task reserves: its local model's threads ($LLMNAV_LOCAL_THREADS, default 1), else 1."""
-    from llmnav.backends.base import parse_spec
-    from llmnav.backends.local import THREADS_ENV
-
     if parse_spec(backend)[0] != "local":
         return 1
     value = (os.environ if environ is None else environ).get(THREADS_ENV, "")
@@ -100,8 +103,6 @@ def task_env(backend: str, environ: dict[str, str] | None = None) -> tuple[int, 
     env_vars: the forwarded settings and the thread caps; keys: the `*_API_KEY` variables, kept out of the
     runtime env (Ray logs it).
     """
-    from llmnav.backends.local import THREADS_ENV
-
     cpus = model_threads(backend, environ)
     forwarded = forwarded_env(environ)
     keys = {name: value for name, value in forwarded.items() if _SECRET.match(name)}
@@ -173,8 +174,6 @@ def write_files(task: TaskResult, run_dir: Path) -> None:
 
 def _write_summary(task: TaskResult, target: Path) -> None:
     """summary.json with the paths it names moved from the node's temporary folder to this one."""
-    import json
-
     try:
         summary = json.loads(task.files[SUMMARY_FILE].decode("utf-8"))
     except (UnicodeDecodeError, ValueError):
@@ -212,8 +211,6 @@ def _split(address: str) -> tuple[str, int] | None:
 
 def is_loopback(address: str) -> bool:
     """Whether a cluster address names this machine's loopback interface."""
-    import ipaddress
-
     parts = _split(address)
     if parts is None:
         return False
@@ -244,6 +241,7 @@ def _import_ray(address: str) -> Any:
         if AUTH_MODE not in os.environ and _token_at_hand():
             os.environ[AUTH_MODE] = "token"  # what `ray start` does when it finds the token
     try:
+        # deferred: Ray is the optional 'ray' extra (about 0.6 s to import)
         import ray
     except ImportError:
         raise BadInputError("--ray needs Ray: pip install 'llmnav[ray]' (on every node of a cluster)") from None
@@ -265,8 +263,6 @@ _saved_auth: dict[str, str | None] = {}
 
 def _private_token() -> None:
     """Token authentication for a private Ray with a token of its own, in the environment only."""
-    import secrets
-
     for name in (AUTH_MODE, AUTH_TOKEN, AUTH_TOKEN_PATH):
         _saved_auth.setdefault(name, os.environ.get(name))
     os.environ.pop(AUTH_TOKEN_PATH, None)
@@ -334,8 +330,6 @@ class _DropMessage(logging.Filter):
 
 def _join(ray: Any, address: str, timeout_s: float = JOIN_TIMEOUT_S) -> None:
     """`ray.init(address)` within `timeout_s`, else one-line BadInputError (Ray's own retries take minutes)."""
-    import threading
-
     failure: list[BaseException] = []
 
     def init() -> None:
@@ -378,6 +372,7 @@ def connect(address: str) -> tuple[Any, bool]:
         _restore_auth()
         return ray, False
     if address == LOCAL:
+        # deferred: Ray is the optional 'ray' extra
         from ray._private import ray_constants
 
         if ray_constants.ENABLE_RAY_CLUSTER:
@@ -397,6 +392,7 @@ def connect(address: str) -> tuple[Any, bool]:
             raise BadInputError(f"--ray local: Ray chose {node_ip}, not loopback; not running the sweep")
         return ray, True
     if is_loopback(address):
+        # deferred: Ray is the optional 'ray' extra
         from ray._private import ray_constants
 
         if ray_constants.ENABLE_RAY_CLUSTER:

@@ -13,11 +13,15 @@ from llmnav.ablate.executors import Runner, default_runner, execute_episode, run
 from llmnav.ablate.grid import Episode, GridSpec
 from llmnav.ablate.layout import Layout, choose
 from llmnav.ablate.manifest import MANIFEST_FILE, Ablation, ManifestEntry, without_credentials
+from llmnav.ablate.ray_tasks import run_ray
 from llmnav.ablate.resume import locate, set_aside
+from llmnav.backends.local import DEFAULT_N_CTX
 from llmnav.core.safefiles import SUMMARY_LIMIT, UnsafeFileError, is_our_page, loads, read_bytes
 from llmnav.errors import BadInputError
+from llmnav.planners.base import planner_class
 from llmnav.runs.locking import LOCK_FILE, FolderLock
 from llmnav.runs.runlog import RUN_FILE
+from llmnav.serve.shared import SharedModel
 
 ProgressCallback = Callable[[ManifestEntry, "Ablation"], None]
 
@@ -193,8 +197,6 @@ def _run_locked(ablation: Ablation, runner: Runner, settings: _Settings) -> None
     ]
     settled: set[str] = set()
     if settings.ray_address is not None:
-        from llmnav.ablate.ray_tasks import run_ray
-
         for ep, result in run_ray(runner, specs, settings.ray_address):
             settle(ep, result)
     elif workers > 1:
@@ -208,8 +210,6 @@ def _run_locked(ablation: Ablation, runner: Runner, settings: _Settings) -> None
 
 def _model_backends(episodes: list[Episode]) -> list[str]:
     """The backend specs of the episodes whose planner asks a model (the oracle and frontier baselines do not)."""
-    from llmnav.planners.base import planner_class
-
     asks = {name: planner_class(name).needs_backend for name in {ep.options.planner for ep in episodes}}
     return sorted({ep.backend for ep in episodes if asks[ep.options.planner]})
 
@@ -229,8 +229,6 @@ def _model_for(layout: Layout) -> Iterator[dict[str, str]]:
     if not layout.shared:
         yield {}
         return
-    from llmnav.backends.local import DEFAULT_N_CTX
-    from llmnav.serve.shared import SharedModel
 
     model = SharedModel(Path(layout.model_path or ""), slots=layout.slots, n_ctx=DEFAULT_N_CTX, threads=layout.threads)
     with model as served:

@@ -11,6 +11,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
+from llmnav.backends.prices import FREE_BACKENDS
 from llmnav.core import plugins
 from llmnav.core.chat import (
     AnswerKey,
@@ -132,8 +133,6 @@ class Backend(ABC):
         {"free": why} or {"provider": backend name, "model": name}; a plugin llmnav does not know is
         {"unknown": why}, so its runs cost "unknown", never 0.
         """
-        from llmnav.backends.prices import FREE_BACKENDS
-
         if self.name in FREE_BACKENDS:
             return {"free": f"{self.name} backend"}
         return {"unknown": f"{self.name}: a backend llmnav has no prices for"}

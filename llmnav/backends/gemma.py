@@ -11,8 +11,10 @@ use is governed by the Gemma terms of use (`LICENCE`).
 from __future__ import annotations
 
 import hashlib
+import importlib
 import os
 import tempfile
+from importlib.util import find_spec
 from pathlib import Path
 
 from llmnav.backends.base import BackendStatus
@@ -35,8 +37,6 @@ def cache_dir() -> Path:
 
 def installed() -> bool:
     """Whether the chunk package is installed (nothing is imported)."""
-    from importlib.util import find_spec
-
     return find_spec(PACKAGE.replace("-", "_")) is not None
 
 
@@ -57,7 +57,6 @@ def gemma_path() -> Path:
         return target
     if not installed():
         raise ModelUnavailableError(f"local:{ALIAS} is not installed: {INSTALL_HINT}")
-    import importlib
 
     package = importlib.import_module(PACKAGE.replace("-", "_"))
     target.parent.mkdir(parents=True, exist_ok=True)

@@ -10,6 +10,7 @@ else a plain transcript with one role prefix per message.
 from __future__ import annotations
 
 import time
+from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,7 @@ from llmnav.backends.base import (
     ScoreRequest,
     ScoreResult,
 )
+from llmnav.backends.forced import continuation_tokens, normalised
 from llmnav.backends.reply import continuation_score
 from llmnav.errors import ModelError, ModelUnavailableError, one_line
 
@@ -43,6 +45,7 @@ def hf_directory(arg: str) -> Path:
 
 def _import_stack() -> tuple[Any, Any]:
     try:
+        # deferred: torch and transformers are the optional 'hf' extra (seconds to import)
         import torch
         import transformers
     except ImportError:
@@ -52,8 +55,6 @@ def _import_stack() -> tuple[Any, Any]:
 
 def hf_status(arg: str) -> BackendStatus:
     """Directory found and transformers importable (without importing torch: that alone takes seconds)."""
-    from importlib.util import find_spec
-
     try:
         directory = hf_directory(arg)
     except ModelUnavailableError as err:
@@ -104,8 +105,6 @@ class HFEngine:
         The continuation's tokens are those of prefix + continuation after the prefix's own (the
         canonical tail, both NFC-normalised as for llama.cpp); the sum runs over exactly those positions.
         """
-        from llmnav.backends.forced import continuation_tokens, normalised
-
         torch = self._torch
         started = time.perf_counter()
         prefix = self._tokenizer(normalised(request.prefix))["input_ids"]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import base64
 import email.utils
+import ipaddress
 import json
 import logging
 import random
@@ -34,11 +35,13 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
+from urllib.parse import unquote, urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from llmnav.backends.base import Backend, ChatRequest, Check, Image, Message
 from llmnav.backends.cache import CacheState, ReplyCache
+from llmnav.backends.prices import local_server
 from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import (
     BackendSpecError,
@@ -137,8 +140,6 @@ def url_secrets(url: str) -> tuple[str, ...]:
     `user:password@` gives the password and `user:password` (what Basic auth encodes); a lone `token@` gives
     the token and `token:` (sent as a user with an empty password). Each decoded and as written.
     """
-    from urllib.parse import unquote, urlsplit
-
     try:
         parts = urlsplit(url)
     except ValueError:
@@ -271,6 +272,7 @@ class JsonHttpClient:
         headers: dict[str, str] | None = None,
         secrets: Iterable[str] = (),
     ) -> None:
+        # deferred: httpx (about 0.1 s) loads only when an HTTP backend builds its client
         import httpx
 
         self.label = label  # backend name, the prefix of every error message
@@ -340,6 +342,7 @@ class JsonHttpClient:
         retries: bool,
     ) -> HttpReply:
         """`request` without the cache."""
+        # deferred: httpx (about 0.1 s), as in the client's constructor
         import httpx
 
         url = f"{self.base_url}{path}"
@@ -421,6 +424,7 @@ class JsonHttpClient:
         timeout bounds each read, not the reply: a server trickling a byte every second would otherwise
         hold an attempt (and the run) for as long as it likes.
         """
+        # deferred: httpx (about 0.1 s), as in the client's constructor
         import httpx
 
         own = time.perf_counter() + (timeout.read or 0.0) + (timeout.connect or 0.0)
@@ -471,6 +475,7 @@ class JsonHttpClient:
 
 
 def _timeout_reason(err: httpx.TimeoutException, timeout_s: float) -> str:
+    # deferred: httpx (about 0.1 s), as in the client's constructor
     import httpx
 
     if isinstance(err, httpx.ConnectTimeout):
@@ -509,9 +514,6 @@ def normalise_url(url: str) -> str:
 
 def check_url(url: str) -> None:
     """Refuse a server URL that cannot be requested (the message shows it with secrets redacted)."""
-    import ipaddress
-    from urllib.parse import urlsplit
-
     shown = redact(url)
     try:
         parts = urlsplit(url)
@@ -650,8 +652,6 @@ class HttpBackend(Backend):
         `local`: on this machine or a private network, where an unlisted model costs 0 (a listed one is
         charged: a proxy on this machine may forward to a paid API).
         """
-        from llmnav.backends.prices import local_server
-
         return {"provider": self.name, "model": self.model_name, "local": local_server(self.client.base_url)}
 
     def use_cache(self, cache: ReplyCache) -> bool:
@@ -750,6 +750,7 @@ class HttpBackend(Backend):
 
 def _probe_image() -> Image:
     """A small plain red JPEG (the image `check` sends)."""
+    # deferred: OpenCV and numpy (about 0.2 s) load only for the image check's probe
     import cv2
     import numpy as np
 

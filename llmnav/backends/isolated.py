@@ -32,7 +32,9 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+import llmnav
 from llmnav.backends.base import Backend, ChatRequest, ChatResult, get_backend
+from llmnav.backends.local import beside_simulation
 from llmnav.errors import LlmnavError, ModelError, one_line
 
 MODEL_NICE = 5  # the child's nice value above its parent's: the loop's process runs first on a busy core
@@ -178,8 +180,6 @@ def _child_environment() -> dict[str, str]:
 
     The child must run the same code as the parent (a checkout or a test's path, not another install).
     """
-    import llmnav
-
     root = str(Path(llmnav.__file__).resolve().parents[1])
     path = os.environ.get("PYTHONPATH", "")
     return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, path) if p)}
@@ -190,8 +190,6 @@ def _child_environment() -> dict[str, str]:
 
 def _serve(conn: Connection, nice: int) -> None:
     """Build the backend, then answer requests until the parent closes its end."""
-    from llmnav.backends.local import beside_simulation
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it closes us
     try:
         os.nice(nice)

@@ -26,6 +26,7 @@ PROMPT_CACHE_RAM = 256  # [MiB] host-RAM copies of evicted prompt prefixes (llam
 
 def _import_xllamacpp() -> Any:
     try:
+        # deferred: the xllamacpp engine (about 0.03 s) may be missing; only a local model needs it
         import xllamacpp
     except ImportError:
         raise ModelUnavailableError(
@@ -142,6 +143,7 @@ class LlamaCppEngine:
         """
         found = self._tokens.get(text)
         if found is None:
+            # deferred: httpx (about 0.1 s) loads only when a prompt is tokenized
             import httpx
 
             try:

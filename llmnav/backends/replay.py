@@ -29,8 +29,10 @@ from llmnav.backends.base import (
 )
 from llmnav.backends.http import parse_options
 from llmnav.backends.reply import continuation_score, duration, seq, token_count
+from llmnav.core.safefiles import LOG_LIMIT, UnsafeFileError, read_bytes
+from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import BackendSpecError, BadInputError, ModelError, ReplayDivergenceError
-from llmnav.runs.runlog import RUN_FILE, dumps
+from llmnav.runs.runlog import RUN_FILE, RunLog, dumps
 
 DIFF_LINES = 8  # lines of unified diff shown after the one-line summary
 MODALITIES = ("text", "multimodal")  # the config line's `modality` values
@@ -106,9 +108,6 @@ def load_calls(file: Path) -> list[RecordedCall]:
 
 def load_recording(file: Path) -> Recording:
     """The config line and `llm_call` events of a run log; BadInputError (file and line) on anything malformed."""
-    from llmnav.core.safefiles import LOG_LIMIT, UnsafeFileError, read_bytes
-    from llmnav.core.safefiles import loads as bounded_loads
-
     try:  # a regular file of bounded size: `replay:/dev/zero` or a FIFO is refused, not read without end
         text = read_bytes(file.resolve(), limit=LOG_LIMIT, what=str(file)).decode("utf-8")
     except UnsafeFileError as err:
@@ -337,8 +336,6 @@ def write_script(
     Loose replay answers in order whatever the prompt, so a script drives any planner: tests use it as a
     scripted model, and a user can try a planner without any model at all.
     """
-    from llmnav.runs.runlog import RunLog
-
     with RunLog(run_dir, {"note": "scripted replies", "modality": "multimodal"}) as log:
         for reply in replies:
             text, latency = reply if isinstance(reply, tuple) else (reply, latency_s)

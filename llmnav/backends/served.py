@@ -56,6 +56,7 @@ class ServedEngine(LlamaCppEngine):
     """`LlamaCppEngine` whose requests go over HTTP to the shared server instead of an in-process one."""
 
     def __init__(self, served: ServedModel) -> None:  # loads nothing: the server holds the model
+        # deferred: httpx (about 0.1 s) loads only when a served model is used
         import httpx
 
         self._served = served
@@ -74,6 +75,7 @@ class ServedEngine(LlamaCppEngine):
 
     def _post(self, path: str, body: dict[str, Any]) -> dict[str, Any]:
         """The server's JSON reply; an error reply as `{"error": ...}`, like the in-process handlers give."""
+        # deferred: httpx (about 0.1 s), as in the client's constructor
         import httpx
 
         try:

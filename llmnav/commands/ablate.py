@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+from rich.table import Table
 
 from llmnav.commands.common import (
     CacheOption,
@@ -126,6 +128,7 @@ def ablate(
     ] = None,
 ) -> None:
     """Run an ablation grid (resumable: run it again to finish it), then print the tables by factor."""
+    # deferred: llmnav.ablate brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav import ablate as lib
 
     planner_flags = declared_flags(sweep=True)  # a planner's own flags: a factor each, or one fixed value
@@ -163,6 +166,7 @@ def ablate(
     spec = lib.grid_from_mapping(data, str(grid) if grid is not None else "ablate")
     root = path_option(out, "--out") or Path("ablations") / spec.default_name().replace(":", "-")
     limit = max_episodes or lib.MAX_EPISODES
+    # deferred: the building suites bring numpy and scipy (about 0.4 s), not for `llmnav --help`
     from llmnav.buildings.suite import is_suite, suite_files
 
     if is_suite(spec.scenario):  # one ablation per building, each in its own folder under root
@@ -198,12 +202,14 @@ def ablate(
             )
         _print_results(ablation)
         if export == "mcap":
+            # deferred: the MCAP export brings numpy (about 0.1 s), only with --export mcap
             from llmnav.ros.export import export_sweep
 
             folder = ablation.root / "mcap"
             written = export_sweep(ablation.root, folder)
             console.print(f"{len(written)} MCAP file(s) in {esc(str(folder))}", highlight=False, soft_wrap=True)
         if view_page:
+            # deferred: the page writer brings pydantic and yaml (about 0.15 s), only with --view
             from llmnav.view.api import write_view
 
             console.print(f"page: {esc(str(write_view(ablation.root).page))}", highlight=False, soft_wrap=True)
@@ -220,6 +226,7 @@ ablate.command_class = SweepFlags  # type: ignore[attr-defined]  # the planners'
 
 def _budget(max_cost: float | None, episode_tokens: str | None, prices: Path | None) -> Any:
     """The sweep's `Budget` for `--max-cost` (None without it); the price table is read and checked here."""
+    # deferred: the budget brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.ablate.budget import Budget, check_limit, parse_episode_tokens
     from llmnav.backends.prices import load_prices
 
@@ -252,8 +259,6 @@ def _say_layout(layout: Any) -> None:
 
 def _usable_workers(workers: int) -> int:
     """`workers`, capped at the cores this process may run on (more processes only share them)."""
-    import os
-
     try:
         cores = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # not Linux
@@ -266,6 +271,7 @@ def _usable_workers(workers: int) -> int:
 
 def _note_inapplicable(spec: Any) -> None:
     """One line on stderr per planner that ignores some of the grid's factors or fixed options."""
+    # deferred: the planner registry brings pydantic (about 0.1 s), not for `llmnav --help`
     from llmnav.planners.base import inapplicable_options
 
     given = set(spec.options) | set(spec.option_factors())
@@ -276,8 +282,7 @@ def _note_inapplicable(spec: Any) -> None:
 
 
 def _print_plan(ablation: Ablation) -> None:
-    from rich.table import Table
-
+    # deferred: llmnav.ablate brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.ablate import describe_episodes
 
     table = Table(title=esc(f"{ablation.grid.default_name()}: {ablation.size} episodes → {ablation.root}"))
@@ -295,6 +300,7 @@ class _progress:
     """A rich progress bar with ETA and a running success count (a context manager)."""
 
     def __init__(self) -> None:
+        # deferred: rich.progress (about 4 ms) only for a sweep's progress bar, not for `llmnav --help`
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
         self.bar = Progress(
@@ -348,6 +354,7 @@ def _cost_line(ablation: Ablation) -> str:
 
 
 def _print_results(ablation: Ablation) -> None:
+    # deferred: llmnav.ablate brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.ablate import results_runs, table_keys
     from llmnav.reporting.tables import print_tables
     from llmnav.scoring.tables import build_tables

@@ -9,6 +9,7 @@ import typer
 from rich.table import Table
 
 from llmnav.commands.common import cli_errors, console, esc, listing_format, parse_sensing, print_listing
+from llmnav.core import plugins
 from llmnav.errors import BadInputError
 
 GROUP = "llmnav.backends"
@@ -47,8 +48,6 @@ def collect_rows() -> list[BackendRow]:
 
     A name two distributions register is shown as broken too, naming both (neither is used).
     """
-    from llmnav.core import plugins
-
     rows: list[BackendRow] = []
     for name, registered in sorted(plugins.registrations(GROUP).items()):
         if len(registered) > 1:
@@ -135,6 +134,7 @@ def _check(spec: str, senses: tuple[str, ...] | None = None, output_format: str 
     its result but marked "not needed" and does not fail. `json`/`tsv`: one record per check, `ok` null
     for one not needed.
     """
+    # deferred: the HTTP backends bring pydantic (about 0.1 s), only with --check
     from llmnav.backends.base import Check, backend_class
     from llmnav.backends.http import IMAGES_CHECK
 

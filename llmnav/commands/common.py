@@ -197,6 +197,7 @@ def print_listing(output_format: str, records: Sequence[Mapping[str, Any]], tabl
 
 def print_table(table: Any) -> None:
     """A rich table on stdout: fitted to a terminal, at its full width in a pipe or file (never cut)."""
+    # deferred: the table printer (about 5 ms) loads only when a table is printed, not for `llmnav --help`
     from llmnav.reporting.tables import print_unsqueezed
 
     print_unsqueezed(console, table)
@@ -242,6 +243,7 @@ def chart_folder_option(path: Path | None, flag: str = "--plot") -> None:
 
 def check_output_path(out: Path, flag: str, inputs: Sequence[Path] = ()) -> None:
     """Refuse to write `out` onto an input, or anywhere inside a run folder (its log, summary, images)."""
+    # deferred: the run log module (about 14 ms with its imports), not for `llmnav --help`
     from llmnav.runs.runlog import RUN_FILE
 
     target = out.absolute()

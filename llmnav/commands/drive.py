@@ -26,6 +26,7 @@ from llmnav.commands.common import (
     print_data,
 )
 from llmnav.commands.planner_flags import GIVEN, DriveFlags, flag_of
+from llmnav.commands.transcribe import audio_task
 from llmnav.errors import BadInputError
 from llmnav.planners import DEFAULT_PLANNER
 
@@ -172,6 +173,7 @@ def drive(
     ] = None,
 ) -> None:
     """Drive the robot through one task and write a run folder (log, summary, trajectory plot)."""
+    # deferred: pydantic and yaml (about 0.15 s, via the runner), not for `llmnav --help`
     from pydantic import ValidationError
 
     from llmnav.planners.base import planner_options
@@ -180,6 +182,7 @@ def drive(
 
     out_dir = path_option(out, "--out")
     if record_hz is not None:
+        # deferred: the recorder brings numpy (about 0.1 s), only with --record-hz
         from llmnav.ros.record import check_rate
 
         try:
@@ -192,7 +195,6 @@ def drive(
     if task_audio is not None:
         if texts or task_id is not None:
             raise BadInputError("give --task-audio alone, without --task or --task-id")
-        from llmnav.commands.transcribe import audio_task
 
         # Transcribed before anything is built or moves: an unknown command ends here with exit 2.
         texts = [audio_task(task_audio, scenario, asr_free, quiet=json_output)]
@@ -247,12 +249,14 @@ def drive(
             draw()
         print_data(json.dumps(summary, default=str))
     else:
+        # deferred: the live view brings pydantic (about 0.1 s), not for `llmnav --help`
         from llmnav.reporting.live import print_result
 
         print_result(console, summary)  # summary.json is written: an interrupted plot loses no result
         for draw in later:
             draw()
     if view_page:
+        # deferred: the page writer brings pydantic and yaml (about 0.15 s), only with --view
         from llmnav.view.api import write_view
 
         err_console.print(f"page: {esc(str(write_view(spec.out_dir).page))}", highlight=False, soft_wrap=True)
@@ -283,6 +287,7 @@ def _with_replay_mode(backend: str, loose: bool) -> str:
 def _run_with_view(
     spec: EpisodeSpec, *, quiet: bool, json_output: bool, later: list[Callable[[], None]]
 ) -> dict[str, Any]:
+    # deferred: pydantic and yaml (about 0.15 s, via the runner), not for `llmnav --help`
     from llmnav.planners.base import NullView
     from llmnav.reporting.live import LiveView, ProgressView
     from llmnav.runs.runner import run_episode

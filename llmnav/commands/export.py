@@ -34,6 +34,7 @@ def export(
     """Write a run as ROS 2 data: /odom, /tf, /scan, /map, camera images, /cmd_vel, /plan and the decisions."""
     if mcap is None:
         raise BadInputError("say what to write: --mcap OUT.mcap")
+    # deferred: the MCAP export brings numpy (about 0.1 s), not for `llmnav --help`
     from llmnav.ros.export import export_mcap, export_sweep, sweep_runs
     from llmnav.runs.runlog import RUN_FILE
 

@@ -33,6 +33,7 @@ _PREFIX = "planner_flag_"
 
 def declared_flags(*, sweep: bool) -> list[CliFlag]:
     """The flags the installed planners declare (for `ablate` only those with a `sweep`), one per spelling."""
+    # deferred: the planner registry brings pydantic (about 0.1 s), not for `llmnav --help`
     from llmnav.planners.base import planner_class, usable_planner_names
 
     found: dict[str, CliFlag] = {}

@@ -20,6 +20,7 @@ def _default(value: Any) -> str:
 
 def describe(name: str) -> dict[str, Any]:
     """One planner's declarations: information modes, ablation factors, and every option with its default."""
+    # deferred: the planner registry brings pydantic (about 0.1 s), not for `llmnav --help`
     from llmnav.planners.base import DriveOptions, planner_class
 
     cls = planner_class(name)
@@ -56,6 +57,7 @@ def planners(
     A planner plugin that cannot be used (it fails to import, is not a Planner, or shares its name with
     another distribution's) is listed as broken with its reason; the others are listed as usual.
     """
+    # deferred: the planner registry brings pydantic (about 0.1 s), not for `llmnav --help`
     from llmnav.planners.base import broken_planners, usable_planner_names
 
     output_format = listing_format(output_format)

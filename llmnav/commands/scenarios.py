@@ -21,6 +21,7 @@ from llmnav.commands.common import (
     print_listing,
     print_table,
 )
+from llmnav.core.safefiles import write_text
 from llmnav.errors import BadInputError, one_line
 
 if TYPE_CHECKING:
@@ -75,6 +76,7 @@ def list_command(output_format: Annotated[str, typer.Option("--format", help=FOR
     table = Table(title="Bundled scenarios")
     for column in ("name", "robot", "size", "objects", "tasks", "description"):
         table.add_column(column, justify="right" if column in ("objects", "tasks") else "left")
+    # deferred: pydantic and yaml (about 0.15 s, via llmnav.world.scenario), not for `llmnav --help`
     from llmnav.world.scenario import list_scenarios, load_scenario
 
     records = []
@@ -109,6 +111,7 @@ def show(
     task: Annotated[str | None, typer.Option("--task", help="Only this task (id), also in the plot.")] = None,
 ) -> None:
     """A scenario's tasks (id, kind, difficulty, text, targets, start poses); optionally its top view."""
+    # deferred: pydantic and yaml (about 0.15 s, via llmnav.world.scenario), not for `llmnav --help`
     from llmnav.world.scenario import load_scenario
 
     plot_path = plot_option(plot)
@@ -136,7 +139,8 @@ def show(
         table.add_row(esc(t.id), t.kind, t.difficulty, esc(t.text), esc(_targets(scenario, t)), starts)
     print_table(table)
     if plot_path is not None:
-        from llmnav.reporting.topview import plot_scenario  # matplotlib only when a plot is asked for
+        # deferred: the top view (matplotlib when drawing) loads only with --plot
+        from llmnav.reporting.topview import plot_scenario
 
         written = plot_scenario(scenario, plot_path, task=chosen)
         console.print(f"top view written to {esc(written)}", highlight=False, soft_wrap=True)
@@ -173,8 +177,8 @@ def generate_command(
     ] = None,
 ) -> None:
     """Generate a building (rooms, doorways, furniture by room type, tasks with checked start poses)."""
+    # deferred: the generator brings numpy and scipy (about 0.4 s), not for `llmnav --help`
     from llmnav.buildings.generate import Request, generate_suite
-    from llmnav.core.safefiles import write_text
 
     path = path_option(out, "--out")
     assert path is not None
@@ -208,8 +212,7 @@ def check_command(
     files: Annotated[list[str], typer.Argument(help="Scenario files, or folders of them (*.yaml).")],
 ) -> None:
     """Check start-pose clearance, target reachability for the robot's footprint and hidden targets."""
-    from pathlib import Path
-
+    # deferred: the checker brings numpy and scipy (about 0.4 s), not for `llmnav --help`
     from llmnav.buildings.check import check_file
 
     failed = False
@@ -252,6 +255,7 @@ def import_map(
     seed: Annotated[int, typer.Option("--seed", help="Seed of the drawn tasks.")] = 0,
 ) -> None:
     """Turn a nav2 map (map.yaml + image) into a world: occupied and unknown cells become merged wall boxes."""
+    # deferred: the map import brings numpy, pydantic and yaml (about 0.25 s), not for `llmnav --help`
     from llmnav.ros.mapimport import import_map as build
     from llmnav.ros.mapimport import write_world
 
@@ -279,6 +283,7 @@ def export_map(
     resolution: Annotated[float, typer.Option("--resolution", help="Cell side [m].")] = 0.05,
 ) -> None:
     """Write a world as a nav2 map_server map (YAML + PGM): solid shapes occupied, the rest free."""
+    # deferred: the map export brings numpy, pydantic and yaml (about 0.25 s), not for `llmnav --help`
     from llmnav.ros.mapexport import export_map as write_map
     from llmnav.world.scenario import load_scenario
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 from enum import StrEnum
@@ -11,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from llmnav.commands.common import chart_folder_option, check_output_path, cli_errors, console, err_console, esc
-from llmnav.core.safefiles import write_text
+from llmnav.core.safefiles import atomic_text, write_text
 from llmnav.errors import BadInputError
 
 if TYPE_CHECKING:
@@ -74,6 +75,7 @@ def score(
 
     Tables (or data) go to stdout; status and anything that could not be computed go to stderr.
     """
+    # deferred: scoring brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.runs.folders import read_runs, split_aborted
     from llmnav.scoring.papers import PAPER_TABLES, check_table_name, paper_table
     from llmnav.scoring.score import collided_runs, compare_groups, problems, select_table, varying_keys
@@ -86,6 +88,7 @@ def score(
     chart_folder_option(plot)
     if success_radius is not None and not (math.isfinite(success_radius) and success_radius > 0):
         raise BadInputError(f"--success-radius {success_radius}: expected a distance in metres above 0")
+    # deferred: the price table's module (about 4 ms with tomllib), not for `llmnav --help`
     from llmnav.backends.prices import load_prices
 
     checked = load_prices(prices)  # a bad $LLMNAV_PRICES is one line here, not a skipped run per old summary
@@ -114,6 +117,7 @@ def score(
         tables = tables[:1]
     emit(tables, fmt, out)
     if plot is not None:
+        # deferred: the chart module (about 4 ms; matplotlib later), only with --plot
         from llmnav.reporting.charts import plot_conditions
 
         written = plot_conditions(results, keys, plot)
@@ -139,9 +143,7 @@ def runs_table(
     paths: list[Path], fmt: OutputFormat, out: Path | None, success_radius: float | None, prices: PriceTable | None
 ) -> None:
     """`--table runs`: a row per run, streamed through a spool file (see `llmnav.scoring.runs_table`)."""
-    import contextlib
-
-    from llmnav.core.safefiles import atomic_text
+    # deferred: scoring brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.scoring.runs_table import DISPLAY_COLUMNS, spool_rows, write_csv, write_json, write_markdown
 
     spool = spool_rows(paths, success_radius, prices=prices)
@@ -174,6 +176,7 @@ RICH_ROWS = 1000  # a terminal table above this many runs is written as Markdown
 
 def _print_runs(spool: object, columns: tuple[str, ...]) -> None:
     """The runs as a rich table of the given columns (those some run has a value in)."""
+    # deferred: scoring brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.reporting.tables import print_tables
     from llmnav.scoring.runs_table import NOTE, TITLE, Spool
     from llmnav.scoring.score import Table
@@ -193,6 +196,7 @@ def _short(value: object) -> str:
 
 def parse_keys(text: str) -> list[str]:
     """`--by lidar_sectors,prompt` → validated condition keys."""
+    # deferred: scoring brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.runs.folders import START_POSE_KEY
     from llmnav.scoring.metrics import CONDITION_KEYS
     from llmnav.scoring.score import is_option_key
@@ -209,6 +213,7 @@ def parse_keys(text: str) -> list[str]:
 
 def emit(tables: list[Table], fmt: OutputFormat, out: Path | None) -> None:
     """Print the tables in the chosen format, or write them to `out`; data formats print data only."""
+    # deferred: the table printer (about 5 ms), not for `llmnav --help`
     from llmnav.reporting.tables import print_tables, render_text
 
     if fmt is OutputFormat.rich and out is None:

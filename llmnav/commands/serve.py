@@ -16,6 +16,7 @@ from typing import Annotated
 import typer
 
 from llmnav.commands.common import cli_errors, err_console
+from llmnav.errors import BadInputError, validation_message
 
 
 def _stop_on_sigterm(signum: int, frame: FrameType | None) -> None:
@@ -66,9 +67,9 @@ def serve(
     verbose: Annotated[bool, typer.Option("--verbose", help="Let llama.cpp log to stderr.")] = False,
 ) -> None:
     """Serve a model over HTTP (OpenAI-compatible) so runs and sweep workers can share one loaded copy."""
+    # deferred: the server brings pydantic (about 0.1 s), not for `llmnav --help`
     from pydantic import ValidationError
 
-    from llmnav.errors import BadInputError, validation_message
     from llmnav.serve import CLIENT_KEY_VARIABLE, KEY_VARIABLE, LOOPBACK, LlamaServer, ServeOptions, check_host
 
     key = api_key or os.environ.get(KEY_VARIABLE, "").strip() or None

@@ -13,6 +13,7 @@ from llmnav.errors import printable
 
 def audio_task(path: Path, scenario: str | None, free: bool, *, quiet: bool = False) -> str:
     """Transcribe a task WAV for `drive`/`plan`; shows transcript and confidence unless quiet."""
+    # deferred: speech recognition brings numpy (about 0.1 s), only for audio tasks
     from llmnav.sensing.voice import scenarios_for, transcribe
 
     transcript = transcribe(path, scenarios_for(scenario), free=free)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import webbrowser
 from pathlib import Path
 from typing import Annotated
 
@@ -9,6 +10,7 @@ import typer
 
 from llmnav.commands.common import cli_errors, err_console
 from llmnav.errors import BadInputError
+from llmnav.view.shot import screenshot as take
 
 
 @cli_errors
@@ -33,6 +35,7 @@ def view(
     size: Annotated[str, typer.Option("--size", help="Screenshot window size WIDTHxHEIGHT in pixels.")] = "1280x800",
 ) -> None:
     """Write one self-contained HTML page of a run (or of a sweep); optionally a video of the run."""
+    # deferred: the page writer brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.view.api import write_view
 
     width, height = _size(size)  # bad flags fail before anything is written
@@ -47,13 +50,9 @@ def view(
             soft_wrap=True,
         )
     if screenshot is not None:
-        from llmnav.view.shot import screenshot as take
-
         err_console.print(f"screenshot: {take(result.page, screenshot, step=step, width=width, height=height)}")
     typer.echo(str(result.page))
     if open_page:
-        import webbrowser
-
         webbrowser.open(result.page.resolve().as_uri() + (f"#step={step}" if step is not None else ""))
 
 

@@ -17,6 +17,7 @@ import re
 import secrets
 import shutil
 import stat
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -107,8 +108,6 @@ def private_dir(folder: Path) -> Iterator[Path]:
     For files written by libraries that take a path, not a descriptor (OpenCV's and Pillow's video
     writers): written here, then renamed into place with `os.replace`.
     """
-    import tempfile
-
     tmp = Path(tempfile.mkdtemp(prefix=".llmnav-", dir=folder))
     try:
         yield tmp

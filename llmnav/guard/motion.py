@@ -36,12 +36,13 @@ import numpy as np
 from llmnav.core.geometry import Pose2D
 from llmnav.guard.schemas import VelocityLimits
 from llmnav.guard.veto import VetoResult, check_motion
+from llmnav.sim.motion import MotionResult
 from llmnav.sim.sensors import LidarScan
 
 if TYPE_CHECKING:
     from llmnav.core.robot_specs import RobotSpec
     from llmnav.nav.monitor import CollisionMonitor
-    from llmnav.sim.motion import Motion, MotionResult
+    from llmnav.sim.motion import Motion
 
 
 BACK_OFF_M = 0.15  # [m] reverse after a monitor stop, so a new plan starts clear of what stopped the robot
@@ -250,8 +251,6 @@ class GuardedMotion:
         return result
 
     def __refuse(self, command: str, parameters: Any, verdict: VetoResult, *, step: int | None = None) -> MotionResult:
-        from llmnav.sim.motion import MotionResult
-
         self.vetoes += 1
         self.__log.event(
             "guard", step=step, attempt=1, outcome="veto", error=verdict.reason, motion=command, parameters=parameters

@@ -55,6 +55,7 @@ refused or overrode the action. `SafetyVeto` adds `vetoes` and `guard_events`.
 from __future__ import annotations
 
 import math
+import os
 import string
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
@@ -68,16 +69,17 @@ from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.errors import BadInputError, validation_message
 from llmnav.gym.starts import StartSampler
 from llmnav.gym.text_space import TaskText
+from llmnav.reporting.topview import raster_scenario
 from llmnav.scoring.metrics import SUCCESS_RADIUS_M, best_target, rotation_done
 from llmnav.sensing.perception import lidar_sectors
 from llmnav.sim.sensors import DETECTOR_SIZE
+from llmnav.sim.world import World
 from llmnav.world.scenario import load_scenario
 from llmnav.world.tasks import resolve_task
 
 if TYPE_CHECKING:
     from llmnav.sim.motion import MotionResult
     from llmnav.sim.sensors import Detection, LidarScan
-    from llmnav.sim.world import World
     from llmnav.world.scenario import Scenario, Task
 
 MAX_DETECTIONS = 8  # rows of the padded detection table
@@ -129,10 +131,9 @@ def _printable(text: str) -> str:
 
 def human_render_problem() -> str | None:
     """Why a window cannot open here (no display, or an OpenCV built without a GUI), or None."""
-    import os
-
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         return "render_mode='human' needs a display (DISPLAY is not set); use 'rgb_array'"
+    # deferred: OpenCV (about 0.13 s) loads only for render_mode='human'
     import cv2
 
     if "GUI:                           NONE" in cv2.getBuildInformation():
@@ -157,8 +158,6 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
     }
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
-        from llmnav.sim.world import World
-
         try:
             self.options = EnvOptions(**kwargs)
         except ValidationError as err:  # a `make` keyword out of range or unknown: one line, not pydantic's page
@@ -307,6 +306,7 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
             return None
         frame = self._render_frame()
         if self.render_mode == "human":
+            # deferred: OpenCV (about 0.13 s) loads only for render_mode='human'
             import cv2
 
             cv2.imshow("llmnav", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
@@ -325,6 +325,7 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
         if world is not None:
             world.close()
         if self.render_mode == "human":
+            # deferred: OpenCV (about 0.13 s) loads only for render_mode='human'
             import cv2
 
             cv2.destroyAllWindows()
@@ -484,11 +485,10 @@ class NavEnv(gym.Env[dict[str, Any], Any]):
 
     def _render_frame(self) -> np.ndarray:
         """Top view (drawn once with llmnav's scenario drawing, then the robot per frame) + camera."""
+        # deferred: OpenCV (about 0.13 s) loads only when a frame is rendered
         import cv2
 
         if self._background is None:
-            from llmnav.reporting.topview import raster_scenario
-
             self._background = raster_scenario(self.scenario, self._targets())
         image, to_px = self._background
         top = image.copy()

@@ -28,8 +28,12 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.wrappers import RescaleAction
 
 from llmnav.errors import BadInputError
+from llmnav.gym.env import FactoryEnv, VelocityEnv
+from llmnav.gym.make import make_env
+from llmnav.gym.wrappers import _base
 
 MOVES_M: tuple[float, ...] = (0.5, 1.0, 2.0, 3.0)  # FRONT sizes; BACK takes the two shortest
 TURNS_DEG: tuple[float, ...] = (15.0, 30.0, 45.0, 90.0)  # each way
@@ -42,8 +46,6 @@ class NumericObservation(gym.ObservationWrapper[dict[str, Any], Any, dict[str, A
     """Drop the `task` text from the observation; optionally give the task as an integer instead."""
 
     def __init__(self, env: gym.Env[dict[str, Any], Any], *, task_index: bool = False) -> None:
-        from llmnav.gym.wrappers import _base
-
         super().__init__(env)
         source = env.observation_space
         if not isinstance(source, spaces.Dict):
@@ -103,9 +105,6 @@ class DiscreteFactoryActions(gym.ActionWrapper[Any, np.int64, dict[str, Any]]):
         moves_m: Sequence[float] = MOVES_M,
         turns_deg: Sequence[float] = TURNS_DEG,
     ) -> None:
-        from llmnav.gym.env import FactoryEnv
-        from llmnav.gym.wrappers import _base
-
         super().__init__(env)
         base = _base(env)
         if not isinstance(base, FactoryEnv):
@@ -130,7 +129,6 @@ class DiscreteFactoryActions(gym.ActionWrapper[Any, np.int64, dict[str, Any]]):
         if not 0 <= index < len(self.table):
             raise BadInputError(f"action {index} is not in Discrete({len(self.table)})")
         command, amount = self.table[index]
-        from llmnav.gym.env import FactoryEnv
 
         is_move = command in ("FRONT", "BACK")
         return {
@@ -154,9 +152,6 @@ class DiscreteVelocityActions(gym.ActionWrapper[Any, np.int64, Any]):
         speeds: Sequence[float] = SPEED_FRACTIONS,
         turns: Sequence[float] = TURN_FRACTIONS,
     ) -> None:
-        from llmnav.gym.env import VelocityEnv
-        from llmnav.gym.wrappers import _base
-
         super().__init__(env)
         base = _base(env)
         if not isinstance(base, VelocityEnv):
@@ -201,10 +196,6 @@ class FlatObservation(gym.ObservationWrapper[np.ndarray, Any, dict[str, Any]]):
 
 def _array_only(env: gym.Env[Any, Any], *, task_index: bool, velocity_actions: VelocityActions) -> gym.Env[Any, Any]:
     """The numeric observation and an array action (the Factory table, a rescaled or discrete velocity)."""
-    from gymnasium.wrappers import RescaleAction
-
-    from llmnav.gym.env import FactoryEnv
-
     if velocity_actions not in ("box", "discrete"):
         raise BadInputError(f"velocity_actions={velocity_actions!r}: use 'box' or 'discrete'")
     env = NumericObservation(env, task_index=task_index)
@@ -243,7 +234,5 @@ def make_flat_env(
     **kwargs: Any,
 ) -> gym.Env[Any, Any]:
     """The entry point of the `llmnav/*-Flat-v0` ids: `make_env`, array-only, the observation one vector."""
-    from llmnav.gym.make import make_env
-
     env = _array_only(make_env(kind, **kwargs), task_index=task_index, velocity_actions=velocity_actions)
     return FlatObservation(env)

@@ -15,19 +15,24 @@ from __future__ import annotations
 import hashlib
 import string
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, SupportsFloat
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from llmnav import __version__
 from llmnav.errors import BadInputError
 from llmnav.guard.motion import MotionGuardConfig
+from llmnav.guard.view import PlannerWorld
+from llmnav.gym.env import NavEnv
+from llmnav.runs.runlog import SUMMARY_FILE, read_run, write_json_atomic
+from llmnav.runs.runlog import RunLog as RunLogWriter
+from llmnav.runs.runner import task_record
+from llmnav.scoring.metrics import summarize_run
 from llmnav.sensing.perception import detections_text, summarize_scan
-
-if TYPE_CHECKING:
-    from llmnav.gym.env import NavEnv
-    from llmnav.runs.runlog import RunLog as RunLogWriter
+from llmnav.sim.sensors import CameraFrame
+from llmnav.world.scenario import resolve_scenario_path
 
 TEXT_CHARSET = frozenset(string.printable) | {"°"}
 MAX_TEXT_CHARS = 8192
@@ -36,8 +41,6 @@ Step = tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]
 
 
 def _base(env: gym.Env[Any, Any]) -> NavEnv:
-    from llmnav.gym.env import NavEnv
-
     base = env.unwrapped
     if not isinstance(base, NavEnv):
         raise BadInputError(f"{type(base).__name__} is not an llmnav environment")
@@ -57,8 +60,6 @@ class SafetyVeto(gym.Wrapper[dict[str, Any], Any, dict[str, Any], Any]):
     """
 
     def __init__(self, env: gym.Env[dict[str, Any], Any], *, config: MotionGuardConfig | None = None) -> None:
-        from llmnav.guard.view import PlannerWorld
-
         super().__init__(env)
         self._events: list[dict[str, Any]] = []
         self._vetoed_steps = 0
@@ -178,11 +179,6 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
 
     # --- internals ----------------------------------------------------------------------------------
     def _open(self, seed: int | None) -> None:
-        from llmnav import __version__
-        from llmnav.runs.runlog import RunLog as RunLogWriter
-        from llmnav.runs.runner import task_record
-        from llmnav.world.scenario import resolve_scenario_path
-
         base = _base(self.env)
         self.episodes += 1
         self.run_dir = self.out_dir / f"episode-{self.episodes:04d}"
@@ -225,8 +221,6 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
         base = _base(self.env)
         image = None
         if self.images:
-            from llmnav.sim.sensors import CameraFrame
-
             rgb = obs["image"] if isinstance(obs, dict) and "image" in obs else base.world.camera.capture().rgb
             image = self._log.image(CameraFrame(rgb=np.asarray(rgb), segmentation=None).image())
         odom = base.world.robot.odom()
@@ -243,8 +237,6 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
         log = self._log
         if log is None:
             return
-        from llmnav.runs.runlog import read_run
-        from llmnav.scoring.metrics import summarize_run
 
         base = _base(self.env)
         log.event("end", outcome=outcome, reason=reason, iterations=self._step, metrics={})
@@ -253,7 +245,6 @@ class RunLog(gym.Wrapper[Any, Any, Any, Any]):
         assert self.run_dir is not None
         summary = summarize_run(read_run(self.run_dir), base.scenario)
         summary["run_dir"] = str(self.run_dir)
-        from llmnav.runs.runlog import SUMMARY_FILE, write_json_atomic
 
         write_json_atomic(self.run_dir / SUMMARY_FILE, summary)
 

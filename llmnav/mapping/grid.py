@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, ClassVar, Protocol
 
 import numpy as np
 
+from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.errors import BadInputError
 from llmnav.mapping.nearest import inside, nearest_within, reach_cells, within
 
@@ -169,8 +170,6 @@ def build_grid(
     `robot` defaults to the scenario's robot model. Shapes whose bottom is above the robot's height
     (signs hung on walls) are left out: the robot passes beneath them.
     """
-    from llmnav.core.robot_specs import ROBOT_SPECS  # plain data module, no pybullet
-
     config = config or GridConfig()
     robot = robot or ROBOT_SPECS[scenario.robot]
     geometry = GridGeometry.from_bounds(scenario.bounds, config.resolution_m)

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 from llmnav.core.geometry import Point, path_length
 from llmnav.mapping.astar import astar, shortcut
 from llmnav.mapping.grid import nearest_free_cell
+from llmnav.mapping.targets import scenario_grid
 
 if TYPE_CHECKING:
     from llmnav.mapping.grid import OccupancyGrid
@@ -36,7 +37,5 @@ def plan_path(grid: OccupancyGrid, start: Point, goal: Point) -> list[Point] | N
 
 def shortest_path_length(scenario: Scenario, start: Point, goal: Point) -> float | None:
     """Length [m] of the shortest collision-free path between two points of a scenario."""
-    from llmnav.mapping.targets import scenario_grid
-
     path = plan_path(scenario_grid(scenario), start, goal)
     return None if path is None else path_length(path)

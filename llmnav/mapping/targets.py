@@ -222,6 +222,7 @@ def with_added_obstacles(
 
     `prefix` names them (`prefix:1`, ...): planners that mark what blocked them use their own.
     """
+    # deferred: pydantic and yaml (about 0.15 s, via llmnav.world.scenario) only when obstacles are added
     from llmnav.world.scenario import Obstacle
 
     if not centres:
@@ -247,6 +248,7 @@ def oracle_path(
 
 @lru_cache(maxsize=1024)
 def _cached_length(key: _ScenarioKey, task_json: str, x: float, y: float) -> float | None:
+    # deferred: pydantic and yaml (about 0.15 s, via llmnav.world.scenario) only when a length is computed
     from llmnav.world.scenario import Task
 
     # keyed by the task's content, not its id: free-text tasks share one id and differ in their targets

@@ -17,8 +17,9 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
+from llmnav.backends.local import beside_simulation
 from llmnav.core.chat import ChatRequest, ChatResult, Image, Message, ScoreRequest, ScoreResult
-from llmnav.errors import LlmnavError, one_line
+from llmnav.errors import LlmnavError, ModelError, one_line
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
@@ -59,6 +60,7 @@ class Observation:
 
 def lidar_summary(scan: LidarScan, options: DriveOptions) -> LidarSummary:
     """The scan's front distance and sectors, per `--lidar-sectors` and `--lidar-fov`."""
+    # deferred: perception brings numpy (about 0.1 s), only when the robot observes
     from llmnav.sensing.perception import summarize_scan
 
     return summarize_scan(scan, sectors=options.lidar_sectors, fov_deg=options.lidar_fov_deg)
@@ -121,6 +123,7 @@ def observe(
     `image_needed=False`: the caller sends the model no image (a text-only backend), so the camera frame,
     the costliest reading, is not rendered, and the observation has none.
     """
+    # deferred: perception brings numpy (about 0.1 s), only when the robot observes
     from llmnav.sensing.perception import detections_text
 
     sensing = set(options.sensing)
@@ -201,7 +204,6 @@ def call_model(ctx: ModelLine, request: ChatRequest, purpose: str, step: int | N
     for message in request.messages:  # store every image the request refers to (cheap when already stored)
         for img in message.images:
             ctx.log.image(img)
-    from llmnav.backends.local import beside_simulation
 
     try:
         with beside_simulation(ctx.options.realtime):
@@ -266,9 +268,6 @@ def call_scorer(ctx: ModelLine, request: ScoreRequest, step: int | None) -> Scor
     Failures are logged and re-raised like `call_model`'s; a reply with a different number of scores
     than continuations is a `ModelError` (never a silent misalignment of options and scores).
     """
-    from llmnav.backends.local import beside_simulation
-    from llmnav.errors import ModelError
-
     if ctx.backend is None:
         raise LlmnavError(f"planner '{ctx.options.planner}' asked for scores but no backend is configured")
     try:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import BadInputError
+from llmnav.scoring.stats import describe, wilson_interval
 
 if TYPE_CHECKING:
     from llmnav.runs.folders import Run
@@ -20,9 +21,11 @@ def _safe(name: str) -> str:
 
 def plot_conditions(runs: Sequence[Run], keys: Sequence[str], out_dir: Path) -> list[Path]:
     """Per task: mean score ± SD and success rate with Wilson's 95 % interval per condition; returns the PNGs."""
+    # deferred: matplotlib (about 0.3 s) loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred with matplotlib: pyplot after the Agg backend is chosen; scoring brings pydantic and yaml
     import matplotlib.pyplot as plt
 
     from llmnav.scoring.score import group_runs
@@ -51,9 +54,8 @@ LABEL_CHARS = 16  # a tick label's line length: about what fits under a bar 1.6 
 
 def condition_figure(task: str, groups: Sequence[tuple[str, Sequence[Run]]], keys: Sequence[str]) -> Any:
     """One task's figure: a bar per condition, its label wrapped to the bar's width (never tilted into the next)."""
+    # deferred: matplotlib (about 0.3 s) loads only when a chart is drawn
     import matplotlib.pyplot as plt
-
-    from llmnav.scoring.stats import describe, wilson_interval
 
     labels = [cond for cond, _ in groups]
     score_mean, score_sd, rate, rate_err = [], [], [], []

@@ -8,11 +8,13 @@ import json
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Literal
 
+from rich.measure import Measurement
+from rich.table import Table as RichTable
+
 from llmnav.reporting.safe import esc
 
 if TYPE_CHECKING:
     from rich.console import Console
-    from rich.table import Table as RichTable
 
     from llmnav.scoring.score import Table
 
@@ -21,8 +23,6 @@ Format = Literal["rich", "md", "csv", "json"]
 
 def to_rich(table: Table) -> RichTable:
     """A rich table (first two columns left-aligned labels, numbers right-aligned)."""
-    from rich.table import Table as RichTable
-
     out = RichTable(
         title=esc(table.title) if table.title else None,
         caption=esc(table.note) if table.note else None,
@@ -53,7 +53,6 @@ def print_unsqueezed(console: Console, renderable: Any) -> None:
     if console.is_terminal:
         console.print(renderable)
         return
-    from rich.measure import Measurement
 
     natural = Measurement.get(console, console.options.update_width(UNBOUNDED), renderable).maximum
     # print(width=...) is capped at the console's width: widen it for a moment. Restore the setting itself

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from llmnav.errors import printable
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 from llmnav.world.scenario import Scenario, Shape, Task
 
 if TYPE_CHECKING:
@@ -25,9 +26,11 @@ _NON_SOLID_ALPHA = 0.55  # non-solid objects (plates, signs, markers) drawn ligh
 
 def _pyplot() -> Any:
     """matplotlib.pyplot with the non-interactive Agg backend (no display needed)."""
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred with matplotlib: pyplot comes after the Agg backend is chosen
     import matplotlib.pyplot as plt
 
     return plt
@@ -35,6 +38,7 @@ def _pyplot() -> Any:
 
 def _patch(shape: Shape, *, color: tuple[float, ...], edge: tuple[float, ...], dashed: bool = False) -> Any:
     """A matplotlib patch for a footprint (rotated rectangle or circle)."""
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     from matplotlib.patches import Circle, Rectangle
 
     style: dict[str, Any] = {
@@ -54,6 +58,7 @@ def _patch(shape: Shape, *, color: tuple[float, ...], edge: tuple[float, ...], d
 
 def draw_scenario(ax: Axes, scenario: Scenario, *, labels: bool = True) -> None:
     """Draw the scenario's static world onto `ax` (equal aspect, metres)."""
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     from matplotlib.patches import Rectangle
 
     bx, by = scenario.bounds.x, scenario.bounds.y
@@ -127,6 +132,7 @@ def place_labels(ax: Axes, scenario: Scenario, *, fontsize: float, avoid: Sequen
     `avoid`: display-space boxes (a run's start and end markers, its target) that count as placed labels.
     Call it after the axes' limits and size are final; returns the annotations.
     """
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     from matplotlib import patheffects
     from matplotlib.transforms import Bbox
 
@@ -190,6 +196,7 @@ def place_labels(ax: Axes, scenario: Scenario, *, fontsize: float, avoid: Sequen
 
 def _beside(own: Any, dx: int, dy: int, reach: float, w: float, h: float) -> Any:
     """The w × h box on side (dx, dy) of the footprint `own`, `reach` pixels away (display coordinates)."""
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     from matplotlib.transforms import Bbox
 
     cx = (own.x0 + own.x1) / 2 if dx == 0 else (own.x1 + reach + w / 2 if dx > 0 else own.x0 - reach - w / 2)
@@ -210,6 +217,7 @@ def draw_targets(ax: Axes, points: Sequence[Sequence[float]], radius_m: float, *
 
     Without it a path that stops `radius_m` short of an object looks like it fell short. One legend entry.
     """
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     from matplotlib.patches import Circle
 
     for index, point in enumerate(points):
@@ -239,6 +247,7 @@ def place_point_labels(
     `avoid`: display-space boxes of markers (the start and end) that a label must not cover. Call it after
     the axes' limits are final.
     """
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     from matplotlib import patheffects
     from matplotlib.transforms import Bbox
 
@@ -337,8 +346,6 @@ def plot_scenario(scenario: Scenario, path: str | Path, *, task: Task | None = N
         draw_scenario(ax, scenario)
         _draw_start_poses(ax, scenario, task)
         if task is not None and task.kind == "target":
-            from llmnav.scoring.metrics import SUCCESS_RADIUS_M
-
             draw_targets(ax, scenario.target_points(task), SUCCESS_RADIUS_M)
         title = scenario.name if task is None else f"{scenario.name} - {task.id}: {task.text}"
         ax.set_title(printable(title), fontsize=10)
@@ -359,6 +366,7 @@ def raster_scenario(
 
     Drawn once with `draw_scenario`; callers copy the array and draw moving things on it with OpenCV.
     """
+    # deferred: numpy (about 0.1 s) loads only when the scenario is rasterised
     import numpy as np
 
     plt = _pyplot()

@@ -12,7 +12,9 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.core.geometry import Pose2D
 from llmnav.errors import LlmnavError, printable
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 
 if TYPE_CHECKING:
     from llmnav.runs.runlog import RunRecord
@@ -30,7 +32,7 @@ def oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tu
     if task.kind != "target":
         return None
     try:
-        from llmnav.core.geometry import Pose2D
+        # deferred: the oracle path brings numpy (about 0.1 s), only for target tasks
         from llmnav.mapping.targets import oracle_path
 
         path = oracle_path(scenario, task, Pose2D.from_list(start))
@@ -44,9 +46,11 @@ def oracle_points(scenario: Scenario, task: Task, start: list[float]) -> list[tu
 
 def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Path) -> Path:
     """Draw a run record onto the scenario's top view and save it as PNG."""
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred with matplotlib: pyplot comes after the Agg backend is chosen
     import matplotlib.pyplot as plt
 
     (x0, x1), (y0, y1) = scenario.bounds.x, scenario.bounds.y
@@ -62,8 +66,8 @@ def plot_record(record: RunRecord, scenario: Scenario, task: Task, out_path: Pat
 
 def draw_record(ax: Any, record: RunRecord, scenario: Scenario, task: Task) -> None:
     """The run on `ax`: top view, target and success radius, oracle path, driven path, numbered steps."""
+    # deferred: the top view brings pydantic and yaml (about 0.15 s), only when a run is drawn
     from llmnav.reporting.topview import draw_scenario, draw_targets, label_fontsize, place_labels
-    from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 
     poses = record.poses()
     draw_scenario(ax, scenario, labels=False)  # object names last, placed clear of the run's markers
@@ -103,6 +107,7 @@ def _number_steps(ax: Any, actions: list[dict[str, Any]], avoid: list[Any]) -> N
 
     Steps ending at one spot (turns) share a label.
     """
+    # deferred: the top view brings pydantic and yaml (about 0.15 s), only when a run is drawn
     from llmnav.reporting.topview import place_point_labels
 
     ends: dict[Any, list[float]] = {}

@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from llmnav.runs.runlog import read_run
+
 PROFILE_FILE = "velocity_profile.png"  # where the FSM planner leaves the figure in its run folder
 
 
@@ -30,14 +32,14 @@ def well_formed_cmd(record: dict[str, Any]) -> bool:
 
 def plot_velocity_profile(run_dir: Path, out: Path) -> Path | None:
     """Draw linear and angular velocity from the run's `cmd` records; None when there are none."""
-    from llmnav.runs.runlog import read_run
-
     records = [e for e in read_run(run_dir).of_type("planner") if e.get("kind") == "cmd" and well_formed_cmd(e)]
     if not records:
         return None
+    # deferred: matplotlib (about 0.3 s) loads only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred with matplotlib: pyplot comes after the Agg backend is chosen
     import matplotlib.pyplot as plt
 
     t = [float(e.get("t_sim", 0.0)) for e in records]

@@ -33,6 +33,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from llmnav import __version__
 from llmnav.core.geometry import logged_pose
 from llmnav.core.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes, write_bytes
 from llmnav.errors import BadInputError
@@ -105,9 +106,8 @@ class _Writer:
     """An MCAP writer that registers each topic's schema and channel on its first message."""
 
     def __init__(self, stream: io.BytesIO, messages: RosMessages, *, ros_only: bool) -> None:
+        # deferred: mcap is the optional 'ros' extra
         from mcap.writer import CompressionType, Writer
-
-        from llmnav import __version__
 
         self._writer = Writer(stream, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library=f"llmnav {__version__}")

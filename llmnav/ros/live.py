@@ -23,6 +23,7 @@ HOST = "127.0.0.1"  # never another interface: the run's prompts and images are 
 def missing_dependency() -> str | None:
     """None when foxglove-sdk and the MCAP writer's libraries import, else the hint to install them."""
     try:
+        # deferred: foxglove-sdk and rosbags are the optional 'ros' extra; this checks for them
         import foxglove  # noqa: F401
         import rosbags.typesys  # noqa: F401
     except ImportError as err:
@@ -37,6 +38,7 @@ class LiveView:
         hint = missing_dependency()
         if hint is not None:
             raise BadInputError(hint)
+        # deferred: foxglove-sdk is the optional 'ros' extra
         import foxglove
 
         self._foxglove = foxglove

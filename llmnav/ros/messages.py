@@ -33,6 +33,7 @@ TYPES = {
 def missing_dependency() -> str | None:
     """None when the MCAP writer's libraries import, else the one-line hint to install them."""
     try:
+        # deferred: mcap and rosbags are the optional 'ros' extra; this checks for them
         import mcap.writer  # noqa: F401
         import rosbags.typesys  # noqa: F401
     except ImportError as err:
@@ -61,6 +62,7 @@ class RosMessages:
     """Builds and serialises the ROS 2 messages of an export; one instance per file (the store is loaded once)."""
 
     def __init__(self) -> None:
+        # deferred: rosbags is the optional 'ros' extra
         from rosbags.typesys import Stores, get_typestore
 
         self.store = get_typestore(Stores.ROS2_HUMBLE)

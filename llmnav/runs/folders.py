@@ -12,14 +12,16 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from llmnav.errors import BadInputError
+from llmnav.backends.prices import load_prices, run_cost
+from llmnav.errors import BadInputError, LlmnavError, one_line
 from llmnav.runs.runlog import RUN_FILE, SUPERSEDED_FILE, RunRecord, read_run
 from llmnav.scoring.metrics import RESCORED_KEYS, SUCCESS_RADIUS_M, aborted_without_result, summarize_run
+from llmnav.world.scenario import Task, load_scenario
 from llmnav.world.tasks import ADHOC_ID
 
 if TYPE_CHECKING:
     from llmnav.backends.prices import PriceTable
-    from llmnav.world.scenario import Scenario, Task
+    from llmnav.world.scenario import Scenario
 
 START_POSE_KEY = "start_pose"  # `--by start_pose`: the stepwise source's Tables 3–7 report per start position
 
@@ -44,8 +46,6 @@ class Run:
 
     def task_record(self, scenario: Scenario) -> Task:
         """The run's task: the scenario's of its id, else the one its configuration line records (free text)."""
-        from llmnav.world.scenario import Task
-
         task_id = str(self.summary.get("task_id") or "")
         if task_id and task_id != ADHOC_ID and self.wording != "free":
             return scenario.task(task_id)
@@ -147,9 +147,6 @@ def find_run_dirs(paths: Sequence[Path]) -> list[Path]:
 @lru_cache(maxsize=16)
 def _scenario(name_or_path: str) -> Scenario | str:
     """The scenario, or why it cannot be loaded (cached either way: many runs share one)."""
-    from llmnav.errors import LlmnavError, one_line
-    from llmnav.world.scenario import load_scenario
-
     try:
         return load_scenario(name_or_path)
     except (LlmnavError, OSError) as err:
@@ -213,7 +210,6 @@ def run_from_record(
             if scenario is None and summary.get("task_kind") == "target":
                 problems.append(f"{why}; no SPL or Soft-SPL")
     if "cost_usd" not in summary or prices is not None:  # a summary from before costs were: priced now
-        from llmnav.backends.prices import load_prices, run_cost
 
         summary = {**summary, **run_cost(record.config, record.of_type("llm_call"), prices or load_prices())}
     # An outage has no score by design (it is tabled apart): only a scored run without one is a problem.
@@ -245,7 +241,6 @@ def read_runs(
             broken.append((run_dir, err))
     if broken and not runs:
         raise broken[0][1]
-    from llmnav.errors import one_line
 
     return runs, [f"{run_dir}: {one_line(err)}" for run_dir, err in broken]
 

@@ -19,6 +19,12 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+import llmnav
+from llmnav.backends.base import backend_source, get_backend, request_modality
+from llmnav.backends.cache import ReplyCache
+from llmnav.backends.policy import PolicyBackend
+from llmnav.backends.prices import load_prices
+from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.errors import (
     BadInputError,
     LlmnavError,
@@ -28,28 +34,37 @@ from llmnav.errors import (
     one_line,
     redact_userinfo,
 )
+from llmnav.planners import prompting
 from llmnav.planners.base import (
     DriveOptions,
     EpisodeContext,
     EpisodeOutcome,
+    GroundTruth,
     Information,
     NullView,
     RedactedView,
     View,
     as_planner_options,
     drive_options,
+    get_planner,
+    planner_source,
 )
-from llmnav.world.scenario import resolve_scenario_path
+from llmnav.reporting.trajectory import plot_record
+from llmnav.reporting.velocity import PROFILE_FILE, plot_velocity_profile
+from llmnav.runs.runlog import RunLog, read_run
+from llmnav.scoring.metrics import aborted_by_infrastructure, summarize_run
+from llmnav.world.knowledge import resolve_information, scenario_view
+from llmnav.world.scenario import check_added_obstacles, resolve_scenario_path
+from llmnav.world.tasks import SEQUENCE_JOIN, resolve_task
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     from llmnav.backends.base import Backend
-    from llmnav.backends.policy import PolicyBackend
     from llmnav.backends.prices import PriceTable
     from llmnav.core.geometry import Pose2D
     from llmnav.planners.base import Planner
-    from llmnav.runs.runlog import RunLog, RunRecord
+    from llmnav.runs.runlog import RunRecord
     from llmnav.sim.world import World
     from llmnav.world.scenario import Scenario, Task
 
@@ -103,8 +118,6 @@ def _file_hash(path: Path) -> str:
 
 def prompt_hashes(planner: Planner, options: DriveOptions) -> dict[str, str]:
     """Hashes of the prompt templates a planner renders (its `templates` hook)."""
-    from llmnav.planners import prompting
-
     return {name: prompting.template_hash(name, planner.prompt_package) for name in planner.templates(options)}
 
 
@@ -131,10 +144,6 @@ def build_config(
     information: str | None = None,
 ) -> dict[str, Any]:
     """The run's first log line: enough to reproduce the episode and to group it in tables."""
-    import llmnav
-    from llmnav.backends.base import backend_source, request_modality
-    from llmnav.planners.base import planner_source
-
     camera = (spec.options.image_width, spec.options.image_height) if "image" in spec.options.sensing else None
     return {
         "versions": {
@@ -171,8 +180,6 @@ def build_config(
 
 def oracle_backend(backend: Backend | None) -> PolicyBackend | None:
     """`backend` when it answers from the planner's answer key (`policy:oracle`), else None."""
-    from llmnav.backends.policy import PolicyBackend
-
     return backend if isinstance(backend, PolicyBackend) and backend.wants_answer_key else None
 
 
@@ -191,9 +198,6 @@ def _world_configs(scenario: Scenario, options: DriveOptions) -> dict[str, Any]:
 
 def _check_obstacles(scenario: Scenario, start: Pose2D, options: DriveOptions) -> None:
     """Added obstacles inside the world and clear of the robot's start (bad input, before any folder)."""
-    from llmnav.core.robot_specs import ROBOT_SPECS
-    from llmnav.world.scenario import check_added_obstacles
-
     robot = ROBOT_SPECS.get(scenario.robot)
     clearance = (robot.radius_m if robot else 0.3) + _ADDED_OBSTACLE_SIZE_M * math.sqrt(0.5)
     check_added_obstacles(scenario, (start.x, start.y), options.obstacles, clearance)
@@ -217,11 +221,6 @@ def run_episode(
     can show the result first. The summary names the trajectory's path already. A run that crashed
     draws its figures at once, as without `later`.
     """
-    from llmnav.planners.base import get_planner
-    from llmnav.runs.runlog import RunLog
-    from llmnav.world.knowledge import resolve_information
-    from llmnav.world.tasks import SEQUENCE_JOIN, resolve_task
-
     texts = spec.task_text.split(SEQUENCE_JOIN) if spec.task_text else None
     resolved = resolve_task(spec.scenario or None, texts, spec.task_id, spec.start_pose)
     scenario, task = resolved.scenario, resolved.task
@@ -238,18 +237,13 @@ def run_episode(
     backend = backend_obj
     owns_backend = False
     if backend is None and planner.requires_backend(spec.options):
-        from llmnav.backends.base import get_backend
-
         backend = get_backend(spec.backend)
         owns_backend = True
     if backend is not None and spec.options.drop_images:
         backend.drop_images = True
-    from llmnav.backends.prices import load_prices
 
     prices = load_prices(spec.prices)  # a bad price file is bad input before any folder exists
     if backend is not None and spec.cache_dir is not None:
-        from llmnav.backends.cache import ReplyCache
-
         backend.use_cache(ReplyCache(spec.cache_dir))
     if backend is not None:
         try:
@@ -261,7 +255,7 @@ def run_episode(
                 backend.close()
             raise
     try:
-        # Imported only now: pybullet prints a banner on stderr, which bad input above must not precede.
+        # deferred: pybullet prints a banner on stderr, which bad input above must not precede
         from llmnav.sim.world import World
 
         with World(scenario, seed=spec.options.seed, **_world_configs(scenario, spec.options)) as world:
@@ -285,6 +279,7 @@ def run_episode(
             # the key and URL credentials the backend holds are never logged or shown, even when echoed
             live = None
             if spec.foxglove_port is not None:  # the export's topics while it drives; a busy port fails here
+                # deferred: the live view brings numpy (about 0.1 s), only with foxglove_port
                 from llmnav.ros.live import LiveView
 
                 live = LiveView(spec.foxglove_port, spec.out_dir)
@@ -322,10 +317,9 @@ def _run_logged(
     The planner gets the scenario as its information mode lets it see it (llmnav.world.knowledge); the
     summary is computed on the full scenario.
     """
-    from llmnav.world.knowledge import scenario_view
-
     recorder = None
     if spec.record_hz is not None:
+        # deferred: the recorder brings numpy (about 0.1 s), only with record_hz
         from llmnav.ros.record import Recorder
 
         recorder = Recorder(world, log, spec.record_hz, spec.options.seed)
@@ -342,6 +336,7 @@ def _run_logged(
     if recorder is not None:
         recorder.log_map(scenario)
         recorder.sample(world.sim_time)
+    # deferred: the guarded layer brings numpy and pybullet (about 0.2 s), only when an episode runs
     from llmnav.guard.view import PlannerWorld
 
     known = scenario_view(scenario, information, knows_map=planner.knows_map)
@@ -379,8 +374,6 @@ def _run_logged(
         iterations=outcome.iterations,
         metrics=outcome.metrics,
     )
-    from llmnav.runs.runlog import read_run
-    from llmnav.scoring.metrics import summarize_run
 
     log.check_written()  # a full disk: one error, no summary of a log that stops early
     record = read_run(log.run_dir)
@@ -416,8 +409,8 @@ def _attach_answer_key(
     oracle = oracle_backend(backend)
     if oracle is None:
         return
+    # deferred: the oracle's map brings numpy (about 0.1 s), only with an oracle backend
     from llmnav.mapping.targets import with_added_obstacles
-    from llmnav.planners.base import GroundTruth
 
     truth = GroundTruth(
         with_added_obstacles(scenario, options.obstacles), task, world.robot.pose, lambda: world.sim_time
@@ -426,8 +419,6 @@ def _attach_answer_key(
 
 
 def _velocity_profile(run_dir: Path) -> Path | None:
-    from llmnav.reporting.velocity import PROFILE_FILE, plot_velocity_profile
-
     return plot_velocity_profile(run_dir, run_dir / PROFILE_FILE)
 
 
@@ -456,8 +447,6 @@ def _plot(record: RunRecord, scenario: Scenario, task: Task, run_dir: Path, summ
     """Write trajectory.png and note its path (or the error) in the summary."""
     # The figure is a convenience: a plotting failure must not cost the episode its result.
     try:
-        from llmnav.reporting.trajectory import plot_record
-
         summary["trajectory"] = str(plot_record(record, scenario, task, run_dir / TRAJECTORY_FILE))
     except Exception as err:  # noqa: BLE001
         summary["trajectory"] = None
@@ -473,8 +462,6 @@ def exit_code(summary: dict[str, Any]) -> int:
     0 the task succeeded; 1 it was not achieved (completed far from the target, or failed); 3 the model
     failed (no valid action, every motion vetoed); 4 the backend or its server failed (no answer came).
     """
-    from llmnav.scoring.metrics import aborted_by_infrastructure
-
     if aborted_by_infrastructure(summary):
         return EXIT_INFRASTRUCTURE
     if summary.get("outcome") == "aborted":

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from llmnav.backends.prices import billing_of
 from llmnav.runs.folders import Run
 from llmnav.scoring.score import MISSING, Table, condition_fields, group_runs
 
@@ -60,8 +61,6 @@ def asks_a_server(run: Run) -> bool:
 
     The local engine, policies and replays bill nothing and send nothing: a cost table of theirs is noise.
     """
-    from llmnav.backends.prices import billing_of
-
     return "free" not in billing_of(run.config) or bool(run.summary.get("cache_hits"))
 
 

@@ -24,10 +24,12 @@ from __future__ import annotations
 
 import math
 import re
+import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from llmnav.backends.prices import load_prices, run_cost
 from llmnav.core.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
 from llmnav.scoring.failures import failure_cause
 
@@ -359,6 +361,7 @@ def reach_metrics(
     closest = min((math.hypot(p[0] - x, p[1] - y) for p in poses for x, y in targets), default=None)
     shortest = final_distance = None
     if scenario is not None and targets:
+        # deferred: the oracle's map brings numpy (about 0.1 s), only when a scenario is given
         from llmnav.mapping.targets import goal_distance, with_added_obstacles
 
         known = with_added_obstacles(scenario, obstacles)
@@ -408,8 +411,6 @@ def summarize_run(
     distance term keeps its own 2.5 m. `prices`: the table `cost_usd` is computed with (default: `$LLMNAV_PRICES`,
     else the bundled one; see `llmnav.backends.prices`).
     """
-    from llmnav.backends.prices import load_prices, run_cost
-
     config = record.config
     events = record.events
     task, targets, faces = _task_info(config, scenario)
@@ -549,7 +550,5 @@ def new_prompt_tokens_median(calls: Sequence[dict[str, Any]]) -> float | None:
     The first call pays for the fixed system prompt once; the budget that matters is every call after it.
     None when the backend does not report them (or there is at most one call).
     """
-    import statistics
-
     counts = [c["new_prompt_tokens"] for c in calls[1:] if isinstance(c.get("new_prompt_tokens"), int)]
     return float(statistics.median(counts)) if counts else None

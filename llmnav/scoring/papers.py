@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from llmnav.errors import BadInputError
+from llmnav.reporting.velocity import well_formed_cmd
 from llmnav.runs.folders import Run, load_scenario_of
 from llmnav.runs.runlog import read_run
 from llmnav.scoring.score import (
@@ -53,6 +54,7 @@ from llmnav.scoring.score import (
 )
 from llmnav.scoring.stats import compare, describe
 from llmnav.world.scenario import SEQUENCE_JOIN
+from llmnav.world.tasks import sequence_legs
 
 NOT_RUN = "not run"  # a leg after one that failed: the episode ended before it
 START_LABEL = "SP"  # the start point, as the waypoint source names it
@@ -179,8 +181,6 @@ def _leg_names(run: Run, commands: Sequence[str]) -> list[str]:
     The leg's first target's label; the command text where the scenario cannot be loaded or the target is
     a point.
     """
-    from llmnav.world.tasks import sequence_legs
-
     scenario, _why = load_scenario_of(run.config)
     if scenario is None:
         return list(commands)
@@ -393,8 +393,6 @@ def _velocity_samples(run: Run) -> dict[str, list[float]]:
     The suggestion and the fused command count only where a suggestion was in force (the source's Table 4
     compares the three where the model acts).
     """
-    from llmnav.reporting.velocity import well_formed_cmd
-
     samples: dict[str, list[float]] = {name: [] for name in VELOCITY_ROWS}
     try:
         events = read_run(run.run_dir).of_type("planner")

@@ -21,7 +21,9 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.backends.base import answerer
 from llmnav.core.declarations import Column, Declarations, ReferencePath, ScoreTable, declarations_of
-from llmnav.errors import BadInputError
+from llmnav.core.geometry import Pose2D
+from llmnav.errors import BadInputError, one_line
+from llmnav.planners.base import planner_class, planner_names, planner_taking
 from llmnav.runs.folders import (
     START_POSE_KEY,
     Run,
@@ -34,9 +36,9 @@ from llmnav.scoring.metrics import (
 )
 from llmnav.scoring.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
 from llmnav.world.scenario import SEQUENCE_JOIN
+from llmnav.world.tasks import SEQUENCE_ID, sequence_legs, sequence_task, task_from_text
 
 if TYPE_CHECKING:
-    from llmnav.core.geometry import Pose2D
     from llmnav.world.scenario import Scenario, Task
 
 NA = "N.A."  # the task has no target to score against
@@ -263,9 +265,6 @@ def _start_key(run: Run) -> tuple[str, Any]:
 
 def _oracle_lengths(runs: Sequence[Run]) -> dict[tuple[str, Any], float | None]:
     """Oracle shortest-path length per (task, start pose); None where unavailable (noted on the run)."""
-    from llmnav.core.geometry import Pose2D
-    from llmnav.errors import one_line
-
     lengths: dict[tuple[str, Any], float | None] = {}
     for run in runs:
         key = _start_key(run)
@@ -296,8 +295,6 @@ def task_of_run(scenario: Scenario, run: Run) -> Task:
     A sequence of `--task` commands (id `SEQ`) and free text (id `adhoc`) are no scenario task: their text
     is (`llmnav.world.tasks`), so they are resolved from it as `drive` did.
     """
-    from llmnav.world.tasks import SEQUENCE_ID, sequence_task, task_from_text
-
     try:
         return scenario.task(run.task)
     except KeyError:
@@ -316,9 +313,8 @@ def sequence_oracle_length(scenario: Scenario, task: Task, start: Pose2D) -> flo
 
     Each leg starts where the oracle's previous one ended, as the robot's did where the last leg ended.
     """
-    from llmnav.core.geometry import Pose2D
+    # deferred: the oracle path brings numpy (about 0.1 s), only for command sequences
     from llmnav.mapping.targets import oracle_path
-    from llmnav.world.tasks import sequence_legs
 
     total, here = 0.0, start
     for leg in sequence_legs(scenario, task):
@@ -482,8 +478,6 @@ def declared_table(
 
 def installed_declarations() -> dict[str, Declarations]:
     """What every installed planner declares, by planner name; one that fails to load is left out."""
-    from llmnav.planners.base import planner_class, planner_names
-
     declared: dict[str, Declarations] = {}
     for name in planner_names():
         try:
@@ -604,8 +598,6 @@ COMPARE_METRICS: dict[str, Callable[[Run], Any]] = {
 
 def is_option_key(key: str) -> bool:
     """Whether some installed planner takes option `key` (so runs may be grouped or selected by it)."""
-    from llmnav.planners.base import planner_taking
-
     return planner_taking(key) is not None
 
 

@@ -61,7 +61,8 @@ def mean_sd(values: Sequence[float | None]) -> tuple[float, float, int]:
 
 def t_interval(mean: float, sd: float, n: int, confidence: float = 0.95) -> tuple[float, float]:
     """Two-sided t confidence interval of a mean from summary statistics (nan for n < 2)."""
-    from scipy import stats  # local: scipy is slow to import and only `score` needs it
+    # deferred: scipy.stats (about 0.5 s) loads only when an interval is computed
+    from scipy import stats
 
     if n < 2 or not math.isfinite(sd):
         return math.nan, math.nan
@@ -98,6 +99,7 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
     The t interval of 0/1 outcomes reaches below 0 and above 1 for small n, and is a single point at
     0/n or n/n; Wilson's never leaves the rate's range. (nan, nan) for n = 0.
     """
+    # deferred: scipy.stats (about 0.5 s) loads only when an interval is computed
     from scipy import stats
 
     if n <= 0:
@@ -124,6 +126,7 @@ def clip_interval(
 
 def welch_summary(mean1: float, sd1: float, n1: int, mean2: float, sd2: float, n2: int) -> Welch:
     """Welch's t, Welch–Satterthwaite df and two-sided p from summary statistics."""
+    # deferred: scipy.stats (about 0.5 s) loads only when groups are compared
     from scipy import stats
 
     if n1 < 2 or n2 < 2:

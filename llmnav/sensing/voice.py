@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 from functools import lru_cache
 from pathlib import Path
+from pathlib import Path as _Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -89,6 +90,7 @@ def read_wav(path: Path) -> np.ndarray:
     if samples.size < rate // 10:
         raise BadInputError(f"{path}: audio shorter than 0.1 s")
     if rate != SAMPLE_RATE:
+        # deferred: scipy.signal (about 0.7 s) loads only for audio not sampled at 16 kHz
         from scipy.signal import resample_poly
 
         ratio = Fraction(SAMPLE_RATE, rate).limit_denominator(1000)
@@ -243,6 +245,7 @@ def interpret(words: str, grammar: Grammar) -> str | None:
 
 def _pocketsphinx() -> Any:
     try:
+        # deferred: pocketsphinx is the optional 'voice' extra
         import pocketsphinx
     except ImportError:
         raise ModelUnavailableError(
@@ -256,8 +259,6 @@ def _decoder(mode: str) -> Any:
     """One decoder per mode ("grammar", "free", "phones"), kept: each load takes about a second."""
     ps = _pocketsphinx()
     if mode == "phones":
-        from pathlib import Path as _Path
-
         model_dir = _Path(ps.__file__).parent / "model" / "en-us"
         return ps.Decoder(logfn="/dev/null", allphone=str(model_dir / "en-us-phone.lm.bin"))
     return ps.Decoder(logfn="/dev/null")
@@ -323,6 +324,7 @@ def transcribe(path: Path, scenarios: list[Scenario], *, free: bool = False) -> 
 
 def scenarios_for(scenario: str | None) -> list[Scenario]:
     """The scenario named, or every bundled one (the task then picks the scenario, as typed text does)."""
+    # deferred: pydantic and yaml (about 0.15 s, via llmnav.world.scenario), only when a task is transcribed
     from llmnav.world.scenario import list_scenarios, load_scenario
 
     return [load_scenario(scenario)] if scenario else [load_scenario(n) for n in list_scenarios()]

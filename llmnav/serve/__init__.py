@@ -17,6 +17,7 @@ formats where llama.cpp's differ (docs/serve-api.md).
 from __future__ import annotations
 
 import errno
+import ipaddress
 import signal
 import socket
 from collections.abc import Callable
@@ -30,6 +31,7 @@ from llmnav.backends.llamacpp import PROMPT_CACHE_RAM, _import_xllamacpp
 from llmnav.backends.local import DEFAULT_N_CTX, default_model_path, default_threads
 from llmnav.backends.local import _gguf_path as gguf_path  # the one check of a model path (exists, GGUF)
 from llmnav.errors import BadInputError
+from llmnav.serve.front import Front
 
 LOOPBACK = "127.0.0.1"
 DEFAULT_PORT = 8080
@@ -100,8 +102,6 @@ def check_host(host: str, api_key: str | None) -> str:
     `localhost` is loopback (127.0.0.1). Any other address can be reached from other machines, so the
     server must want a key there: no one else's requests should run on this model.
     """
-    import ipaddress
-
     text = host.strip()
     if not text:
         raise BadInputError("--host '': give an address: 127.0.0.1 (this machine only) or 0.0.0.0 (every interface)")
@@ -183,7 +183,6 @@ class LlamaServer:
             ) from None
         finally:
             _restore_handlers(handlers)
-        from llmnav.serve.front import Front
 
         try:
             self._front = Front(opts.host, port, params.port, api_key=opts.api_key, names=served_names(opts))

@@ -22,7 +22,8 @@ from pathlib import Path
 from types import FrameType, TracebackType
 
 from llmnav.backends.served import ServedModel
-from llmnav.errors import ModelUnavailableError
+from llmnav.errors import LlmnavError, ModelUnavailableError, one_line
+from llmnav.serve import LOOPBACK, LlamaServer, ServeOptions
 
 READY_TIMEOUT_S = 120.0  # [s] loading the model; the embedded 135M one takes about a second
 STOP_TIMEOUT_S = 10.0  # [s] then the child is killed
@@ -122,9 +123,6 @@ def _stop_on_sigterm(signum: int, frame: FrameType | None) -> None:
 
 def main(argv: list[str]) -> int:
     """The child: serve the model on loopback until stdin ends, SIGTERM or Ctrl-C."""
-    from llmnav.errors import LlmnavError, one_line
-    from llmnav.serve import LOOPBACK, LlamaServer, ServeOptions
-
     path, slots, n_ctx, threads = Path(argv[0]), int(argv[1]), int(argv[2]), int(argv[3])
     options = ServeOptions(
         model=path, host=LOOPBACK, port=0, parallel=slots, n_ctx=n_ctx, threads=threads,

@@ -149,6 +149,7 @@ class CameraFrame:
     def jpeg_b64(self, quality: int = 80) -> str:
         """The image as base64 JPEG (what multimodal models receive); encoded once per quality."""
         if quality not in self._encoded:
+            # deferred: OpenCV (about 0.13 s) loads only when an image is encoded for a model
             import cv2
 
             bgr = cv2.cvtColor(self.rgb, cv2.COLOR_RGB2BGR)  # contiguous: cheaper than a reversed view
@@ -259,6 +260,7 @@ class Camera:
             flags=flags,
             physicsClientId=self._client,
         )
+        # deferred: OpenCV (about 0.13 s) loads only when the camera renders
         import cv2
 
         # cv2 drops the alpha channel and paints the floor ~50x faster than numpy slicing and masks.

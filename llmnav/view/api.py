@@ -8,8 +8,9 @@ from pathlib import Path
 from llmnav.ablate import MANIFEST_FILE
 from llmnav.errors import BadInputError
 from llmnav.runs.runlog import RUN_FILE
+from llmnav.view.model import build_run_view
 from llmnav.view.page import PAGE_FILE, check_out, check_target, run_page, sweep_page, write_page
-from llmnav.view.video import VideoInfo, render_video
+from llmnav.view.video import VideoInfo, check_timing, render_video
 
 
 @dataclass
@@ -53,7 +54,6 @@ def write_view(
             raise BadInputError("--video needs a run folder, not a sweep")
         if video.suffix.lower() not in (".mp4", ".gif"):
             raise BadInputError(f"--video {video}: give a file ending in .mp4 or .gif")
-        from llmnav.view.video import check_timing
 
         check_timing(fps, seconds_per_step)  # bad flags fail before the page is written
         # a video carries no mark of its writer: an existing file is replaced only when forced
@@ -66,7 +66,5 @@ def write_view(
         write_page(sweep_page(folder, page), page)
     info = None
     if video is not None:
-        from llmnav.view.model import build_run_view
-
         info = render_video(build_run_view(folder), video, fps=fps, seconds_per_step=seconds_per_step)
     return ViewResult(page, kind, info)

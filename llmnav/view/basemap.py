@@ -51,6 +51,7 @@ class BaseMap:
 
     def png(self) -> bytes:
         """The picture as PNG bytes."""
+        # deferred: OpenCV (about 0.13 s) loads only when a picture is encoded
         import cv2
 
         ok, encoded = cv2.imencode(".png", self.pixels, [cv2.IMWRITE_PNG_COMPRESSION, 9])
@@ -75,10 +76,12 @@ def draw_base_map(
     `markers`: points [m] where the page draws a marker of MARKER_PX (the run's start and end): object
     names are placed clear of them.
     """
+    # deferred: OpenCV and matplotlib (about 0.4 s) load only when a map is drawn
     import cv2
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred with matplotlib: pyplot comes after the Agg backend is chosen
     import matplotlib.pyplot as plt
     import numpy as np
 
@@ -113,6 +116,7 @@ def draw_map(
     markers: Sequence[Sequence[float]] = (),
 ) -> None:
     """`draw_base_map`'s drawing on an axes (the object names placed last, clear of targets and markers)."""
+    # deferred: matplotlib and the top view (with pydantic and yaml) load only when a map is drawn
     from matplotlib.transforms import Bbox
 
     from llmnav.reporting.topview import draw_scenario, draw_targets, label_fontsize, place_labels

@@ -20,6 +20,7 @@ decision says what it lacks. Nothing here renders HTML (see `llmnav.view.page`).
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 from dataclasses import dataclass, field
@@ -28,7 +29,11 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.core.declarations import Declarations, declarations_of
 from llmnav.core.geometry import logged_pose
+from llmnav.errors import BadInputError
+from llmnav.reporting.trajectory import oracle_points
+from llmnav.reporting.velocity import well_formed_cmd
 from llmnav.runs.runlog import IMAGES_DIR, RunRecord, read_run
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 from llmnav.sensing.relevance import CONTENT_FREE_TASK
 
 if TYPE_CHECKING:
@@ -206,8 +211,6 @@ class RunView:
     @property
     def success_radius_m(self) -> float:
         """[m] The radius success was judged at (the summary's, else the default)."""
-        from llmnav.scoring.metrics import SUCCESS_RADIUS_M
-
         value = _number(self.summary.get("success_radius_m"))
         return value if value is not None and value > 0 else SUCCESS_RADIUS_M
 
@@ -275,6 +278,7 @@ def polyline_length(points: list[tuple[float, float]] | list[list[float]]) -> fl
 
 def reasoning_of(reply: str) -> str:
     """The `reasoning` field of a reply parsed again (logs from before the guard logged its value)."""
+    # deferred: the guard's parser brings pydantic (about 0.1 s), only for old logs
     from llmnav.guard.parse import parse_answer
 
     result: Any = parse_answer(reply, dict[str, Any])
@@ -480,8 +484,6 @@ def _reading_ahead(record: RunRecord) -> bool:
 
 def _place_by_time(steps: list[StepView], record: RunRecord) -> None:
     """Give decisions without poses the trajectory sample logged last before them (by sim time)."""
-    import bisect
-
     samples = [
         (float(e["t_sim"]), pose)
         for e in record.of_type("pose")
@@ -562,8 +564,6 @@ def _stepped(record: RunRecord, noun: str) -> list[StepView]:
 
 
 def _profile(record: RunRecord) -> CommandProfile:
-    from llmnav.reporting.velocity import well_formed_cmd
-
     planner = record.of_type("planner")
     cmds = [e for e in planner if e.get("kind") == "cmd" and well_formed_cmd(e)]
     return CommandProfile(
@@ -578,7 +578,7 @@ def _profile(record: RunRecord) -> CommandProfile:
 
 def _declarations(record: RunRecord) -> Declarations:
     """What the run's planner declares, through the registry; the log's own content when it is not installed."""
-    from llmnav.errors import BadInputError
+    # deferred: the planner registry brings pydantic (about 0.1 s), only when a run is read
     from llmnav.planners.base import planner_class
 
     name = record.config.get("planner") or as_dict(record.config.get("options")).get("planner")
@@ -609,6 +609,7 @@ def _mark_missing(steps: list[StepView], model_planner: bool) -> None:
 
 def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
     """The run's task: the scenario's own when the id is one of its tasks, else rebuilt from the record."""
+    # deferred: pydantic and yaml (about 0.15 s) load only when a run is read
     from pydantic import ValidationError
 
     from llmnav.world.scenario import Task
@@ -628,7 +629,7 @@ def _task(config: dict[str, Any], scenario: Scenario | None) -> Task | None:
 
 def build_run_view(run_dir: Path) -> RunView:
     """Read a run folder for its page; raises BadInputError when it is no readable run."""
-    from llmnav.reporting.trajectory import oracle_points
+    # deferred: run folders bring pydantic and yaml (about 0.15 s), only when a run is read
     from llmnav.runs.folders import run_from_record, scenario_of
 
     run_dir = Path(run_dir)

@@ -12,12 +12,14 @@ file it did not write itself unless forced (every page carries a generator tag t
 from __future__ import annotations
 
 import base64
+import math
 import os
 import tempfile
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+from urllib.parse import quote
 
 from llmnav.core.safefiles import (
     IMAGE_LIMIT,
@@ -29,7 +31,16 @@ from llmnav.core.safefiles import (
     read_bytes,
     write_text,
 )
+from llmnav.core.safefiles import loads as bounded_loads
 from llmnav.errors import BadInputError
+from llmnav.reporting.velocity import PROFILE_FILE, plot_velocity_profile
+from llmnav.runs.locking import LOCK_FILE
+from llmnav.runs.runlog import IMAGES_DIR, RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE
+from llmnav.scoring.stats import clip_interval, describe, wilson_interval
+from llmnav.sensing.relevance import CONTENT_FREE_TASK
+from llmnav.view.basemap import draw_base_map, page_size
+from llmnav.view.drawing import arrow, lidar_wedges, points_attr, svg_point
+from llmnav.view.model import as_dict, as_pose, build_run_view
 
 GENERATOR = PAGE_GENERATOR  # the page's <meta name="generator">: how `write_page` knows its own files
 
@@ -50,6 +61,7 @@ def environment() -> Environment:
 
     Undefined values render empty: a field an older or partial log lacks must not break the page.
     """
+    # deferred: jinja2 (about 0.04 s) loads only when a page is rendered
     from jinja2 import Environment, PackageLoader, select_autoescape
 
     env = Environment(
@@ -61,7 +73,6 @@ def environment() -> Environment:
     env.filters["num"] = _num
     env.filters["pose"] = _pose
     env.filters["joined"] = _joined
-    from llmnav.sensing.relevance import CONTENT_FREE_TASK
 
     env.globals["content_free_task"] = CONTENT_FREE_TASK
     return env
@@ -75,8 +86,6 @@ def _num(value: Any, digits: int = 2, unit: str = "") -> str:
 
 
 def _pose(pose: Any) -> str:
-    import math
-
     if not isinstance(pose, (list, tuple)) or len(pose) < 2:
         return "—"
     try:
@@ -112,8 +121,6 @@ def data_uri(path: Path, root: Path) -> str | None:
 
 
 def _marker(step: StepView) -> dict[str, Any] | None:
-    from llmnav.view.drawing import svg_point
-
     pose = step.pose_before or step.pose_after
     if not isinstance(pose, list) or len(pose) < 2:
         return None
@@ -123,8 +130,6 @@ def _marker(step: StepView) -> dict[str, Any] | None:
 
 def _overlay(step: StepView) -> dict[str, Any]:
     """What the map shows for the selected decision: poses, waypoint attempts, replans."""
-    from llmnav.view.drawing import arrow, points_attr, svg_point
-    from llmnav.view.model import as_pose
 
     def heading(pose: list[float] | None) -> dict[str, float] | None:
         return arrow(pose, ARROW_M) if pose is not None and len(pose) >= 3 else None
@@ -163,9 +168,6 @@ def _frontier_marks(step: StepView) -> list[dict[str, Any]]:
 
     The label is the value where the decision scored its frontiers (log utility + PMI), else the utility.
     """
-    from llmnav.view.drawing import svg_point
-    from llmnav.view.model import as_pose
-
     chosen = step.chosen
     marks = []
     for row in step.frontiers:
@@ -195,8 +197,6 @@ def _velocity_profile(view: RunView) -> str | None:
 
     The planner draws it at the end of a run; a run cut short gets it drawn now.
     """
-    from llmnav.reporting.velocity import PROFILE_FILE, plot_velocity_profile
-
     path: Path | None = view.run_dir / PROFILE_FILE
     with tempfile.TemporaryDirectory(prefix="llmnav-view-") as tmp:
         if path is None or not path.is_file():
@@ -231,7 +231,6 @@ def _velocity_charts(view: RunView) -> dict[str, Any] | None:
         for s in profile.suggestions
     ]
     ticks = [{"x": round(STRIP_PAD + k / 4 * span, 2), "label": f"{t1 * k / 4:.0f}"} for k in range(5)]
-    from llmnav.view.model import as_dict
 
     switch = view.declared.model_switch  # the option that turns the model on: named when none answered
     return {
@@ -248,14 +247,11 @@ def _velocity_charts(view: RunView) -> dict[str, Any] | None:
 
 def run_context(view: RunView) -> dict[str, Any]:
     """Everything the run template needs."""
-    from llmnav.view.basemap import draw_base_map, page_size
-    from llmnav.view.drawing import lidar_wedges, points_attr, svg_point
-    from llmnav.view.model import as_dict, as_pose
-
     raw = as_dict(view.config.get("options")).get("obstacles")
     added = [(p[0], p[1]) for p in (as_pose(o) for o in (raw if isinstance(raw, list) else [])) if p is not None]
     scenario = view.scenario
     if scenario is not None and added:
+        # deferred: numpy (about 0.1 s) loads only for a run with added obstacles
         from llmnav.mapping.targets import with_added_obstacles
 
         scenario = with_added_obstacles(scenario, added)  # the boxes dropped with --obstacle
@@ -296,8 +292,6 @@ def run_context(view: RunView) -> dict[str, Any]:
 
 def run_page(run_dir: Path) -> str:
     """The HTML page of one run folder."""
-    from llmnav.view.model import build_run_view
-
     return environment().get_template("run.html.j2").render(**run_context(build_run_view(run_dir)))
 
 
@@ -309,8 +303,6 @@ def _href(target: Path, page: Path) -> str:
 
     The `./` prefix keeps a folder named like `javascript:...` from being read as a URL scheme.
     """
-    from urllib.parse import quote
-
     relative = Path(os.path.relpath(target.resolve(), page.parent.resolve())).as_posix()
     return quote(relative if relative.startswith("../") else "./" + relative)
 
@@ -331,8 +323,8 @@ def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, Any]]:
     HTML, not a picture: each condition's label is text in its own row, wrapped to the column's width, so
     long labels (a backend URL, several factors) never run into each other, and a reader can copy them.
     """
+    # deferred: scoring brings pydantic and yaml (about 0.15 s), only for a sweep's page
     from llmnav.scoring.score import UNIT_RANGE, group_runs
-    from llmnav.scoring.stats import clip_interval, describe, wilson_interval
 
     by_task: dict[str, list[dict[str, Any]]] = {}
     for task, label, group in group_runs(runs, keys):
@@ -355,6 +347,7 @@ def _charts(runs: list[Run], keys: list[str]) -> list[dict[str, Any]]:
 
 def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> list[dict[str, Any]]:
     """Per condition: a task × start-pose grid of successes, each cell linking to its runs' pages."""
+    # deferred: scoring brings pydantic and yaml (about 0.15 s), only for a sweep's page
     from llmnav.scoring.score import group_runs
 
     conditions: dict[str, dict[str, list[Run]]] = {}
@@ -388,8 +381,8 @@ def _success_maps(runs: list[Run], keys: list[str], links: dict[Path, str]) -> l
 
 def sweep_context(root: Path, out: Path, *, make_run_pages: bool = True) -> dict[str, Any]:
     """Everything the sweep template needs; writes the run pages that are missing."""
+    # deferred: llmnav.ablate and scoring bring pydantic and yaml (about 0.15 s), only for a sweep's page
     from llmnav.ablate import MANIFEST_FILE
-    from llmnav.core.safefiles import loads as bounded_loads
     from llmnav.runs.folders import read_runs, split_aborted
     from llmnav.scoring.score import varying_keys
     from llmnav.scoring.tables import build_tables
@@ -450,10 +443,8 @@ def run_own_file(path: Path) -> str | None:
 
     Those are never replaced by a page or a video, --force or not.
     """
+    # deferred: llmnav.ablate brings pydantic and yaml (about 0.15 s), only when a page is written
     from llmnav.ablate import MANIFEST_FILE
-    from llmnav.reporting.velocity import PROFILE_FILE
-    from llmnav.runs.locking import LOCK_FILE
-    from llmnav.runs.runlog import IMAGES_DIR, RUN_FILE, SUMMARY_FILE, SUPERSEDED_FILE
 
     target = path.absolute()
     folder = target.parent

@@ -21,7 +21,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from llmnav.core.geometry import Pose2D
+from llmnav.core.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, private_dir, read_bytes
 from llmnav.errors import BadInputError
+from llmnav.view.basemap import draw_base_map
+from llmnav.view.model import as_pose
 
 if TYPE_CHECKING:
     import numpy as np
@@ -70,9 +74,8 @@ class CameraRenderer:
         """The BGR view from `pose` [x, y, yaw], or None (no scenario or pose, or the world cannot be built)."""
         if self.failed or pose is None or len(pose) < 3:
             return None
+        # deferred: numpy (about 0.1 s) loads only when camera views are rendered
         import numpy as np
-
-        from llmnav.core.geometry import Pose2D
 
         try:
             if self._world is None:
@@ -85,6 +88,7 @@ class CameraRenderer:
         return np.ascontiguousarray(np.asarray(rgb)[:, :, 2::-1])
 
     def _build(self) -> Any:
+        # deferred: pybullet (about 0.1 s) loads only when camera views are rendered
         from llmnav.sim.world import World
 
         assert self.view.scenario is not None
@@ -107,6 +111,7 @@ def _camera(view: RunView, step: StepView | None, renderer: CameraRenderer | Non
 
     The image sent to the model, else one `renderer` draws for the video (labelled as such).
     """
+    # deferred: OpenCV (about 0.13 s) and numpy load only when a video is made
     import cv2
     import numpy as np
 
@@ -115,8 +120,6 @@ def _camera(view: RunView, step: StepView | None, renderer: CameraRenderer | Non
     image = None
     rendered = False
     if path is not None:  # the same checks as the page's images: a regular file in the run, a picture
-        from llmnav.core.safefiles import IMAGE_LIMIT, UnsafeFileError, image_kind, read_bytes
-
         try:
             data = read_bytes(path, limit=IMAGE_LIMIT, root=view.run_dir)
         except (OSError, UnsafeFileError):
@@ -159,8 +162,6 @@ def _caption(step: StepView | None, total: int) -> list[str]:
 
 def _segments(view: RunView) -> list[tuple[StepView | None, list[list[float]]]]:
     """Per decision, the trajectory samples from it to the next decision (by simulation time)."""
-    from llmnav.view.model import as_pose
-
     timed: list[tuple[float | None, list[float]]] = []  # (sim time, pose) of every trajectory sample
     for event in view.record.events:
         pose = as_pose(event.get("pose")) if event.get("type") == "pose" else None
@@ -184,8 +185,6 @@ def _segments(view: RunView) -> list[tuple[StepView | None, list[list[float]]]]:
 
 
 def _frames(view: RunView, fps: float, seconds_per_step: float, render_camera: bool = True) -> Iterator[np.ndarray]:
-    from llmnav.view.basemap import draw_base_map
-
     base = draw_base_map(
         view.scenario,
         PANEL_W,
@@ -214,6 +213,7 @@ def _compose(
     fps: float,
     renderer: CameraRenderer | None,
 ) -> Iterator[np.ndarray]:
+    # deferred: OpenCV (about 0.13 s) and numpy load only when a video is made
     import cv2
     import numpy as np
 
@@ -277,8 +277,7 @@ def _actions(step: StepView | None) -> int:
 
 def writable_codec(probe_dir: Path) -> str | None:
     """The first of `CODECS` this OpenCV build can write to an .mp4 here (None: none can)."""
-    import os
-
+    # deferred: OpenCV (about 0.13 s) loads only when a video is made
     import cv2
 
     # A codec without an encoder makes FFmpeg and OpenCV print several error lines: quiet while probing.
@@ -350,7 +349,6 @@ def render_video(
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise BadInputError(f"--video {out}: cannot create its folder: {err.strerror or err}") from None
-    from llmnav.core.safefiles import private_dir
 
     width, height = 2 * PANEL_W, PANEL_H + CAPTION_H
     # OpenCV and Pillow write to a path: a folder only this process can enter holds the partial file (a
@@ -376,6 +374,7 @@ def render_video(
 def _write_mp4(
     view: RunView, tmp: Path, codec: str, fps: float, sps: float, width: int, height: int, render_camera: bool
 ) -> VideoInfo:
+    # deferred: OpenCV (about 0.13 s) loads only when a video is made
     import cv2
 
     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*codec), fps, (width, height))
@@ -392,6 +391,7 @@ def _write_mp4(
 def _write_gif(
     view: RunView, tmp: Path, fps: float, sps: float, width: int, height: int, render_camera: bool
 ) -> VideoInfo:
+    # deferred: OpenCV (about 0.13 s) and Pillow load only when a GIF is made
     import cv2
     from PIL import Image
 

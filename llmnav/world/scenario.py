@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from llmnav.core.geometry import Pose2D
 from llmnav.core.resources import resource_dir
+from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.errors import BadInputError, ScenarioError
 
 RGBA = tuple[float, float, float, float]
@@ -500,8 +501,6 @@ def _check_consistency(sc: Scenario) -> list[tuple[str, str]]:
         if not sc.bounds.contains(*obs.center):
             problems.append((f"obstacles[{i}].center", f"obstacle at {list(obs.center)} is outside bounds"))
     # A start pose must leave the robot's footprint clear of everything solid.
-    from llmnav.core.robot_specs import ROBOT_SPECS  # local: keep scenario loading free of pybullet
-
     radius = ROBOT_SPECS[sc.robot].radius_m
     solids = sc.solid_shapes()
     for ti, task in enumerate(sc.tasks):

@@ -25,7 +25,7 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-import llmnav.backends.base as backends_base
+import llmnav.runs.runner as runner
 from llmnav.cli import app
 from llmnav.runs.runlog import read_run
 from llmnav.scoring.metrics import summarize_run
@@ -98,12 +98,12 @@ def backend_spec(backend: str, url: str, monkeypatch: pytest.MonkeyPatch) -> str
 
 
 def fast_backends(monkeypatch: pytest.MonkeyPatch) -> None:
-    real = backends_base.get_backend
+    real = runner.get_backend
 
     def with_fast_http(spec: str, **options: Any) -> Any:
         return real(spec, **{**FAST, **options})
 
-    monkeypatch.setattr(backends_base, "get_backend", with_fast_http)
+    monkeypatch.setattr(runner, "get_backend", with_fast_http)
 
 
 def run_fault(

@@ -16,7 +16,7 @@ from urllib.parse import quote
 import pytest
 from typer.testing import CliRunner
 
-import llmnav.backends.base as backends_base
+import llmnav.runs.runner as runner
 from llmnav.backends.base import ChatRequest, Message, get_backend
 from llmnav.cli import app
 from llmnav.errors import LlmnavError
@@ -99,8 +99,8 @@ def test_no_key_in_runs_output_or_errors(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     caplog.set_level(logging.DEBUG)
-    real = backends_base.get_backend
-    monkeypatch.setattr(backends_base, "get_backend", lambda spec, **o: real(spec, **{**FAST, **o}))
+    real = runner.get_backend
+    monkeypatch.setattr(runner, "get_backend", lambda spec, **o: real(spec, **{**FAST, **o}))
     spec = configure(backend, fault_server.url, monkeypatch)
     found: dict[str, list[str]] = {}
     for scenario in SCENARIOS:

@@ -48,10 +48,10 @@ def test_ablation_plots_only_when_asked(tmp_path: Path) -> None:
 
 def test_drive_shows_the_result_before_it_draws(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import llmnav.reporting.live as live
-    import llmnav.reporting.trajectory as trajectory
+    import llmnav.runs.runner as runner
 
     order: list[str] = []
-    print_result, plot_record = live.print_result, trajectory.plot_record
+    print_result, plot_record = live.print_result, runner.plot_record
 
     def printed(*args: Any) -> None:
         order.append("result")
@@ -63,7 +63,7 @@ def test_drive_shows_the_result_before_it_draws(tmp_path: Path, monkeypatch: pyt
         return plot_record(*args)
 
     monkeypatch.setattr(live, "print_result", printed)
-    monkeypatch.setattr(trajectory, "plot_record", drawn)
+    monkeypatch.setattr(runner, "plot_record", drawn)
     base = ["drive", "--scenario", SMALL, "--task-id", "T1", "--planner", "oracle", "--quiet"]
     result = CliRunner().invoke(app, [*base, "--out", str(tmp_path / "run")])
     assert result.exit_code == 0, result.output
@@ -75,7 +75,7 @@ def test_drive_shows_the_result_before_it_draws(tmp_path: Path, monkeypatch: pyt
     def interrupted(*args: Any) -> Path:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(trajectory, "plot_record", interrupted)
+    monkeypatch.setattr(runner, "plot_record", interrupted)
     result = CliRunner().invoke(app, [*base, "--out", str(tmp_path / "cut")])
     assert result.exit_code != 0
     assert "completed" in result.output

@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-import llmnav.planners.base as planners_base
+import llmnav.runs.runner as runs_runner
 from llmnav.cli import app
 from llmnav.errors import ModelError
 from llmnav.planners.base import EpisodeContext, EpisodeOutcome, Planner, drive_options
@@ -77,7 +77,7 @@ class _Crash(Planner):
 def test_a_planner_bug_leaves_a_valid_log_and_is_reraised(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(planners_base, "get_planner", lambda name: _Crash(ZeroDivisionError("oops\nmore")))
+    monkeypatch.setattr(runs_runner, "get_planner", lambda name: _Crash(ZeroDivisionError("oops\nmore")))
     with pytest.raises(ZeroDivisionError):
         run_episode(_spec(tmp_path))
     record = read_run(tmp_path / "run")
@@ -91,7 +91,7 @@ def test_an_llmnav_error_ends_the_episode_aborted_with_its_line(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(
-        planners_base, "get_planner", lambda name: _Crash(ModelError("HTTP 503 after 3 tries"))
+        runs_runner, "get_planner", lambda name: _Crash(ModelError("HTTP 503 after 3 tries"))
     )
     summary = run_episode(_spec(tmp_path))
     assert summary["outcome"] == "aborted" and summary["reason"] == "HTTP 503 after 3 tries"

@@ -32,9 +32,12 @@ import numpy as np
 
 from llmnav.core.chat import ChatRequest, ChatResult, Message
 from llmnav.errors import LlmnavError
-from llmnav.planners.fsm.answers import VelocityBox, velocity_schema
+from llmnav.guard.ask import CallContext, ask_guarded
+from llmnav.planners.fsm.answers import VelocityBox, VelocityMilli, velocity_schema
 from llmnav.planners.fsm.control import FsmConfig
 from llmnav.planners.fsm.workers import ProcessWorker, ThreadWorker
+from llmnav.planners.observe import call_model, llm_call_fields
+from llmnav.planners.prompting import render
 
 if TYPE_CHECKING:
     from llmnav.guard.ask import GuardedAnswer
@@ -96,8 +99,6 @@ def answer_schema(cfg: FsmConfig) -> dict[str, Any]:
 
 def system_prompt(cfg: FsmConfig) -> str:
     """The fixed system prompt: the state line's legend and the box, in the answer's units."""
-    from llmnav.planners.prompting import render
-
     return render(
         "fsm_velocity",
         v_min=round(cfg.v_min * 1000),
@@ -133,9 +134,6 @@ def judge(text: str, box: VelocityBox, request: ChatRequest | None = None) -> Ju
     No correction turns: the loop cannot wait. Its `guard` event is kept in the result, for the loop to
     write once the tick that uses it has published its command.
     """
-    from llmnav.guard.ask import CallContext, ask_guarded
-    from llmnav.planners.fsm.answers import VelocityMilli
-
     events: list[Event] = []
 
     def no_call(asked: ChatRequest, purpose: str) -> ChatResult:
@@ -228,15 +226,11 @@ class AssistPipeline:
             return
         backend.check_schema(self.schema)  # a grammar that cannot compile ends the episode before tick 0
         if opts.realtime:
-            from llmnav.planners.observe import call_model
-
             self.worker = ThreadWorker(lambda request: call_model(ctx, request, purpose="suggestion", step=None))
             self.stats.model_in = "thread"
 
     def warm(self) -> None:
         """Pay the guard's one-time costs (imports, schema build) before the clock starts."""
-        from llmnav.planners.observe import call_model  # noqa: F401 - imported by the worker's first call
-
         judge("[0,0]", self.box)
         judge("```json\n{}\n```", self.box)
 
@@ -347,15 +341,11 @@ class AssistPipeline:
 
     def _record(self, request: ChatRequest, result: ChatResult | None, error: str | None) -> None:
         """The model process's call, logged as `call_model` logs one."""
-        from llmnav.planners.observe import llm_call_fields
-
         caching = bool(self.ctx.backend and self.ctx.backend.caching)
         self.outbox.append(("llm_call", llm_call_fields(request, "suggestion", None, result, error, caching)))
 
     def _call_virtual(self, request: ChatRequest, now: float) -> Suggestion:
         """Call between ticks with the simulation frozen; charge the latency to simulation time."""
-        from llmnav.planners.observe import call_model
-
         started = time.perf_counter()
         fixed = self.ctx.options.model_latency
         fixed_s = fixed / 1000.0 if isinstance(fixed, float | int) else None

@@ -12,6 +12,7 @@ from llmnav.planners.base import DriveOptions, EpisodeContext, EpisodeOutcome, P
 from llmnav.planners.fsm.assist import AssistPipeline, answer_schema, state_message
 from llmnav.planners.fsm.control import ControlState, FsmConfig, Fusion, Inputs, Step, tick
 from llmnav.planners.fsm.options import FsmOptions
+from llmnav.planners.fsm.oracle import FsmAnswerKey
 from llmnav.planners.fsm.stats import FsmStats, log_metrics, run_metrics, stop_point
 from llmnav.planners.fsm.tables import FSM_DECLARATIONS
 
@@ -188,8 +189,6 @@ class FsmPlanner(Planner):
 
     def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
         """The velocity a perfect assistant would suggest to each state line (`llmnav.planners.fsm.oracle`)."""
-        from llmnav.planners.fsm.oracle import FsmAnswerKey
-
         return FsmAnswerKey(truth, self.cfg)
 
 

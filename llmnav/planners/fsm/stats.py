@@ -11,6 +11,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from llmnav.core.geometry import path_length
+from llmnav.mapping.paths import shortest_path_length
+from llmnav.planners.fsm.oracle import sign_stop_point
+
 if TYPE_CHECKING:
     from llmnav.core.geometry import Pose2D
     from llmnav.runs.runlog import RunRecord
@@ -77,8 +81,6 @@ def log_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
     can make A* a little longer than a path that hugs a wall). Nothing for an episode whose `end` event
     carries no FSM metrics (one aborted before its first tick); eta is None when A* finds no path.
     """
-    from llmnav.core.geometry import path_length
-
     ends = record.of_type("end")
     metrics = ends[-1].get("metrics") if ends else None
     if not isinstance(metrics, dict) or "e_pos_m" not in metrics:
@@ -94,8 +96,6 @@ def log_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
 
 def _shortest_length(scenario: Scenario, start: tuple[float, float], stop: tuple[float, float]) -> float | None:
     """L_opt [m]: the A* length on the scenario's true map between the driven path's two ends."""
-    from llmnav.mapping.paths import shortest_path_length
-
     return shortest_path_length(scenario, start, stop)
 
 
@@ -104,8 +104,6 @@ def stop_point(scenario: Scenario, task: Task, d_goal: float) -> tuple[float, fl
 
     A target with an explicit goal point (or a point target) is used as it is.
     """
-    from llmnav.planners.fsm.oracle import sign_stop_point
-
     if not task.targets:
         return None
     target = task.targets[0]

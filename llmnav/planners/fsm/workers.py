@@ -12,7 +12,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from llmnav.backends.isolated import MODEL_NICE, ModelProcess
 from llmnav.core.chat import ChatRequest, ChatResult
+from llmnav.core.realtime import available_priority
 from llmnav.errors import LlmnavError, one_line
 
 Record = Callable[[ChatRequest, ChatResult | None, str | None], None]
@@ -95,9 +97,6 @@ class ProcessWorker:
         The model runs below the loop: ordinary beside a loop that runs real-time (more niceness would
         only make its answers staler, 3-4 s against 0.9 s at load 7), else MODEL_NICE below it.
         """
-        from llmnav.backends.isolated import MODEL_NICE, ModelProcess
-        from llmnav.core.realtime import available_priority
-
         nice = MODEL_NICE if available_priority() == "normal" else 0
         process = ModelProcess(backend.spec, backend.options, nice=nice)
         try:

@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Any
 from llmnav.core.geometry import Point, Pose2D
 from llmnav.guard.legs import Action, drive_leg
 from llmnav.mapping.astar import densify
+from llmnav.mapping.grid import inflate, nearest_free_cell
+from llmnav.mapping.paths import SNAP_M, plan_path
 from llmnav.planners.hybrid.memory import Memory, believed_pose, in_odometry_frame, look
 
 if TYPE_CHECKING:
@@ -226,9 +228,6 @@ def plan_legs(grid: OccupancyGrid, start: Pose2D, goal: Point, leg_max_m: float)
     A robot standing inside the inflation (beside a wall) first steps out to the nearest free cell:
     a long leg along the wall from there would graze it, and the veto would refuse it every time.
     """
-    from llmnav.mapping.grid import nearest_free_cell
-    from llmnav.mapping.paths import SNAP_M, plan_path
-
     first: list[Point] = []
     origin = (start.x, start.y)
     if not grid.is_free(*origin):
@@ -248,8 +247,6 @@ def with_seen_obstacles(grid: OccupancyGrid, lidar_map: LidarMap, near_known: An
 
     The extra `depth_m` [m] stands for the obstacle's back, which the LiDAR has not seen.
     """
-    from llmnav.mapping.grid import inflate
-
     unexpected = lidar_map.occupied & ~near_known
     if not unexpected.any():
         return grid

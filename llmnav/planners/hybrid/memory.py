@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from llmnav.core.geometry import Point, Pose2D
+from llmnav.nav.localize import Localizer
 
 if TYPE_CHECKING:
-    from llmnav.nav.localize import Localizer
     from llmnav.planners.base import EpisodeContext
     from llmnav.sim.sensors import Detection
 
@@ -52,11 +52,10 @@ def start_memory(ctx: EpisodeContext) -> Memory:
     Empty when sensed; else the scenario's names (and, with a published map, every labelled object's
     goal point).
     """
+    # deferred: llmnav.world.tasks brings yaml (about 0.02 s), only when an episode starts
     from llmnav.world.tasks import named_objects
 
     if ctx.information == "sensed":
-        from llmnav.nav.localize import Localizer
-
         return Memory(localizer=Localizer() if ctx.options.localize else None)
     scenario = ctx.scenario
     wanted = {o.id for o in named_objects(scenario, ctx.task.text)} if relevance_order(ctx) else set()
@@ -95,6 +94,7 @@ def in_odometry_frame(ctx: EpisodeContext, memory: Memory, x: float, y: float) -
 
 def remember(ctx: EpisodeContext, memory: Memory, pose: Pose2D, detections: list[Detection]) -> set[str]:
     """Add detections seen from `pose` to the landmark memory; the ids it did not know before."""
+    # deferred: llmnav.world.tasks brings yaml (about 0.02 s), only when detections arrive
     from llmnav.world.tasks import names_in_text
 
     new: set[str] = set()

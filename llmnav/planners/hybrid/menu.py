@@ -26,6 +26,7 @@ import numpy as np
 
 from llmnav.core.geometry import Point, Pose2D
 from llmnav.mapping.frontiers import frontier_clusters, goal_cells
+from llmnav.mapping.grid import nearest_free_cell
 from llmnav.planners.hybrid.memory import Memory, relevance_order
 
 if TYPE_CHECKING:
@@ -364,8 +365,6 @@ def nearest_stand(inputs: MenuInputs, spot: Point) -> Point | None:
 
     A relational place is a spot to stand on, not an object to keep a stand-off from.
     """
-    from llmnav.mapping.grid import nearest_free_cell
-
     for grid in inputs.grids[:PLAIN_GRIDS]:
         cell = nearest_free_cell(grid.blocked, grid.geometry, spot[0], spot[1], inputs.cfg.approach_max_m)
         if cell is not None:

@@ -36,6 +36,7 @@ import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from llmnav.mapping.targets import goal_distance
 from llmnav.planners.hybrid.menu import SECTORS
 from llmnav.planners.hybrid.scoring import FRONTIER_PROMPT, INTENT_PROMPT, INTENTS, ROOM_PROMPT
 from llmnav.sensing.relevance import CONTENT_FREE_TASK, TARGET_PROMPT
@@ -104,8 +105,6 @@ class HybridAnswerKey:
 
     def _frontier_scores(self, request: ScoreRequest) -> tuple[float, ...]:
         """MATCH for the frontier nearest an acceptable target by path on the true map, NEUTRAL for the others."""
-        from llmnav.mapping.targets import goal_distance
-
         n = len(request.continuations)
         points = self.truth.scenario.target_points(self.truth.task)
         if len(request.places) != n or not points:

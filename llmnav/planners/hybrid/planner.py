@@ -53,6 +53,7 @@ from llmnav.core.declarations import Declarations
 from llmnav.errors import BadInputError
 from llmnav.guard.legs import Action
 from llmnav.mapping.frontiers import sensed_grid
+from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate, margins_from
 from llmnav.planners.base import (
     MODEL_OPTIONS,
     DriveOptions,
@@ -69,7 +70,10 @@ from llmnav.planners.hybrid.execute import Executor, with_seen_obstacles
 from llmnav.planners.hybrid.memory import Memory, believed_pose, look, remember, start_memory
 from llmnav.planners.hybrid.menu import MenuInputs, build_menu
 from llmnav.planners.hybrid.options import HybridOptions
+from llmnav.planners.hybrid.oracle import HybridAnswerKey
 from llmnav.planners.hybrid.prompt import ask_choice, scored_choice, sends_image
+from llmnav.planners.hybrid.scoring import ScoredChooser
+from llmnav.planners.observe import observe
 
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
@@ -109,8 +113,6 @@ class HybridPlanner(Planner):
 
     def oracle_answers(self, truth: GroundTruth, options: DriveOptions) -> AnswerKey:
         """Scores and choices a perfect model would give (`llmnav.planners.hybrid.oracle`)."""
-        from llmnav.planners.hybrid.oracle import HybridAnswerKey
-
         return HybridAnswerKey(truth)
 
     def check_backend(self, backend: Backend, options: HybridOptions) -> None:
@@ -151,9 +153,6 @@ class HybridPlanner(Planner):
         self, ctx: EpisodeContext, maps: _Maps, memory: Memory, executor: Executor
     ) -> EpisodeOutcome:
         """The decide-execute loop of `run`."""
-        from llmnav.planners.hybrid.scoring import ScoredChooser
-        from llmnav.planners.observe import observe
-
         world, scenario = ctx.world, ctx.scenario
         json_errors = vetoes = 0
         mode = self.decision_mode(ctx)
@@ -264,8 +263,6 @@ class _Maps:
     """
 
     def __init__(self, ctx: EpisodeContext, cfg: HybridConfig) -> None:
-        from llmnav.mapping.grid import GridConfig, GridGeometry, LidarMap, build_grid, inflate, margins_from
-
         scenario = ctx.scenario
         self.cfg = cfg
         self.bounds = scenario.bounds

@@ -13,6 +13,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from llmnav.core.chat import ChatRequest, Message
+from llmnav.guard.ask import GuardedAnswer, ask_guarded
+from llmnav.guard.schemas import response_schema
+from llmnav.planners.hybrid.answers import hybrid_choice_model
+from llmnav.planners.hybrid.scoring import Candidate
+from llmnav.planners.prompting import render
 
 if TYPE_CHECKING:
     from llmnav.planners.base import EpisodeContext
@@ -29,9 +34,6 @@ def choice_schema(options: list[Option]) -> tuple[Any, dict[str, Any]]:
     A small model that rambles in `reasoning` until the token cap has then still chosen, and the guard's
     repair closes the cut-off string.
     """
-    from llmnav.guard.schemas import response_schema
-    from llmnav.planners.hybrid.answers import hybrid_choice_model
-
     model = hybrid_choice_model(tuple(o.number for o in options))
     schema = response_schema(model)
     schema["properties"] = {"option": schema["properties"]["option"]} | {
@@ -51,9 +53,6 @@ def ask_choice(
     ctx: EpisodeContext, obs: Observation, options: list[Option], memory: Memory, step: int, max_tokens: int
 ) -> tuple[int | None, int]:
     """The model's option number through the guard (bounded corrections); (None, errors) on failure."""
-    from llmnav.guard.ask import GuardedAnswer, ask_guarded
-    from llmnav.planners.prompting import render
-
     model, schema = choice_schema(options)
     menu = "\n".join(f"{o.number}. {o.text}" for o in options)
     system = render("hybrid_system", robot=ctx.world.robot.spec.name)
@@ -83,8 +82,6 @@ def scored_choice(
     ctx: EpisodeContext, chooser: ScoredChooser, options: list[Option], memory: Memory, step: int
 ) -> Decision:
     """The scored decision on this menu, logged as a `decision` event."""
-    from llmnav.planners.hybrid.scoring import Candidate
-
     candidates = [
         Candidate(
             o.number,

@@ -30,10 +30,12 @@ from llmnav.guard.ask import GuardedAnswer, ask_guarded
 from llmnav.guard.legs import Action
 from llmnav.guard.schemas import response_schema
 from llmnav.guard.veto import VetoResult, veto_message
+from llmnav.planners import prompting
 from llmnav.planners.base import MODEL_OPTIONS, EpisodeContext, EpisodeOutcome, Information, Outcome, Planner, StepInfo
 from llmnav.planners.observe import Observation, observe
 from llmnav.planners.stepwise.answers import ActionBounds, ActionCommand, StepAction
 from llmnav.planners.stepwise.options import StepwiseOptions
+from llmnav.planners.stepwise.oracle import StepwiseAnswerKey
 
 if TYPE_CHECKING:
     from llmnav.core.chat import AnswerKey
@@ -97,8 +99,6 @@ class StepwisePlanner(Planner[StepwiseOptions]):
 
     def oracle_answers(self, truth: GroundTruth, options: StepwiseOptions) -> AnswerKey:
         """The action a perfect model would choose at each step (`llmnav.planners.stepwise.oracle`)."""
-        from llmnav.planners.stepwise.oracle import StepwiseAnswerKey
-
         return StepwiseAnswerKey(truth, options.max_step_m)
 
 
@@ -135,8 +135,6 @@ class _Episode:
     """The state of one stepwise episode."""
 
     def __init__(self, ctx: EpisodeContext[StepwiseOptions]) -> None:
-        from llmnav.planners import prompting
-
         self.ctx = ctx
         self.options = ctx.options
         self.bounds = ActionBounds(max_step_m=self.options.max_step_m)

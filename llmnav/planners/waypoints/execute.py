@@ -27,6 +27,7 @@ from llmnav.planners.base import (
     decides_by_scores,
     fallback_mark,
 )
+from llmnav.planners.observe import call_model
 from llmnav.planners.waypoints.ground import ground_target
 from llmnav.planners.waypoints.options import WaypointOptions
 from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, generate_plan
@@ -131,14 +132,15 @@ class WaypointPlanner(Planner):
 
     def oracle_answers(self, truth: GroundTruth, options: WaypointOptions) -> AnswerKey:
         """Plans from the true pose through the junction points to the true target, beyond the emergency stop."""
+        # deferred: the answer key brings numpy and yaml (about 0.1 s), only with an oracle
         from llmnav.planners.waypoints.oracle import WaypointAnswerKey
 
         return WaypointAnswerKey(truth, keep_clear_m=self.cfg.emergency_m)
 
     def run(self, ctx: EpisodeContext) -> EpisodeOutcome:
         """Ground, plan, validate, execute, replan — per leg of the command sequence."""
+        # deferred: numpy and yaml (about 0.1 s) load only when an episode runs
         from llmnav.mapping.grid import build_grid
-        from llmnav.planners.observe import call_model
         from llmnav.world.tasks import sequence_legs
 
         world, scenario, opts, cfg = ctx.world, ctx.scenario, ctx.options, self.cfg
@@ -361,6 +363,7 @@ class WaypointPlanner(Planner):
         The closest return within ±15° ahead (±90° after an emergency stop), pushed back by the assumed
         obstacle radius.
         """
+        # deferred: numpy (about 0.1 s) loads only when an obstacle is looked for
         import numpy as np
 
         scan = ctx.world.lidar.scan()

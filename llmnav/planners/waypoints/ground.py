@@ -8,6 +8,10 @@ from typing import TYPE_CHECKING
 from llmnav.core.chat import ChatRequest, Message
 from llmnav.errors import InvalidActionError
 from llmnav.guard.ask import CallContext, GuardedAnswer, ask_guarded
+from llmnav.guard.schemas import response_schema
+from llmnav.planners.prompting import render
+from llmnav.planners.waypoints.answers import target_choice_model
+from llmnav.sensing.relevance import most_relevant
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -40,9 +44,7 @@ def ground_target(
     when exactly one candidate's goal point lies within `tolerance_m` [m] of it. The model's pick goes
     through `ask_guarded` (`max_tries` replies at most); `on_event` receives its `guard` events.
     """
-    from llmnav.guard.schemas import response_schema
-    from llmnav.planners.prompting import render
-    from llmnav.planners.waypoints.answers import target_choice_model
+    # deferred: llmnav.world.tasks brings yaml (about 0.02 s), only when a target is grounded
     from llmnav.world.tasks import named_objects
 
     if task.targets and len(task.targets) == 1 and task.targets[0].object:
@@ -56,8 +58,6 @@ def ground_target(
         if len(close) == 1:
             return close[0]
     if score is not None:
-        from llmnav.sensing.relevance import most_relevant
-
         labels = list(dict.fromkeys(o.label for o in candidates))
         best, pmi = most_relevant(score, task.text, labels)
         chosen = next(o for o in candidates if o.label == best)

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from llmnav.core.geometry import Point
+from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.mapping.astar import astar, line_of_sight
 from llmnav.mapping.grid import GridConfig, build_grid, nearest_free_cell
 from llmnav.planners.waypoints.validate import PlanRules
@@ -81,8 +82,6 @@ class WaypointAnswerKey:
     def grid(self) -> OccupancyGrid:
         """The true map (with any `--obstacle` box), inflated to `keep_clear_m` (and the slack)."""
         if self._grid is None:
-            from llmnav.core.robot_specs import ROBOT_SPECS
-
             scenario = self.truth.scenario
             # build_grid inflates by the robot radius plus the margin: make the sum the distance to keep
             margin = self.keep_clear_m + self.config.clear_slack_m - ROBOT_SPECS[scenario.robot].radius_m

@@ -15,13 +15,16 @@ from typing import TYPE_CHECKING, Any
 from llmnav.core.chat import ChatRequest, ChatResult, Message
 from llmnav.core.geometry import Point
 from llmnav.guard.ask import CallContext, ask_guarded
+from llmnav.guard.parse import correction_message, parse_answer
+from llmnav.guard.schemas import response_schema
+from llmnav.planners.prompting import render
+from llmnav.planners.waypoints.answers import WaypointList
 from llmnav.planners.waypoints.validate import PlanRules
 
 if TYPE_CHECKING:
     from llmnav.core.geometry import Pose2D
     from llmnav.guard.parse import GuardResult
     from llmnav.mapping.grid import OccupancyGrid
-    from llmnav.planners.waypoints.answers import WaypointList
     from llmnav.world.scenario import LabelledObject, Scenario, WaypointRules
 
 ModelCall = Callable[[ChatRequest, str], ChatResult]  # (request, purpose) -> reply
@@ -97,9 +100,6 @@ def waypoint_schema(rules: WaypointRules) -> dict[str, Any]:
 
     A grammar-constrained model then cannot ramble on past it; the validator still checks the count.
     """
-    from llmnav.guard.schemas import response_schema
-    from llmnav.planners.waypoints.answers import WaypointList
-
     return {**response_schema(WaypointList), "maxItems": rules.max_waypoints}
 
 
@@ -126,10 +126,6 @@ def generate_plan(
     segment must keep `obstacle_clearance_m` [m] from them, and the prompt says so. `on_event` receives
     the guard's events (one `guard` event per reply).
     """
-    from llmnav.guard.parse import correction_message, parse_answer
-    from llmnav.planners.prompting import render
-    from llmnav.planners.waypoints.answers import WaypointList
-
     clock = PlanningClock(call)
     rules = scenario.waypoint_rules
     goal = target.goal_point
