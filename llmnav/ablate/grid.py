@@ -153,9 +153,7 @@ class Episode:
     condition: dict[str, Any] = field(default_factory=dict, compare=False)
     identity: str = ""
 
-    def spec(
-        self, root: Path, scenario: str, *, plots: bool = False, dir_name: str | None = None
-    ) -> EpisodeSpec:
+    def spec(self, root: Path, scenario: str, *, plots: bool = False, dir_name: str | None = None) -> EpisodeSpec:
         """The runner's input for this episode.
 
         `plots`: write each run's trajectory.png; `dir_name`: the folder under `root` when not the
@@ -252,9 +250,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
             if isinstance(key, (str, int, float, bool)) and key in seen:
-                raise yaml.constructor.ConstructorError(
-                    None, None, f"key {key!r} is given twice", key_node.start_mark
-                )
+                raise yaml.constructor.ConstructorError(None, None, f"key {key!r} is given twice", key_node.start_mark)
             seen.add(key)
         return super().construct_mapping(node, deep=deep)
 
@@ -275,9 +271,7 @@ def load_grid_file(path: Path) -> dict[str, Any]:
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "(file)"
-        raise BadInputError(
-            f"--grid {path}: {where}: {getattr(err, 'problem', None) or 'invalid YAML'}"
-        ) from None
+        raise BadInputError(f"--grid {path}: {where}: {getattr(err, 'problem', None) or 'invalid YAML'}") from None
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -435,9 +429,7 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
         available = len(scenario.start_poses(scenario.task(task_id)))
         poses = grid.poses or list(range(1, available + 1))
         if max(poses) > available:
-            raise BadInputError(
-                f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}"
-            )
+            raise BadInputError(f"--poses: task {task_id} has {available} start pose(s), asked for {max(poses)}")
         pose_counts[task_id] = len(poses)
     check_size(grid, pose_counts, max_episodes)
     for key, values in grid.option_factors().items():  # every value, also where a planner ignores it
@@ -462,9 +454,7 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
         for pose, trial, combo in itertools.product(poses, range(1, grid.trials + 1), combos):
             seed = episode_seed(grid.seed, task_id, pose, trial)
             try:
-                options = episode_options(
-                    str(combo.get("planner", grid.planners()[0])), grid.options, combo, seed
-                )
+                options = episode_options(str(combo.get("planner", grid.planners()[0])), grid.options, combo, seed)
             except ValidationError as err:
                 raise BadInputError(f"grid value: {_validation_message(err)}") from None
             key = episode_key(task_id, pose, trial, {k: v for k, v in combo.items() if k in varying})
@@ -473,8 +463,17 @@ def expand(grid: GridSpec, max_episodes: int = MAX_EPISODES) -> list[Episode]:
             cond = condition(scenario_hash, task_id, pose, trial, backend, options, wording)
             episodes.append(
                 Episode(
-                    key, _dir_name(key), task_id, pose, trial, seed, combo, backend, options,
-                    cond, condition_hash(cond),
+                    key,
+                    _dir_name(key),
+                    task_id,
+                    pose,
+                    trial,
+                    seed,
+                    combo,
+                    backend,
+                    options,
+                    cond,
+                    condition_hash(cond),
                 )
             )
     return episodes

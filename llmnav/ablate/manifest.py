@@ -188,6 +188,4 @@ def table_keys(ablation: Ablation) -> list[str]:
 
 def describe_episodes(episodes: Iterable[Episode]) -> list[list[str]]:
     """Rows for `--dry-run`: key, task, pose, trial, seed, backend."""
-    return [
-        [ep.key, ep.task_id, str(ep.start_pose), str(ep.trial), str(ep.seed), ep.backend] for ep in episodes
-    ]
+    return [[ep.key, ep.task_id, str(ep.start_pose), str(ep.trial), str(ep.seed), ep.backend] for ep in episodes]

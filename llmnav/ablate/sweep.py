@@ -108,9 +108,7 @@ def check_out_folder(root: Path, ablation: Ablation) -> None:
         old = loads(read_bytes(manifest_path, limit=SUMMARY_LIMIT, root=root))["grid"]
         old_grid = GridSpec.model_validate(old)
     except (OSError, UnsafeFileError, UnicodeDecodeError, ValueError, KeyError, TypeError):
-        raise BadInputError(
-            f"--out {root}: {MANIFEST_FILE} is damaged; move it away to run into this folder"
-        ) from None
+        raise BadInputError(f"--out {root}: {MANIFEST_FILE} is damaged; move it away to run into this folder") from None
     new = without_credentials(ablation.grid.model_dump(mode="json", exclude={"name"}))  # as the manifest holds it
     before = old_grid.model_dump(mode="json", exclude={"name"})
     changed = [k for k in new if new[k] != before.get(k)]

@@ -33,8 +33,15 @@ WALL_COLOR = (0.86, 0.85, 0.8, 1.0)
 # Sensing of the bundled PR2 hall (factory.yaml, docs/sensing.md): a detector for objects a metre or so across
 # whose range is good to ~5 %, and the odometry of a heavy base on a hard floor.
 SENSORS: dict[str, Any] = {
-    "detector": {"max_distance_m": 12.0, "occlusion": "mask", "distance_noise_std_m": 0.05,
-                 "distance_noise_per_m": 0.05, "distance_bias": 0.0, "bearing_noise_std_deg": 1.0, "dropout": 0.02},
+    "detector": {
+        "max_distance_m": 12.0,
+        "occlusion": "mask",
+        "distance_noise_std_m": 0.05,
+        "distance_noise_per_m": 0.05,
+        "distance_bias": 0.0,
+        "bearing_noise_std_deg": 1.0,
+        "dropout": 0.02,
+    },
     "odometry": {"wheel_scale_std": 0.002, "track_scale_std": 0.01, "wheel_noise_m_per_sqrt_m": 0.005},
 }
 
@@ -93,14 +100,27 @@ def _validated(request: Request) -> tuple[Any, int, tuple[float, float], str]:
 def _walls(plan: FloorPlan) -> list[dict[str, Any]]:
     walls: list[dict[str, Any]] = []
     for k, box in enumerate(plan.walls, start=1):
-        walls.append({"id": f"wall-{k}", "center": [_num(box.center[0]), _num(box.center[1])],
-                      "size": [_num(box.size[0]), _num(box.size[1])], "height": WALL_HEIGHT_M,
-                      "color": list(WALL_COLOR)})
+        walls.append(
+            {
+                "id": f"wall-{k}",
+                "center": [_num(box.center[0]), _num(box.center[1])],
+                "size": [_num(box.size[0]), _num(box.size[1])],
+                "height": WALL_HEIGHT_M,
+                "color": list(WALL_COLOR),
+            }
+        )
     for k, door in enumerate(plan.doors, start=1):  # lintels: the wall above each doorway
         along = [door.width_m, INNER_WALL_M] if door.axis == "x" else [INNER_WALL_M, door.width_m]
-        walls.append({"id": f"lintel-{k}", "center": [_num(door.center[0]), _num(door.center[1])],
-                      "size": [_num(along[0]), _num(along[1])], "z": DOOR_HEIGHT_M,
-                      "height": _num(WALL_HEIGHT_M - DOOR_HEIGHT_M), "color": list(WALL_COLOR)})
+        walls.append(
+            {
+                "id": f"lintel-{k}",
+                "center": [_num(door.center[0]), _num(door.center[1])],
+                "size": [_num(along[0]), _num(along[1])],
+                "z": DOOR_HEIGHT_M,
+                "height": _num(WALL_HEIGHT_M - DOOR_HEIGHT_M),
+                "color": list(WALL_COLOR),
+            }
+        )
     return walls
 
 
@@ -113,10 +133,18 @@ def _objects(plan: FloorPlan, placed: list[Placed]) -> tuple[list[dict[str, Any]
         kind = ROOM_TYPES[room.type_key]
         inside = room.inside
         obj_id = f"room-{room.index + 1}"
-        objects.append({"id": obj_id, "label": kind.label, "aliases": list(kind.aliases),
-                        "center": [_num(inside.centre[0]), _num(inside.centre[1])],
-                        "size": [_num(inside.width), _num(inside.depth)], "height": 0.01, "solid": False,
-                        "color": list(kind.floor)})
+        objects.append(
+            {
+                "id": obj_id,
+                "label": kind.label,
+                "aliases": list(kind.aliases),
+                "center": [_num(inside.centre[0]), _num(inside.centre[1])],
+                "size": [_num(inside.width), _num(inside.depth)],
+                "height": 0.01,
+                "solid": False,
+                "color": list(kind.floor),
+            }
+        )
         room_of[obj_id], room_ids[room.index] = room.index, obj_id
     counts: dict[str, int] = {}
     for piece in placed:
@@ -125,8 +153,9 @@ def _objects(plan: FloorPlan, placed: list[Placed]) -> tuple[list[dict[str, Any]
         obj_id = f"{item.key}-{counts[item.key]}"
         obj: dict[str, Any] = {"id": obj_id, "label": item.label, "aliases": list(item.aliases)}
         if item.cylinder:
-            obj.update({"shape": "cylinder", "center": [_num(v) for v in piece.center],
-                        "radius": _num(item.width_m / 2)})
+            obj.update(
+                {"shape": "cylinder", "center": [_num(v) for v in piece.center], "radius": _num(item.width_m / 2)}
+            )
         else:
             obj.update({"center": [_num(v) for v in piece.center], "size": [_num(v) for v in piece.size]})
         if item.z_m:
@@ -148,8 +177,14 @@ def generate(request: Request) -> Building:
     door_m = max(kind.door_m, snap(spec.width_m + JAMB_M + 0.05, 0.1))  # robot width + 0.3 m at least
     types = room_types_for(kind, rooms)
     plan = plan_floor(
-        kind.layout, size, types, min_room_m=kind.min_room_m, door_m=door_m, corridor_m=kind.corridor_m,
-        size_ranks={key: ROOM_TYPES[key].size_rank for key in types}, rng=rng,
+        kind.layout,
+        size,
+        types,
+        min_room_m=kind.min_room_m,
+        door_m=door_m,
+        corridor_m=kind.corridor_m,
+        size_ranks={key: ROOM_TYPES[key].size_rank for key in types},
+        rng=rng,
     )
     placed = furnish(plan, spec.radius_m, rng)
     objects, placement = _objects(plan, placed)

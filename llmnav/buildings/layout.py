@@ -293,8 +293,12 @@ def _wall_pieces(rects: list[Rect], doors: list[Door], size: tuple[float, float]
     # Interior edges of the rooms, gathered per line: (axis, coordinate) -> intervals.
     lines: dict[tuple[str, float], list[tuple[float, float]]] = {}
     for r in rects:
-        for axis, coord, lo, hi in (("x", r.y0, r.x0, r.x1), ("x", r.y1, r.x0, r.x1), ("y", r.x0, r.y0, r.y1),
-                                    ("y", r.x1, r.y0, r.y1)):
+        for axis, coord, lo, hi in (
+            ("x", r.y0, r.x0, r.x1),
+            ("x", r.y1, r.x0, r.x1),
+            ("y", r.x0, r.y0, r.y1),
+            ("y", r.x1, r.y0, r.y1),
+        ):
             outer = coord <= t + 1e-6 or coord >= (depth if axis == "x" else width) - t - 1e-6
             if not outer:
                 lines.setdefault((axis, round(coord, 6)), []).append((lo, hi))

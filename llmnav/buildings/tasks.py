@@ -35,8 +35,11 @@ ROOM_TASKS = 2
 
 _NAME_WORDINGS = ("Go to the {n}", "Find the {n}", "Drive over to the {n}", "Take me to the {n}")
 _ROOM_WORDINGS = ("Go to the {n}", "Take me to the {n}", "Head for the {n}", "Find your way to the {n}")
-_ROTATE = ("Turn around on the spot once, a full circle", "Rotate all the way round where you stand",
-           "Do one complete turn without moving off the spot")
+_ROTATE = (
+    "Turn around on the spot once, a full circle",
+    "Rotate all the way round where you stand",
+    "Do one complete turn without moving off the spot",
+)
 _EXPLORE = ("Look around the room you are in", "Scan the room around you", "Get a view of everything around you")
 
 
@@ -163,8 +166,13 @@ def make_tasks(
 def _task(
     number: int, wordings: list[str], kind: str, difficulty: str, ids: list[str], poses: list[dict[str, float]]
 ) -> dict[str, Any]:
-    task: dict[str, Any] = {"id": f"T{number}", "text": wordings[0], "paraphrases": wordings[1:], "kind": kind,
-                            "difficulty": difficulty}
+    task: dict[str, Any] = {
+        "id": f"T{number}",
+        "text": wordings[0],
+        "paraphrases": wordings[1:],
+        "kind": kind,
+        "difficulty": difficulty,
+    }
     if ids:
         task["targets"] = [{"object": i} for i in ids]
     task["start_poses"] = poses

@@ -38,22 +38,12 @@ def ablate(
     ] = None,
     tasks: Annotated[str | None, typer.Option("--tasks", help=f"Task ids ({_LIST}) or 'all'.")] = None,
     poses: Annotated[str | None, typer.Option("--poses", help="Start poses: 1-5, 1,3 or all.")] = None,
-    trials: Annotated[
-        int | None, typer.Option("--trials", min=1, help="Trials per task, pose and condition.")
-    ] = None,
-    seed: Annotated[
-        int | None, typer.Option("--seed", help="Base seed (episode seeds derive from it).")
-    ] = None,
-    lidar_sectors: Annotated[
-        str | None, typer.Option("--lidar-sectors", help=f"e.g. 3,5,8 ({_LIST}).")
-    ] = None,
-    sensing: Annotated[
-        str | None, typer.Option("--sensing", help=f"e.g. lidar+image,image ({_LIST}).")
-    ] = None,
+    trials: Annotated[int | None, typer.Option("--trials", min=1, help="Trials per task, pose and condition.")] = None,
+    seed: Annotated[int | None, typer.Option("--seed", help="Base seed (episode seeds derive from it).")] = None,
+    lidar_sectors: Annotated[str | None, typer.Option("--lidar-sectors", help=f"e.g. 3,5,8 ({_LIST}).")] = None,
+    sensing: Annotated[str | None, typer.Option("--sensing", help=f"e.g. lidar+image,image ({_LIST}).")] = None,
     backend: Annotated[str | None, typer.Option("--backend", help=f"Backend specs ({_LIST}).")] = None,
-    decide: Annotated[
-        str | None, typer.Option("--decide", help=f"Choices: score, generate, auto ({_LIST}).")
-    ] = None,
+    decide: Annotated[str | None, typer.Option("--decide", help=f"Choices: score, generate, auto ({_LIST}).")] = None,
     option: Annotated[
         list[str] | None,
         typer.Option("-o", "--option", help=f"KEY=V1,V2: any planner option as a factor ({_LIST}; repeatable)."),
@@ -65,15 +55,11 @@ def ablate(
     paraphrases: Annotated[
         bool, typer.Option("--paraphrases", help="Wording as a factor: bundled and paraphrases 1-3.")
     ] = False,
-    grid: Annotated[
-        Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")
-    ] = None,
+    grid: Annotated[Path | None, typer.Option("--grid", help="Grid YAML file (flags override its keys).")] = None,
     name: Annotated[
         str | None, typer.Option("--name", help="Ablation name (default from scenario and factors).")
     ] = None,
-    out: Annotated[
-        str | None, typer.Option("--out", help="Ablation folder (default ablations/<name>).")
-    ] = None,
+    out: Annotated[str | None, typer.Option("--out", help="Ablation folder (default ablations/<name>).")] = None,
     workers: Annotated[
         int, typer.Option("--workers", min=1, help="Parallel worker processes (at most the usable cores).")
     ] = 1,
@@ -340,7 +326,7 @@ def _absolute(path: Path | None) -> Path | None:
 
 
 def _cost_line(ablation: Ablation) -> str:
-    """", cost 0.0123 USD" over the finished episodes (", cost unknown for N" when some have none)."""
+    """ ", cost 0.0123 USD" over the finished episodes (", cost unknown for N" when some have none)."""
     done = [e for e in ablation.entries.values() if e.status == "done"]
     unknown = sum(1 for e in done if e.cost_usd is None)
     total = sum(e.cost_usd or 0.0 for e in done)

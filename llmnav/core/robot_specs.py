@@ -30,7 +30,6 @@ class RobotSpec:
         return self.box_m[1] if self.box_m is not None else 2.0 * self.radius_m
 
 
-
 # PR2-like base for the factory: wheel 0.08 m, 6 rad/s max wheel speed (~0.48 m/s), half track 0.318 m
 # (numbers of the stepwise source's robot); footprint 0.67 m square approximated by its inscribed circle
 # plus a little.

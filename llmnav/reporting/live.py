@@ -116,7 +116,7 @@ class ProgressView:
 
 
 def cost_text(summary: dict[str, Any]) -> str:
-    """"cost 0.0048 USD (2 model calls, 1 from the cache)", or "cost unknown (why)"."""
+    """ "cost 0.0048 USD (2 model calls, 1 from the cache)", or "cost unknown (why)"."""
     cost, calls, hits = summary.get("cost_usd"), summary.get("llm_calls"), summary.get("cache_hits") or 0
     cached = f", {hits} from the cache" if hits else ""
     if isinstance(cost, (int, float)):

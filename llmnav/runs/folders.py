@@ -57,7 +57,7 @@ class Run:
 
     @property
     def condition(self) -> dict[str, Any]:
-        """The run's condition values (llmnav.scoring.metrics.CONDITION_KEYS), then every other logged option.
+        """The run's condition values (llmnav.scoring.metrics.condition_keys), then every other logged option.
 
         Any planner option may be an ablation factor (`alpha`, `max_replans`, ...): its value comes from
         the configuration line, a list written as on the command line (`lidar+image`).
@@ -107,7 +107,6 @@ class Run:
         """Note something that could not be computed (reported on stderr by `llmnav score`)."""
         if text not in self.problems:
             self.problems.append(text)
-
 
 
 # --- loading ------------------------------------------------------------------------------------
@@ -189,9 +188,7 @@ def load_run(run_dir: Path, success_radius_m: float | None = None, prices: Price
     return run_from_record(read_run(run_dir), success_radius_m, prices)
 
 
-def run_from_record(
-    record: RunRecord, success_radius_m: float | None = None, prices: PriceTable | None = None
-) -> Run:
+def run_from_record(record: RunRecord, success_radius_m: float | None = None, prices: PriceTable | None = None) -> Run:
     """`load_run` of a log already read (the per-run table also sums the log's token counts)."""
     run_dir = record.run_dir
     summary = record.summary

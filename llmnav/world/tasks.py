@@ -197,8 +197,9 @@ def sequence_legs(scenario: Scenario, task: Task) -> list[Task]:
     """
     if task.legs:
         return [
-            Task(id=f"{task.id}.{k}", text=leg.text, kind="target", difficulty=task.difficulty,
-                 targets=list(leg.targets))  # fmt: skip
+            Task(
+                id=f"{task.id}.{k}", text=leg.text, kind="target", difficulty=task.difficulty, targets=list(leg.targets)
+            )  # fmt: skip
             for k, leg in enumerate(task.legs, start=1)
         ]
     if task.id != SEQUENCE_ID:

@@ -228,9 +228,7 @@ class ScoredChooser:
             decision.frontiers = [_row(c) for c in candidates if c.kind == "frontier"]
         return decision
 
-    def _choose(
-        self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None
-    ) -> Decision:
+    def _choose(self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None) -> Decision:
         by_kind: dict[str, list[Candidate]] = {}
         for candidate in candidates:
             by_kind.setdefault(candidate.kind, []).append(candidate)

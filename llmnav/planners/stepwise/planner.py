@@ -86,6 +86,7 @@ class StepwisePlanner(Planner[StepwiseOptions]):
     }
     information_modes: ClassVar[tuple[Information, ...]] = ("sensed",)  # camera and LiDAR; never a position
     grid_factors: ClassVar[tuple[str, ...]] = ("sensing", "lidar_sectors", "prompt", "history", "self_check")
+    condition_keys: ClassVar[tuple[str, ...]] = grid_factors
 
     def templates(self, options: StepwiseOptions) -> list[str]:
         """Prompt templates this episode uses (their hashes go into the config line)."""
@@ -179,9 +180,7 @@ class _Episode:
                 self._show(step, answer, obs, state)
         except _Abort as err:
             return self._outcome("aborted", str(err), step)
-        return self._outcome(
-            "failed", f"max iterations ({options.max_iterations}) reached without COMPLETE", step
-        )
+        return self._outcome("failed", f"max iterations ({options.max_iterations}) reached without COMPLETE", step)
 
     def _preface(self) -> str:
         """The task line, on the first turn or whenever the history window has dropped it."""
@@ -246,9 +245,7 @@ class _Episode:
             blocked = self._veto(answer, obs)
             if blocked is None:
                 return answer, text
-            self.ctx.log.event(
-                "guard", step=step, outcome="veto", error=blocked.reason, attempt=state.vetoes + 1
-            )
+            self.ctx.log.event("guard", step=step, outcome="veto", error=blocked.reason, attempt=state.vetoes + 1)
             if state.vetoes >= self.options.max_vetoes:
                 tried = f"every proposed motion was blocked ({state.vetoes} vetoes)"
                 raise _Abort(f"safety veto: {tried}; last: {blocked.reason}")
@@ -257,9 +254,7 @@ class _Episode:
             state.turn += [Message("assistant", text), Message("user", veto_message(blocked))]
             answer, text = self._guarded(step, state, "veto")
 
-    def _self_check(
-        self, step: int, state: _StepState, answer: StepAction, text: str
-    ) -> tuple[StepAction, str]:
+    def _self_check(self, step: int, state: _StepState, answer: StepAction, text: str) -> tuple[StepAction, str]:
         """Ask the model to confirm its answer; a revised answer goes through the guard again."""
         assert self.self_check_text is not None
         self.counters.self_checks += 1
@@ -312,9 +307,7 @@ class _Episode:
                 f"by a collision with {result.collision_with}."
             )
         elif not result.ok:
-            self.feedback = (
-                f"Your last action ({describe_action(answer)}) stopped early ({result.stopped_reason})."
-            )
+            self.feedback = f"Your last action ({describe_action(answer)}) stopped early ({result.stopped_reason})."
         return result
 
     def _log_action(self, step: int, answer: StepAction, result: MotionResult | None) -> None:

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from llmnav.core.geometry import Pose2D
-    from llmnav.planners.waypoints import PlanResult
+    from llmnav.planners.waypoints.planner import PlanResult
     from llmnav.world.scenario import Scenario
 
 FIG_WIDTH_IN = 9.0  # [in] for a wide map; the height follows its aspect ratio

@@ -15,7 +15,7 @@ from llmnav.errors import BadInputError, printable
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
     from llmnav.core.geometry import Pose2D
-    from llmnav.planners.waypoints import PlanResult
+    from llmnav.planners.waypoints.planner import PlanResult
     from llmnav.world.scenario import Scenario
     from llmnav.world.tasks import ResolvedTask
 
@@ -46,7 +46,7 @@ def plan(
     """Ask the model for waypoints to a target, validate every attempt, and show the verdicts."""
     from llmnav.backends.base import ChatRequest, ChatResult, get_backend
     from llmnav.mapping.grid import build_grid
-    from llmnav.planners.waypoints import PlanningClock, generate_plan, ground_target, plan_summary
+    from llmnav.planners.waypoints.planner import PlanningClock, generate_plan, ground_target, plan_summary
     from llmnav.world.tasks import resolve_task
 
     out_dir = path_option(out, "--out")
@@ -109,8 +109,8 @@ def plan(
 def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
     """`policy:oracle`: the waypoint planner's answer key, from the true map and the start pose (nothing moves)."""
     from llmnav.planners.base import GroundTruth
-    from llmnav.planners.waypoints import WaypointPlanner
-    from llmnav.planners.waypoints.options import WaypointOptions
+    from llmnav.planners.waypoints.planner import WaypointPlanner
+    from llmnav.planners.waypoints.planner.options import WaypointOptions
     from llmnav.runs.runner import oracle_backend
 
     oracle = oracle_backend(model)
@@ -127,7 +127,7 @@ PLAN_FILE = "plan.png"
 def _write_figure(sc: Scenario, result: PlanResult, start: Pose2D, path: Path) -> None:
     """Draw the plan into a new file at `path`: made aside and linked into place, so nothing is ever replaced."""
     from llmnav.core.safefiles import private_dir
-    from llmnav.reporting.planplot import plot_plan
+    from llmnav.planners.waypoints.figure import plot_plan
 
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

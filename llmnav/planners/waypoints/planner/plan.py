@@ -15,13 +15,13 @@ from typing import TYPE_CHECKING, Any
 from llmnav.core.chat import ChatRequest, ChatResult, Message
 from llmnav.core.geometry import Point
 from llmnav.guard.ask import CallContext, ask_guarded
-from llmnav.planners.waypoints.validate import PlanRules
+from llmnav.planners.waypoints.planner.validate import PlanRules
 
 if TYPE_CHECKING:
     from llmnav.core.geometry import Pose2D
     from llmnav.guard.parse import GuardResult
     from llmnav.mapping.grid import OccupancyGrid
-    from llmnav.planners.waypoints.answers import WaypointList
+    from llmnav.planners.waypoints.planner.answers import WaypointList
     from llmnav.world.scenario import LabelledObject, Scenario, WaypointRules
 
 ModelCall = Callable[[ChatRequest, str], ChatResult]  # (request, purpose) -> reply
@@ -98,7 +98,7 @@ def waypoint_schema(rules: WaypointRules) -> dict[str, Any]:
     A grammar-constrained model then cannot ramble on past it; the validator still checks the count.
     """
     from llmnav.guard.schemas import response_schema
-    from llmnav.planners.waypoints.answers import WaypointList
+    from llmnav.planners.waypoints.planner.answers import WaypointList
 
     return {**response_schema(WaypointList), "maxItems": rules.max_waypoints}
 
@@ -128,7 +128,7 @@ def generate_plan(
     """
     from llmnav.guard.parse import correction_message, parse_answer
     from llmnav.planners.prompting import render
-    from llmnav.planners.waypoints.answers import WaypointList
+    from llmnav.planners.waypoints.planner.answers import WaypointList
 
     clock = PlanningClock(call)
     rules = scenario.waypoint_rules
@@ -203,8 +203,7 @@ def plan_summary(plan: PlanResult) -> dict[str, Any]:
         "planning_time_s": round(plan.planning_time_s, 3),
         "wgsr": plan.wgsr,
         "attempts": [
-            {"number": a.number, "points": a.points, "valid": a.valid, "problems": a.problems}
-            for a in plan.attempts
+            {"number": a.number, "points": a.points, "valid": a.valid, "problems": a.problems} for a in plan.attempts
         ],
     }
 
