@@ -57,7 +57,8 @@ def test_the_cli_and_the_planners_import_no_heavy_module() -> None:
         "print(*sorted(m for m in ('pydantic', 'yaml', 'numpy', 'scipy', 'matplotlib', 'pybullet', 'cv2')"
         " if m in sys.modules))\n"
         "import llmnav.runs.runner, llmnav.planners.observe, llmnav.sim.world\n"
-        "import llmnav.planners.hybrid, llmnav.planners.fsm, llmnav.planners.stepwise, llmnav.planners.waypoints\n"
+        "import llmnav.planners.hybrid, llmnav.planners.fsm, llmnav.planners.stepwise\n"
+        "import llmnav.planners.waypoints.planner\n"
         "import llmnav.baselines.frontier, llmnav.baselines.oracle\n"
         "print(*sorted(m for m in ('scipy', 'matplotlib', 'cv2', 'PIL') if m in sys.modules))\n"
     )

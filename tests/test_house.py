@@ -14,8 +14,6 @@ import grimp
 
 ROOT = Path(__file__).resolve().parents[1]
 TOP_LEVEL = {"__init__", "cli", "errors", "testing"}  # the package face, the CLI, the errors, the plug-in kit
-# Files whose in-function imports carry no comments yet; an entry that no longer applies fails the check.
-UNCOMMENTED = {"llmnav/commands/plan.py", "llmnav/reporting/planplot.py"}
 # Comments that explain nothing: linter and formatter pragmas.
 PRAGMA = re.compile(r"noqa(:\s*[A-Z0-9, ]+)?|type:\s*ignore(\[[^\]]*\])?|pragma:[^#]*|fmt:\s*\w+")
 
@@ -134,16 +132,10 @@ def uncommented_imports(source: str) -> list[int]:
 
 def test_imports_inside_functions_say_what_they_defer() -> None:
     found: list[str] = []
-    needed: set[str] = set()
     for path in sorted((ROOT / "llmnav").rglob("*.py")):
         name = path.relative_to(ROOT).as_posix()
-        lines = uncommented_imports(path.read_text())
-        if name in UNCOMMENTED:
-            needed |= {name} if lines else set()
-        else:
-            found += [f"{name}:{line}" for line in lines]
+        found += [f"{name}:{line}" for line in uncommented_imports(path.read_text())]
     assert not found, "imports inside functions with no comment saying what they defer and why:\n" + "\n".join(found)
-    assert UNCOMMENTED <= needed, f"UNCOMMENTED names files that no longer need it: {sorted(UNCOMMENTED - needed)}"
 
 
 def test_the_import_comment_check_flags_an_uncommented_import() -> None:

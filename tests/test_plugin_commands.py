@@ -58,7 +58,7 @@ def test_a_clash_with_a_built_in_is_refused_naming_both(site: Path, monkeypatch:
 
 
 def test_the_built_in_commands_own_registration_is_no_clash(site: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    _install(site, "llmnav-again", "plan = llmnav.commands.plan:plan", monkeypatch)
+    _install(site, "llmnav-again", "plan = llmnav.planners.waypoints.command:plan", monkeypatch)
     app = make_app()
     assert "Refused" not in CliRunner().invoke(app, ["--help"], terminal_width=400).output
     assert CliRunner().invoke(app, ["plan", "--help"]).exit_code == 0

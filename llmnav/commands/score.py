@@ -198,14 +198,14 @@ def parse_keys(text: str) -> list[str]:
     """`--by lidar_sectors,prompt` → validated condition keys."""
     # deferred: scoring brings pydantic and yaml (about 0.15 s), not for `llmnav --help`
     from llmnav.runs.folders import START_POSE_KEY
-    from llmnav.scoring.metrics import CONDITION_KEYS
+    from llmnav.scoring.metrics import condition_keys
     from llmnav.scoring.score import is_option_key
 
     keys = [k.strip().replace("-", "_") for k in text.split(",") if k.strip()]
-    unknown = [k for k in keys if k not in (*CONDITION_KEYS, START_POSE_KEY) and not is_option_key(k)]
+    unknown = [k for k in keys if k not in (*condition_keys(), START_POSE_KEY) and not is_option_key(k)]
     if unknown:
         raise BadInputError(
-            f"--by: unknown key '{unknown[0]}' (one of: {', '.join(CONDITION_KEYS)}, {START_POSE_KEY}, "
+            f"--by: unknown key '{unknown[0]}' (one of: {', '.join(condition_keys())}, {START_POSE_KEY}, "
             "or any planner option)"
         )
     return keys

@@ -10,7 +10,9 @@ and small hooks, so nothing above it names it:
 - `options`: the shared `DriveOptions` fields it reads; `unused_options` tells `drive` and `ablate`
   which given keys it ignores;
 - `information_modes`: what it may know (read by `llmnav.world.knowledge`); `grid_factors`: options worth
-  varying; `declares`: its score tables and how the view reads its decisions (`llmnav.core.declarations`);
+  varying; `condition_keys`: the options that tell its experimental conditions apart (what `score` groups
+  runs by; `llmnav.scoring.metrics.condition_keys` joins every planner's); `declares`: its score tables
+  and how the view reads its decisions (`llmnav.core.declarations`);
 - `paces_itself`: it paces its own control loop in `--realtime` (the world then does not);
 - `templates(options)`: the prompt templates it renders (hashed into the run's config line);
   `prompt_package`: the package whose `prompts/` folder holds them (None: llmnav's bundled one), so a
@@ -287,6 +289,7 @@ class Planner(ABC, Generic[OptionsT]):
     # A baseline that plans on the true map in every information mode: `sensed` then senses only its pose
     knows_map: ClassVar[bool] = False
     grid_factors: ClassVar[tuple[str, ...]] = ()  # option keys worth varying in an ablation (its own first)
+    condition_keys: ClassVar[tuple[str, ...]] = ()  # option keys that make a run's condition (beside planner, backend)
     # its score tables, decision noun and view sections (llmnav.core.declarations): read above it, never by name
     declares: ClassVar[Declarations] = NOTHING_DECLARED
     paces_itself: ClassVar[bool] = False  # paces its own loop under --realtime (the world does not)

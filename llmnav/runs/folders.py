@@ -57,7 +57,7 @@ class Run:
 
     @property
     def condition(self) -> dict[str, Any]:
-        """The run's condition values (llmnav.scoring.metrics.CONDITION_KEYS), then every other logged option.
+        """The run's condition values (llmnav.scoring.metrics.condition_keys), then every other logged option.
 
         Any planner option may be an ablation factor (`alpha`, `max_replans`, ...): its value comes from
         the configuration line, a list written as on the command line (`lidar+image`).

@@ -22,6 +22,7 @@ The success radius is 2.5 m unless `llmnav score --success-radius` asks for anot
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 import statistics
@@ -31,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.backends.prices import load_prices, run_cost
 from llmnav.core.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
+from llmnav.planners.base import planner_class, usable_planner_names
 from llmnav.scoring.failures import failure_cause
 
 if TYPE_CHECKING:
@@ -45,20 +47,21 @@ ROTATION_TOLERANCE_RAD = math.radians(10.0)  # [rad] slack on the 360 deg task
 FULL_TURN_RAD = 2.0 * math.pi  # [rad]
 GUARD_JSON_OUTCOMES = frozenset({"parse", "schema", "bounds"})
 GUARD_VETO_OUTCOME = "veto"
-# The options that define an experimental condition (what `score` groups by and `ablate` varies).
-CONDITION_KEYS: tuple[str, ...] = (
-    "planner",
-    "backend",
-    "decide",  # hybrid: scored or generated decisions (null policies pair with the model in the same mode)
-    "sensing",
-    "lidar_sectors",
-    "prompt",
-    "history",
-    "self_check",
-    "assist",
-    "localize",  # hybrid, sensed: scan matching on or off
-    "explore",  # hybrid: nearest, utility or scored frontiers (as run: "utility (cannot score)" says a fallback)
-)
+RUN_KEYS: tuple[str, ...] = ("planner", "backend")  # what every run's condition starts with
+
+
+@functools.cache
+def condition_keys() -> tuple[str, ...]:
+    """The keys of a run's condition: what `score` groups by and `ablate` varies.
+
+    Planner and backend, then each registered planner's declared `condition_keys`, planners by name, each
+    key once. Every run's condition holds them all (None where its planner has no such option), so runs of
+    different planners sit in one table. A broken planner plug-in is left out (`usable_planner_names`).
+    """
+    keys = list(RUN_KEYS)
+    for name in usable_planner_names():
+        keys += [k for k in planner_class(name).condition_keys if k not in keys]
+    return tuple(keys)
 
 
 def distance_score(distance_m: float) -> float:
@@ -215,7 +218,7 @@ def condition_of(config: dict[str, Any], events: Sequence[Mapping[str, Any]] = (
     """
     options = config.get("options") or {}
     condition: dict[str, Any] = {}
-    for key in CONDITION_KEYS:
+    for key in condition_keys():
         if key == "backend":
             value = config.get("backend", options.get("backend"))
         elif key == "planner":
@@ -228,18 +231,8 @@ def condition_of(config: dict[str, Any], events: Sequence[Mapping[str, Any]] = (
     for event in events:
         changed = event.get("condition")
         if isinstance(changed, dict):
-            condition.update({k: str(v) for k, v in changed.items() if k in CONDITION_KEYS and isinstance(v, str)})
+            condition.update({k: str(v) for k, v in changed.items() if k in condition_keys() and isinstance(v, str)})
     return condition
-
-
-def _as_run(planner_metrics: Mapping[str, Any]) -> dict[str, Any]:
-    """Condition values the planner reports as it ran them, where they differ from the requested option.
-
-    The hybrid explores by utility when `-o explore=scored` meets a backend that cannot score: the
-    condition says "utility (cannot score)", so such a run is never grouped with scored ones.
-    """
-    explore = planner_metrics.get("explore")
-    return {"explore": explore} if isinstance(explore, str) else {}
 
 
 def _mean(values: Sequence[float]) -> float | None:
@@ -495,7 +488,7 @@ def summarize_run(
         "backend": config.get("backend"),
         "start_pose_index": config.get("start_pose_index"),
         "seed": config.get("seed"),
-        "condition": condition_of(config, record.events) | _as_run(planner_metrics),
+        "condition": condition_of(config, record.events),
         "iterations": iterations,
         "latency_s_mean": _rounded(_mean(latencies)),
         "llm_calls": len(record.of_type("llm_call")),

@@ -23,7 +23,7 @@ from typing import Any, TypeVar
 
 from llmnav.backends.base import answerer
 from llmnav.runs.folders import Run
-from llmnav.scoring.metrics import CONDITION_KEYS
+from llmnav.scoring.metrics import condition_keys
 from llmnav.scoring.score import (
     COMMON_COLUMNS,
     MISSING,
@@ -60,7 +60,7 @@ def is_model(run: Run) -> bool:
 def _setting(run: Run) -> tuple[Any, ...]:
     """Everything of the condition but the backend: runs compared with a policy must agree on it."""
     condition = run.condition
-    return tuple(_hashable(condition.get(k)) for k in CONDITION_KEYS if k != "backend")
+    return tuple(_hashable(condition.get(k)) for k in condition_keys() if k != "backend")
 
 
 @dataclass(frozen=True)

@@ -31,8 +31,8 @@ from llmnav.runs.folders import (
 )
 from llmnav.scoring.failures import FAILURE_CAUSES
 from llmnav.scoring.metrics import (
-    CONDITION_KEYS,
     SUCCESS_RADIUS_M,
+    condition_keys,
 )
 from llmnav.scoring.stats import Comparison, Describe, clip_interval, compare, describe, wilson_interval
 from llmnav.world.scenario import SEQUENCE_JOIN
@@ -70,7 +70,7 @@ def _hashable(value: Any) -> Any:
 def varying_keys(runs: Sequence[Run]) -> list[str]:
     """Condition keys whose value differs across the runs (what a table's groups are told apart by)."""
     keys = []
-    for key in CONDITION_KEYS:
+    for key in condition_keys():
         if len({_hashable(r.condition.get(key)) for r in runs}) > 1:
             keys.append(key)
     return keys
@@ -605,7 +605,7 @@ def parse_selector(text: str) -> tuple[str, str]:
     """`KEY=VALUE` of `--compare`; KEY a condition key or task/scenario."""
     key, sep, value = text.partition("=")
     key = key.strip().replace("-", "_")
-    allowed = (*CONDITION_KEYS, START_POSE_KEY, "task", "scenario")
+    allowed = (*condition_keys(), START_POSE_KEY, "task", "scenario")
     if not sep or not key or not value:
         raise BadInputError(f"--compare {text!r}: expected KEY=VALUE, e.g. lidar_sectors=8")
     if key not in allowed and not is_option_key(key):

@@ -20,7 +20,7 @@ from llmnav.errors import ModelError, ModelUnavailableError
 from llmnav.guard.schemas import response_schema
 from llmnav.planners.fsm.answers import VelocitySuggestion
 from llmnav.planners.stepwise.answers import StepAction
-from llmnav.planners.waypoints.answers import WaypointList
+from llmnav.planners.waypoints.planner.answers import WaypointList
 
 SYSTEM = (
     "You control a small wheeled robot in a factory. Answer with one JSON object only. "

@@ -17,7 +17,7 @@ from llmnav.planners.fsm.answers import VelocitySuggestion
 from llmnav.planners.hybrid.answers import hybrid_choice_model
 from llmnav.planners.prompting import render
 from llmnav.planners.stepwise.answers import StepAction
-from llmnav.planners.waypoints.answers import WaypointList, target_choice_model
+from llmnav.planners.waypoints.planner.answers import WaypointList, target_choice_model
 
 MENU = [
     "Turn a full circle to look around",

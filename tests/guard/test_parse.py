@@ -14,7 +14,7 @@ from llmnav.guard.schemas import response_schema
 from llmnav.planners.fsm.answers import VelocitySuggestion
 from llmnav.planners.hybrid.answers import hybrid_choice_model
 from llmnav.planners.stepwise.answers import ActionBounds, ActionCommand, StepAction, step_answer
-from llmnav.planners.waypoints.answers import Waypoint, WaypointBounds, WaypointList, target_choice_model
+from llmnav.planners.waypoints.planner.answers import Waypoint, WaypointBounds, WaypointList, target_choice_model
 
 BOUNDS = ActionBounds(max_step_m=5.0)
 

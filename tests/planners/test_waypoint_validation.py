@@ -9,8 +9,8 @@ import pytest
 from llmnav.core.geometry import Pose2D
 from llmnav.guard.parse import parse_answer
 from llmnav.mapping.grid import build_grid
-from llmnav.planners.waypoints import PlanRules, map_to_odom, validate_waypoints
-from llmnav.planners.waypoints.answers import WaypointList
+from llmnav.planners.waypoints.planner import PlanRules, map_to_odom, validate_waypoints
+from llmnav.planners.waypoints.planner.answers import WaypointList
 from llmnav.world.scenario import parse_scenario
 
 # An L-shaped pair of corridors: main along x (y in [-2, 2]), side along y (x in [8, 12]).

@@ -16,7 +16,7 @@ from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import response_schema
 from llmnav.planners.base import drive_options
 from llmnav.planners.prompting import render
-from llmnav.planners.waypoints.answers import WaypointList, target_choice_model
+from llmnav.planners.waypoints.planner.answers import WaypointList, target_choice_model
 from llmnav.runs.runlog import RunRecord, read_run
 from llmnav.runs.runner import EpisodeSpec, exit_code, run_episode
 from llmnav.world.tasks import SEQUENCE_JOIN

@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from llmnav.mapping.grid import build_grid
-from llmnav.planners.waypoints import validate_waypoints
+from llmnav.planners.waypoints.planner import validate_waypoints
 from llmnav.world.scenario import load_scenario
 
 

@@ -15,9 +15,9 @@ from llmnav.core.geometry import Pose2D
 from llmnav.guard.schemas import response_schema
 from llmnav.mapping.grid import build_grid
 from llmnav.planners.base import GroundTruth, drive_options
-from llmnav.planners.waypoints import WaypointPlanner, generate_plan
-from llmnav.planners.waypoints.answers import target_choice_model
-from llmnav.planners.waypoints.oracle import OTHER_LOGPROB, WaypointAnswerKey
+from llmnav.planners.waypoints.planner import WaypointPlanner, generate_plan
+from llmnav.planners.waypoints.planner.answers import target_choice_model
+from llmnav.planners.waypoints.planner.oracle import OTHER_LOGPROB, WaypointAnswerKey
 from llmnav.runs.runlog import read_run
 from llmnav.runs.runner import EpisodeSpec, run_episode
 from llmnav.world.scenario import Scenario, Task, load_scenario

@@ -31,8 +31,8 @@ from llmnav.mapping.targets import with_added_obstacles
 from llmnav.planners.base import drive_options
 from llmnav.planners.fsm.answers import VelocitySuggestion
 from llmnav.planners.hybrid.answers import hybrid_choice_model
-from llmnav.planners.waypoints import PlanRules
-from llmnav.planners.waypoints.answers import WaypointList
+from llmnav.planners.waypoints.planner import PlanRules
+from llmnav.planners.waypoints.planner.answers import WaypointList
 from llmnav.runs.runlog import read_run
 from llmnav.runs.runner import EpisodeSpec, run_episode
 from llmnav.sim.world import World

@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from llmnav.planners.fsm.tables import FSM_TABLE
-from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
+from llmnav.planners.waypoints.planner.execute import WAYPOINT_TABLE
 from llmnav.runs.folders import Run
 from llmnav.scoring.score import MISSING, declared_table, episodes_table, path_table
 from llmnav.world.tasks import resolve_task

@@ -176,7 +176,7 @@ def test_failed_plans_are_marked_and_left_out_of_the_averages(tmp_path: Path) ->
 
 def test_waypoint_table_leaves_failed_plans_out_of_execution_and_path() -> None:
     """The per-command table (`--table waypoints`): the same rule, and replans as counts."""
-    from llmnav.planners.waypoints.execute import WAYPOINT_TABLE
+    from llmnav.planners.waypoints.planner.execute import WAYPOINT_TABLE
     from llmnav.runs.folders import Run
     from llmnav.scoring.score import declared_table
 

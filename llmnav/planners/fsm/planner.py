@@ -33,6 +33,7 @@ class FsmPlanner(Planner):
     Options = FsmOptions
     options = frozenset({"temperature", "max_tokens"})
     grid_factors = ("assist",)
+    condition_keys = ("assist",)  # as run: "llm (failed)" when the assist died
     paces_itself = True  # its 50 Hz ticks follow the wall clock under --realtime, not the physics steps
     figure_kinds: ClassVar[tuple[str, ...]] = ("velocity_profile",)  # from its `cmd` records
     declares = FSM_DECLARATIONS

@@ -93,6 +93,8 @@ class HybridPlanner(Planner):
     # from a published map, from its sensors, or (as before the information model) the true grid
     information_modes: ClassVar[tuple[Information, ...]] = ("sensed", "map", "oracle")
     grid_factors = ("decide", "menu_order", "sensing", "lidar_sectors", "localize")
+    # explore as run: "utility (cannot score)" marks a backend that could not score frontiers
+    condition_keys = ("decide", "sensing", "lidar_sectors", "localize", "explore")
     declares = Declarations(asks_model_every_decision=True)
     options = MODEL_OPTIONS | {
         "sensing",
@@ -160,12 +162,16 @@ class HybridPlanner(Planner):
         area = (bounds.x[1] - bounds.x[0]) * (bounds.y[1] - bounds.y[0])  # [m^2]
         mapped = bool(scenario.corridors)
         explore = self.explore_mode(ctx)
+        # the condition as run: a fallback from auto to generation, or to utility for want of scores
+        as_run = fallback_mark(ctx.options.decide, mode).get("condition", {})
+        if explore != ctx.options.explore:
+            as_run = {**as_run, "explore": explore}
         ctx.event(
             "planner",
             decide=mode,
             requested=ctx.options.decide,
             explore=explore,
-            **fallback_mark(ctx.options.decide, mode),
+            **({"condition": as_run} if as_run else {}),
         )
         chooser = (
             ScoredChooser(ctx, ctx.task.text, mapped=mapped, area_m2=area, explore=ctx.options.explore)

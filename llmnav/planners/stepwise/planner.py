@@ -88,6 +88,7 @@ class StepwisePlanner(Planner[StepwiseOptions]):
     }
     information_modes: ClassVar[tuple[Information, ...]] = ("sensed",)  # camera and LiDAR; never a position
     grid_factors: ClassVar[tuple[str, ...]] = ("sensing", "lidar_sectors", "prompt", "history", "self_check")
+    condition_keys: ClassVar[tuple[str, ...]] = grid_factors
 
     def templates(self, options: StepwiseOptions) -> list[str]:
         """Prompt templates this episode uses (their hashes go into the config line)."""

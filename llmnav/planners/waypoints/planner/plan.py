@@ -18,8 +18,8 @@ from llmnav.guard.ask import CallContext, ask_guarded
 from llmnav.guard.parse import correction_message, parse_answer
 from llmnav.guard.schemas import response_schema
 from llmnav.planners.prompting import render
-from llmnav.planners.waypoints.answers import WaypointList
-from llmnav.planners.waypoints.validate import PlanRules
+from llmnav.planners.waypoints.planner.answers import WaypointList
+from llmnav.planners.waypoints.planner.validate import PlanRules
 
 if TYPE_CHECKING:
     from llmnav.core.geometry import Pose2D
@@ -199,8 +199,7 @@ def plan_summary(plan: PlanResult) -> dict[str, Any]:
         "planning_time_s": round(plan.planning_time_s, 3),
         "wgsr": plan.wgsr,
         "attempts": [
-            {"number": a.number, "points": a.points, "valid": a.valid, "problems": a.problems}
-            for a in plan.attempts
+            {"number": a.number, "points": a.points, "valid": a.valid, "problems": a.problems} for a in plan.attempts
         ],
     }
 

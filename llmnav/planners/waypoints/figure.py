@@ -5,9 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from llmnav.reporting.topview import TARGET_RGB, draw_scenario, draw_targets
+from llmnav.scoring.metrics import SUCCESS_RADIUS_M
+
 if TYPE_CHECKING:
     from llmnav.core.geometry import Pose2D
-    from llmnav.planners.waypoints import PlanResult
+    from llmnav.planners.waypoints.planner import PlanResult
     from llmnav.world.scenario import Scenario
 
 FIG_WIDTH_IN = 9.0  # [in] for a wide map; the height follows its aspect ratio
@@ -19,13 +22,12 @@ def plot_plan(scenario: Scenario, plan: PlanResult, start: Pose2D, out: Path) ->
 
     The dotted blue outlines are where waypoints may lie (each corridor shrunk by the rules' margin).
     """
+    # deferred: matplotlib (about 0.3 s) loads only when a plan is drawn
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
-
-    from llmnav.reporting.topview import draw_scenario
 
     bx, by = scenario.bounds.x, scenario.bounds.y
     aspect = (by[1] - by[0]) / (bx[1] - bx[0])
@@ -64,8 +66,6 @@ def plot_plan(scenario: Scenario, plan: PlanResult, start: Pose2D, out: Path) ->
         for index, (x, y) in enumerate(plan.waypoints, start=1):
             ax.annotate(str(index), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8, zorder=7)
     ax.plot(start.x, start.y, "o", color="tab:green", ms=9, zorder=7, label="start")
-    from llmnav.reporting.topview import TARGET_RGB, draw_targets
-    from llmnav.scoring.metrics import SUCCESS_RADIUS_M
 
     draw_targets(ax, [plan.target], SUCCESS_RADIUS_M, legend=False)
     label = f"target {plan.target_id} (success within {SUCCESS_RADIUS_M:g} m)"

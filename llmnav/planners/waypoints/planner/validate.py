@@ -51,9 +51,7 @@ def validate_waypoints(
             problems.append(f"{name} is outside every corridor with the {margin} m margin")
         gap = math.dist(previous, (x, y))
         if index < len(points) and gap < rules.spacing_m:
-            problems.append(
-                f"{name} is {gap:.2f} m from the previous point; keep at least {rules.spacing_m} m"
-            )
+            problems.append(f"{name} is {gap:.2f} m from the previous point; keep at least {rules.spacing_m} m")
         blocked = _segment_blocked(previous, (x, y), grid, extra_obstacles or [], obstacle_radius_m)
         if blocked is not None:
             (bx, by), seen = blocked

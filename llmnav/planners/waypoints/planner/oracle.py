@@ -37,7 +37,7 @@ from llmnav.core.geometry import Point
 from llmnav.core.robot_specs import ROBOT_SPECS
 from llmnav.mapping.astar import astar, line_of_sight
 from llmnav.mapping.grid import GridConfig, build_grid, nearest_free_cell
-from llmnav.planners.waypoints.validate import PlanRules
+from llmnav.planners.waypoints.planner.validate import PlanRules
 from llmnav.world.tasks import sequence_legs
 
 if TYPE_CHECKING:

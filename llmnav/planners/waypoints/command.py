@@ -15,7 +15,7 @@ from llmnav.errors import BadInputError, printable
 if TYPE_CHECKING:
     from llmnav.backends.base import Backend
     from llmnav.core.geometry import Pose2D
-    from llmnav.planners.waypoints import PlanResult
+    from llmnav.planners.waypoints.planner import PlanResult
     from llmnav.world.scenario import Scenario
     from llmnav.world.tasks import ResolvedTask
 
@@ -44,9 +44,11 @@ def plan(
     out: Annotated[str | None, typer.Option(help="Run folder for --execute.")] = None,
 ) -> None:
     """Ask the model for waypoints to a target, validate every attempt, and show the verdicts."""
+    # deferred: the backends, the grid and the planner bring pydantic, yaml and numpy (about 0.3 s), not for
+    # `llmnav --help`
     from llmnav.backends.base import ChatRequest, ChatResult, get_backend
     from llmnav.mapping.grid import build_grid
-    from llmnav.planners.waypoints import PlanningClock, generate_plan, ground_target, plan_summary
+    from llmnav.planners.waypoints.planner import PlanningClock, generate_plan, ground_target, plan_summary
     from llmnav.world.tasks import resolve_task
 
     out_dir = path_option(out, "--out")
@@ -56,6 +58,7 @@ def plan(
     if (task is None) == (task_audio is None):
         raise BadInputError("give exactly one of --task TEXT or --task-audio FILE.wav")
     if task_audio is not None:
+        # deferred: speech recognition only for a spoken command
         from llmnav.commands.transcribe import audio_task
 
         task = audio_task(task_audio, scenario, asr_free)
@@ -81,10 +84,12 @@ def plan(
         result.planning_time_s += grounding_s
         run_dir = None
         if execute and result.waypoints is not None:
+            # deferred: the drive command's module scans the planners' flags, only to name a run folder
             from llmnav.commands.drive import default_out_dir
 
             run_dir = out_dir or default_out_dir("waypoints", resolved.task.text)
         if plot_path is None and run_dir is None:
+            # deferred: as above, only to name a folder for the figure
             from llmnav.commands.drive import default_out_dir
 
             plot_path = default_out_dir("plan", resolved.task.text) / PLAN_FILE
@@ -108,9 +113,10 @@ def plan(
 
 def _attach_oracle_answers(model: Backend, resolved: ResolvedTask) -> None:
     """`policy:oracle`: the waypoint planner's answer key, from the true map and the start pose (nothing moves)."""
+    # deferred: the planner and the runner (pybullet among them, about 0.5 s) only for oracle answers
     from llmnav.planners.base import GroundTruth
-    from llmnav.planners.waypoints import WaypointPlanner
-    from llmnav.planners.waypoints.options import WaypointOptions
+    from llmnav.planners.waypoints.planner import WaypointPlanner
+    from llmnav.planners.waypoints.planner.options import WaypointOptions
     from llmnav.runs.runner import oracle_backend
 
     oracle = oracle_backend(model)
@@ -126,8 +132,9 @@ PLAN_FILE = "plan.png"
 
 def _write_figure(sc: Scenario, result: PlanResult, start: Pose2D, path: Path) -> None:
     """Draw the plan into a new file at `path`: made aside and linked into place, so nothing is ever replaced."""
+    # deferred: the figure brings matplotlib (about 0.3 s), only when a plan is drawn
     from llmnav.core.safefiles import private_dir
-    from llmnav.reporting.planplot import plot_plan
+    from llmnav.planners.waypoints.figure import plot_plan
 
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -141,6 +148,7 @@ def _write_figure(sc: Scenario, result: PlanResult, start: Pose2D, path: Path) -
 
 
 def _print_plan(result: PlanResult, scenario: str, plot: Path | None) -> None:
+    # deferred: rich's table (about 5 ms) only when a plan is printed, not for `llmnav --help`
     from rich.table import Table
     from rich.text import Text
 
@@ -173,6 +181,7 @@ def _execute(
     out: Path,
     figure: tuple[Scenario, PlanResult, Pose2D] | None = None,
 ) -> None:
+    # deferred: the runner and the simulator (pybullet, about 0.5 s) only with --execute
     from llmnav.planners.base import drive_options
     from llmnav.reporting.live import print_result
     from llmnav.runs.runner import EpisodeSpec, exit_code, run_episode

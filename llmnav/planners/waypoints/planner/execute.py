@@ -28,10 +28,10 @@ from llmnav.planners.base import (
     fallback_mark,
 )
 from llmnav.planners.observe import call_model
-from llmnav.planners.waypoints.ground import ground_target
-from llmnav.planners.waypoints.options import WaypointOptions
-from llmnav.planners.waypoints.plan import Attempt, PlanningClock, PlanResult, generate_plan
-from llmnav.planners.waypoints.validate import validate_waypoints
+from llmnav.planners.waypoints.planner.ground import ground_target
+from llmnav.planners.waypoints.planner.options import WaypointOptions
+from llmnav.planners.waypoints.planner.plan import Attempt, PlanningClock, PlanResult, generate_plan
+from llmnav.planners.waypoints.planner.validate import validate_waypoints
 
 if TYPE_CHECKING:
     from llmnav.core.chat import AnswerKey
@@ -133,7 +133,7 @@ class WaypointPlanner(Planner):
     def oracle_answers(self, truth: GroundTruth, options: WaypointOptions) -> AnswerKey:
         """Plans from the true pose through the junction points to the true target, beyond the emergency stop."""
         # deferred: the answer key brings numpy and yaml (about 0.1 s), only with an oracle
-        from llmnav.planners.waypoints.oracle import WaypointAnswerKey
+        from llmnav.planners.waypoints.planner.oracle import WaypointAnswerKey
 
         return WaypointAnswerKey(truth, keep_clear_m=self.cfg.emergency_m)
 
@@ -214,9 +214,7 @@ class WaypointPlanner(Planner):
             while True:
                 start = world.robot.pose()
                 if preset:  # `llmnav plan --execute`: the plan was made already; it is validated again
-                    problems = validate_waypoints(
-                        preset, (start.x, start.y), target.goal_point, scenario, grid, rules
-                    )
+                    problems = validate_waypoints(preset, (start.x, start.y), target.goal_point, scenario, grid, rules)
                     attempt = Attempt(1, 0.0, preset, problems, "bounds" if problems else "ok")
                     plan = PlanResult(target.id, target.goal_point, [attempt])
                     log_attempt(attempt)

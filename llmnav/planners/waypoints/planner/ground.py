@@ -10,15 +10,15 @@ from llmnav.errors import InvalidActionError
 from llmnav.guard.ask import CallContext, GuardedAnswer, ask_guarded
 from llmnav.guard.schemas import response_schema
 from llmnav.planners.prompting import render
-from llmnav.planners.waypoints.answers import target_choice_model
+from llmnav.planners.waypoints.planner.answers import target_choice_model
 from llmnav.sensing.relevance import most_relevant
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     from llmnav.core.geometry import Point
-    from llmnav.planners.waypoints.answers import TargetChoice
-    from llmnav.planners.waypoints.plan import ModelCall
+    from llmnav.planners.waypoints.planner.answers import TargetChoice
+    from llmnav.planners.waypoints.planner.plan import ModelCall
     from llmnav.sensing.relevance import Scorer
     from llmnav.world.scenario import LabelledObject, Scenario, Task
 
@@ -66,9 +66,7 @@ def ground_target(
             on_event("grounding", step=step, command=task.text, target=chosen.id, pmi=rounded)
         return chosen
     model = target_choice_model(tuple(o.id for o in candidates))
-    listing = "\n".join(
-        f"- {o.id}: {o.label} at ({o.goal_point[0]:.1f}, {o.goal_point[1]:.1f})" for o in candidates
-    )
+    listing = "\n".join(f"- {o.id}: {o.label} at ({o.goal_point[0]:.1f}, {o.goal_point[1]:.1f})" for o in candidates)
     messages = (
         Message("system", render("ground_system")),
         Message("user", render("ground_user", command=task.text, objects=listing)),
