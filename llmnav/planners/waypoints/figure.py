@@ -26,6 +26,7 @@ def plot_plan(scenario: Scenario, plan: PlanResult, start: Pose2D, out: Path) ->
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred as above, and after the Agg backend is chosen (no display needed)
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
