@@ -32,7 +32,6 @@ from typing import TYPE_CHECKING, Any
 
 from llmnav.backends.prices import load_prices, run_cost
 from llmnav.core.geometry import Point, Pose2D, logged_pose, path_length, wrap_angle
-from llmnav.planners.base import planner_class, usable_planner_names
 from llmnav.scoring.failures import failure_cause
 
 if TYPE_CHECKING:
@@ -58,6 +57,9 @@ def condition_keys() -> tuple[str, ...]:
     key once. Every run's condition holds them all (None where its planner has no such option), so runs of
     different planners sit in one table. A broken planner plug-in is left out (`usable_planner_names`).
     """
+    # deferred: the planner registry brings pydantic (about 0.1 s), only once a run's condition is built
+    from llmnav.planners.base import planner_class, usable_planner_names
+
     keys = list(RUN_KEYS)
     for name in usable_planner_names():
         keys += [k for k in planner_class(name).condition_keys if k not in keys]
@@ -231,7 +233,7 @@ def condition_of(config: dict[str, Any], events: Sequence[Mapping[str, Any]] = (
     for event in events:
         changed = event.get("condition")
         if isinstance(changed, dict):
-            condition.update({k: str(v) for k, v in changed.items() if k in condition_keys() and isinstance(v, str)})
+            condition.update({k: str(v) for k, v in changed.items() if k in condition and isinstance(v, str)})
     return condition
 
 
