@@ -52,6 +52,13 @@ def quick_cases() -> list[tuple[str, str, str, DriveOptions, int]]:
     return cut
 
 
+# Scored frontiers against utility exploration (`-o explore`), on generated flats whose targets start out of
+# sight: flats of these seeds, an object by name (T1), by use (T4) and a room (T6), from start pose 1.
+FRONTIER_SEEDS = 2
+FRONTIER_TASKS = ("T1", "T4", "T6")
+FRONTIER_EXPLORE = ("utility", "scored")
+TARGET_FRONTIER_EXTRA_S = 0.3  # [s] what scoring frontiers may add to a decision's model time, p50
+
 # Targets of the fast-decision work (the issue this benchmark answers).
 TARGET_HYBRID_WARM_S = 0.8  # [s] a warm hybrid decision (p50)
 TARGET_SCORED_P95_S = 1.2  # [s] a warm scored hybrid decision, p95
@@ -134,6 +141,38 @@ def run_case(scenario: str, task: str, options: DriveOptions, episodes: int, roo
     return calls
 
 
+def measure_frontiers(root: Path, quick: bool) -> dict[str, Calls]:
+    """Hybrid decisions on generated flats with each `FRONTIER_EXPLORE` mode, sensed information.
+
+    Each mode starts from a freshly loaded model, so neither inherits the scores the other remembered
+    (`llmnav.backends.memo`); within a mode, later episodes do, as in a sweep's worker.
+    """
+    from llmnav.backends.local import unload_all
+    from llmnav.buildings.suite import suite_files
+
+    files = suite_files(f"generated:flat:{1 if quick else FRONTIER_SEEDS}", root / "flats")
+    tasks = FRONTIER_TASKS[:1] if quick else FRONTIER_TASKS
+    out: dict[str, Calls] = {}
+    for explore in FRONTIER_EXPLORE:
+        unload_all()
+        options = drive_options(
+            planner="hybrid",
+            decide="score",
+            information="sensed",
+            **(QUICK_CAPS if quick else {}),
+            explore=explore,
+        )
+        merged = Calls()
+        for file in files:
+            for task in tasks:
+                calls = run_case(str(file), task, options, 1, root / explore / f"{file.stem}-{task}")
+                merged.step_s += calls.step_s
+                merged.decisions += calls.decisions
+                merged.outcomes += calls.outcomes
+        out[explore] = merged
+    return out
+
+
 def measure_pool(root: Path, episodes: int = 4) -> dict[str, float]:
     """Episodes/min of a small hybrid ablation at 1 worker x all threads and at N workers x 1 thread."""
     from llmnav import ablate
@@ -176,6 +215,7 @@ def main(quick: bool = False) -> None:  # noqa: C901 - one table, row by row
     with tempfile.TemporaryDirectory(prefix="llmnav-bench-local-") as tmp:
         for n, (label, scenario, task, options, episodes) in enumerate(cases):
             results[label] = run_case(scenario, task, options, episodes, Path(tmp) / f"case-{n}")
+        frontiers = measure_frontiers(Path(tmp) / "frontiers", quick)
         pool = measure_pool(Path(tmp)) if os.environ.get("BENCH_POOL") == "1" else None
     load_after = os.getloadavg()[0]
     threads = model_threads(beside_simulation=False)
@@ -253,6 +293,7 @@ def main(quick: bool = False) -> None:  # noqa: C901 - one table, row by row
         f"    ({workers} worker(s) x {per_worker} thread(s), measured speed-up {speedup:.2f}; hybrid episode median "
         f"{episode_s:.1f} s wall, serial, {decision_s:.2f} s a decision with its simulation)"
     )
+    print_frontiers(frontiers, row)
     if pool is not None:
         print("  pool: " + ", ".join(f"{layout} {rate:.2f} episodes/min" for layout, rate in pool.items()))
     sys.stdout.flush()
@@ -260,3 +301,21 @@ def main(quick: bool = False) -> None:  # noqa: C901 - one table, row by row
 
 if __name__ == "__main__":
     main(quick=quick_from_env())
+
+
+def print_frontiers(frontiers: dict[str, Calls], row: functools.partial[str]) -> None:
+    """Model time per decision with utility and with scored frontiers, and what scoring them adds (p50)."""
+    medians: dict[str, float] = {}
+    for explore, calls in frontiers.items():
+        if not calls.step_s:
+            print(f"  hybrid, explore={explore}: no decision after the first ({', '.join(calls.outcomes)})")
+            continue
+        medians[explore] = statistics.median(calls.step_s)
+        print(
+            row(f"hybrid on flats, explore={explore}: decision p50 [s]", f"{medians[explore]:.2f}", "", None)
+            + f"  ({len(calls.step_s)} decisions, {len(calls.outcomes)} episodes)"
+        )
+    if len(medians) == len(FRONTIER_EXPLORE):
+        extra = medians["scored"] - medians["utility"]
+        ok = extra <= TARGET_FRONTIER_EXTRA_S
+        print(row("  scored frontiers add, p50 [s]", f"{extra:+.2f}", f"<= {TARGET_FRONTIER_EXTRA_S}", ok))

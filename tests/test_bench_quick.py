@@ -47,6 +47,9 @@ ROWS: dict[str, list[str]] = {
         rf"\s+warm decision p50 \[s\]\s+{NUMBER}",
         rf"\s+suggestion latency p95 \[ms\]\s+{NUMBER}",
         rf"\s+200 factory episodes of \d+ decisions \[min\]\s+{NUMBER}",
+        rf"\s+hybrid on flats, explore=utility: decision p50 \[s\]\s+{NUMBER}",
+        rf"\s+hybrid on flats, explore=scored: decision p50 \[s\]\s+{NUMBER}",
+        rf"\s+scored frontiers add, p50 \[s\]\s+{NUMBER}",
     ],
     "decision": [
         rf"lidar\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}",

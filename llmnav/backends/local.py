@@ -60,6 +60,7 @@ from llmnav.backends.base import (
 )
 from llmnav.backends.hf import HFEngine, hf_directory, hf_status
 from llmnav.backends.llamacpp import LlamaCppEngine, _import_xllamacpp
+from llmnav.backends.memo import ScoreMemo, memoised_score
 from llmnav.backends.served import ServedEngine, ServedModel
 from llmnav.errors import BackendSpecError, ModelUnavailableError
 
@@ -107,9 +108,20 @@ def shared_engine(key: tuple[Any, ...], factory: Callable[[], E]) -> tuple[E, th
 
 
 def unload_all() -> None:
-    """Drop every cached engine (tests, or a long-lived process that wants its memory back)."""
+    """Drop every cached engine and its scores (tests, or a long-lived process that wants its memory back)."""
     with _ENGINES_LOCK:
         _ENGINES.clear()
+        _MEMOS.clear()
+
+
+# One score memo per loaded model (keyed by the engine object: every backend instance sharing a model
+# shares its remembered scores).
+_MEMOS: dict[int, ScoreMemo] = {}
+
+
+def _memo(engine: Engine) -> ScoreMemo:
+    with _ENGINES_LOCK:
+        return _MEMOS.setdefault(id(engine), ScoreMemo())
 
 
 def default_model_path() -> Path:
@@ -312,9 +324,16 @@ class LocalBackend(Backend):
         return True
 
     def score(self, request: ScoreRequest) -> ScoreResult:
-        """Score continuations in process (calls from several threads are served one at a time)."""
+        """Score continuations in process (calls from several threads are served one at a time).
+
+        A (prefix, continuation) pair this process's model has scored before is looked up, not scored
+        again (`llmnav.backends.memo`): the model is deterministic, and a decision repeats most questions.
+        """
         started = time.perf_counter()
-        result = self._serve(lambda engine: engine.score(request))
+        engine = self.load()
+        result = memoised_score(
+            _memo(engine), request, lambda rest: self._serve(lambda loaded: loaded.score(rest)), engine.model_name
+        )
         result.latency_s = time.perf_counter() - started
         return result
 

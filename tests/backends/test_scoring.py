@@ -11,9 +11,10 @@ import pytest
 from llmnav.backends.base import get_backend
 from llmnav.backends.forced import continuation_tokens, forced_logprob, forced_request, forced_tokens_grammar
 from llmnav.backends.local import LocalBackend
+from llmnav.backends.memo import ScoreMemo
 from llmnav.backends.policy import PolicyBackend
 from llmnav.backends.replay import ReplayBackend, write_script
-from llmnav.core.chat import ScoreRequest
+from llmnav.core.chat import ContinuationScore, ScoreRequest
 from llmnav.errors import ModelError, ReplayDivergenceError
 from llmnav.runs.runlog import RunLog
 
@@ -87,6 +88,34 @@ def test_scores_follow_the_chain_rule(backend: LocalBackend) -> None:
     assert both.tokens == first.tokens + second.tokens
     assert both.logprob == pytest.approx(first.logprob + second.logprob, abs=0.02)
     assert both.logprob < 0
+
+
+def test_a_repeated_pair_comes_from_the_memo_with_the_same_score(backend: LocalBackend) -> None:
+    """Only the continuations not scored before reach the engine; remembered ones return their first score."""
+    prefix = "Task: Find the mop\nThe robot drives to the"
+    engine: Any = backend.load()
+    asked: list[tuple[str, ...]] = []
+    real = engine.score
+    engine.score = lambda request: asked.append(request.continuations) or real(request)
+    try:
+        first = backend.score(ScoreRequest(prefix, (" mop", " bucket")))
+        again = backend.score(ScoreRequest(prefix, (" bucket", " broom", " mop", " broom")))
+    finally:
+        del engine.score
+    assert asked == [(" mop", " bucket"), (" broom",)]
+    assert again.meta["memo_hits"] == 2 and first.meta["memo_hits"] == 0
+    assert again.scores[0] == first.scores[1] and again.scores[2] == first.scores[0]
+    assert again.scores[1] == again.scores[3]
+    assert again.model == first.model == engine.model_name
+
+
+def test_the_memo_forgets_the_least_recently_used_pair() -> None:
+    memo = ScoreMemo(entries=2)
+    memo.put("p", " a", ContinuationScore(-1.0, 1))
+    memo.put("p", " b", ContinuationScore(-2.0, 1))
+    assert memo.get("p", " a") == ContinuationScore(-1.0, 1)  # now the most recently used
+    memo.put("q", " a", ContinuationScore(-3.0, 1))
+    assert memo.get("p", " b") is None and memo.get("p", " a") is not None and len(memo) == 2
 
 
 def test_pmi_picks_the_named_object_with_the_real_model(backend: LocalBackend) -> None:
