@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from bench import NOT_MEASURED, judged, quick_from_env
+from llmnav.ablate.executors import init_worker, worker_model_threads
 from llmnav.buildings.suite import suite_files
 from llmnav.planners.base import drive_options
 from llmnav.runs.runner import EpisodeSpec, run_episode
@@ -134,7 +135,11 @@ def run_condition(
     if workers <= 1:
         summaries = [_drive(job) for job in jobs]
     else:
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        # Each worker's model gets the pool's share of the cores, as in `llmnav ablate`: left to choose by
+        # the load at start-up, two idle-born workers took 2 threads each and ran about 20x slower.
+        initargs = (worker_model_threads(workers), os.getpid(), {})
+        spawn = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(workers, mp_context=spawn, initializer=init_worker, initargs=initargs) as pool:
             summaries = list(pool.map(_drive, jobs))
     return summaries, time.perf_counter() - start
 

@@ -66,7 +66,7 @@ def worker_model_threads(workers: int) -> int:
     return pool_threads(workers)
 
 
-def _init_worker(model_threads: int, parent_pid: int, env: dict[str, str]) -> None:
+def init_worker(model_threads: int, parent_pid: int, env: dict[str, str]) -> None:
     """Pool worker start-up, before numpy, cv2 or a model is imported: cap threads, die with the parent.
 
     `env`: variables for this worker only (where a shared model is served). A `kill -9` of the sweep must
@@ -118,7 +118,7 @@ def run_pool(
     executor = ProcessPoolExecutor(
         max_workers=count,
         mp_context=context,
-        initializer=_init_worker,
+        initializer=init_worker,
         initargs=(worker_model_threads(count), os.getpid(), dict(env or {})),
     )
     futures: dict[Future[Result], Episode] = {}
