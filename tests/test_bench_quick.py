@@ -49,7 +49,7 @@ ROWS: dict[str, list[str]] = {
         rf"\s+200 factory episodes of \d+ decisions \[min\]\s+{NUMBER}",
         rf"\s+hybrid on flats, explore=utility: decision p50 \[s\]\s+{NUMBER}",
         rf"\s+hybrid on flats, explore=scored: decision p50 \[s\]\s+{NUMBER}",
-        rf"\s+scored frontiers add, p50 \[s\]\s+{NUMBER}",
+        rf"\s+scored frontiers add, p50 \[s\]\s+\+?{NUMBER}",
     ],
     "decision": [
         rf"lidar\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}",
