@@ -299,10 +299,6 @@ def main(quick: bool = False) -> None:  # noqa: C901 - one table, row by row
     sys.stdout.flush()
 
 
-if __name__ == "__main__":
-    main(quick=quick_from_env())
-
-
 def print_frontiers(frontiers: dict[str, Calls], row: functools.partial[str]) -> None:
     """Model time per decision with utility and with scored frontiers, and what scoring them adds (p50)."""
     medians: dict[str, float] = {}
@@ -319,3 +315,7 @@ def print_frontiers(frontiers: dict[str, Calls], row: functools.partial[str]) ->
         extra = medians["scored"] - medians["utility"]
         ok = extra <= TARGET_FRONTIER_EXTRA_S
         print(row("  scored frontiers add, p50 [s]", f"{extra:+.2f}", f"<= {TARGET_FRONTIER_EXTRA_S}", ok))
+
+
+if __name__ == "__main__":
+    main(quick=quick_from_env())

@@ -92,17 +92,17 @@ E = TypeVar("E", bound=Engine)
 R = TypeVar("R")
 
 # One loaded model per configuration per process: loading costs about a second and ~250 MB, and every
-# backend instance (one per episode, one per planner thread) should share it.
-_ENGINES: dict[tuple[Any, ...], tuple[Any, threading.Lock]] = {}
+# backend instance (one per episode, one per planner thread) should share it, and the scores it remembers.
+_ENGINES: dict[tuple[Any, ...], tuple[Any, threading.Lock, ScoreMemo]] = {}
 _ENGINES_LOCK = threading.Lock()
 
 
-def shared_engine(key: tuple[Any, ...], factory: Callable[[], E]) -> tuple[E, threading.Lock]:
-    """The process-wide engine for `key`, created by `factory` on first use, and the lock guarding it."""
+def shared_engine(key: tuple[Any, ...], factory: Callable[[], E]) -> tuple[E, threading.Lock, ScoreMemo]:
+    """The process-wide engine for `key` (created by `factory` on first use), its lock and its score memo."""
     with _ENGINES_LOCK:
         found = _ENGINES.get(key)
         if found is None:
-            found = (factory(), threading.Lock())
+            found = (factory(), threading.Lock(), ScoreMemo())
             _ENGINES[key] = found
         return found
 
@@ -111,17 +111,6 @@ def unload_all() -> None:
     """Drop every cached engine and its scores (tests, or a long-lived process that wants its memory back)."""
     with _ENGINES_LOCK:
         _ENGINES.clear()
-        _MEMOS.clear()
-
-
-# One score memo per loaded model (keyed by the engine object: every backend instance sharing a model
-# shares its remembered scores).
-_MEMOS: dict[int, ScoreMemo] = {}
-
-
-def _memo(engine: Engine) -> ScoreMemo:
-    with _ENGINES_LOCK:
-        return _MEMOS.setdefault(id(engine), ScoreMemo())
 
 
 def default_model_path() -> Path:
@@ -270,6 +259,7 @@ class LocalBackend(Backend):
         self.verbose = bool(options.get("verbose", False))
         self._engine: Engine | None = None
         self._lock: threading.Lock | None = None
+        self._memo: ScoreMemo | None = None
         if not self.is_hf:
             _gguf_path(self.arg)  # a missing or foreign file is bad input now, before any run folder exists
 
@@ -301,7 +291,7 @@ class LocalBackend(Backend):
                     factory = lambda: LlamaCppEngine(  # noqa: E731
                         path, n_ctx=self.n_ctx, threads=threads, verbose=self.verbose
                     )
-            self._engine, self._lock = shared_engine(key, factory)
+            self._engine, self._lock, self._memo = shared_engine(key, factory)
         return self._engine
 
     def _serve(self, work: Callable[[Engine], R]) -> R:
@@ -331,8 +321,9 @@ class LocalBackend(Backend):
         """
         started = time.perf_counter()
         engine = self.load()
+        assert self._memo is not None
         result = memoised_score(
-            _memo(engine), request, lambda rest: self._serve(lambda loaded: loaded.score(rest)), engine.model_name
+            self._memo, request, lambda rest: self._serve(lambda loaded: loaded.score(rest)), engine.model_name
         )
         result.latency_s = time.perf_counter() - started
         return result
@@ -367,6 +358,7 @@ class LocalBackend(Backend):
         """Forget this instance's handle; the shared model stays loaded for the process (see `unload_all`)."""
         self._engine = None
         self._lock = None
+        self._memo = None
 
 
 def _gguf_path(arg: str | None) -> Path:
