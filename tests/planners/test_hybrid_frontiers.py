@@ -101,22 +101,38 @@ def test_first_scores_by_position_and_random_by_a_seeded_draw() -> None:
 
 
 def test_a_room_is_named_only_when_the_landmarks_make_it_likelier() -> None:
-    scored: dict[str, float] = {}
+    # log-probability of a room word after "the room with <landmark> is the"; the content-free term is -5
+    scored: dict[tuple[str, str], float] = {}
+    asked: list[str] = []
 
     class Rooms:
         def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
             from llmnav.core.chat import ContinuationScore
 
-            free = "N/A" in request.prefix
-            values = [-5.0 if free else scored.get(c.strip(), -5.0) for c in request.continuations]
+            thing = request.prefix.removeprefix("In a building, the room with ").removesuffix(" is the")
+            asked.append(thing)
+            values = [scored.get((thing, c.strip()), -5.0) for c in request.continuations]
             return ScoreResult(tuple(ContinuationScore(v, 1) for v in values), 0.0, "fake")
 
-    chooser = ScoredChooser(Rooms(), TASK, mapped=False, explore="scored")  # type: ignore[arg-type]
+    def fresh() -> ScoredChooser:
+        asked.clear()
+        return ScoredChooser(Rooms(), TASK, mapped=False, explore="scored")  # type: ignore[arg-type]
+
+    chooser = fresh()
     assert chooser.describe(("bed", "wardrobe")) == "the bed and the wardrobe"  # no room above min_pmi
-    scored["bedroom"] = -2.0  # 3 nats above the content-free term
-    chooser._rooms.clear()
+    assert sorted(set(asked)) == ["N/A", "the bed", "the wardrobe"]  # one question per landmark, not per set
+    scored[("the bed", "bedroom")] = -4.4  # 0.6 nats above the content-free term: not enough alone
+    scored[("the wardrobe", "bedroom")] = -4.3  # 0.7 nats
+    chooser = fresh()
+    assert chooser.describe(("bed",)) == "the bed"
+    # together 1.3 nats >= min_pmi (1.0): the landmarks' PMIs add up
     assert chooser.describe(("bed", "wardrobe")) == "the bedroom with the bed and the wardrobe"
-    assert chooser.describe(("bed", "rug", "lamp")) == "the bedroom with the bed, the rug and the lamp"
+    before = len(asked)
+    assert chooser.describe(("wardrobe", "bed")) == "the bedroom with the wardrobe and the bed"
+    assert len(asked) == before  # a new set of known landmarks asks nothing
+    scored[("the stove", "kitchen")] = -1.0  # 4 nats
+    scored[("the stove", "bedroom")] = -8.0  # -3 nats: beside a stove, a bedroom is unlikely
+    assert chooser.describe(("bed", "wardrobe", "stove")) == "the kitchen with the bed, the wardrobe and the stove"
     assert chooser.describe(()) == UNDESCRIBED
     assert ROOM_PROMPT.format(task="the bed") == "In a building, the room with the bed is the"
 

@@ -189,7 +189,7 @@ class ScoredChooser:
         self._score = lambda request: ctx.score(request, self.step)
         self.task = task
         self.scorer = TextRelevance(self._score, task)
-        self._rooms: dict[str, str] = {}  # landmark list -> the room it suggests ("" for none)
+        self._rooms: dict[str, dict[str, float]] = {}  # landmark name -> PMI [nats] of each room word
         self._places: dict[tuple[str, tuple[float, float]], float] = {}  # relational place -> PMI [nats]
         self.mapped = mapped  # a published map lists every landmark: no need to look before choosing
         self.intent: Intent | None = None
@@ -347,16 +347,29 @@ class ScoredChooser:
         if not names:
             return UNDESCRIBED
         things = _listed(names)
-        room = self.room(_listed(tuple(sorted(names))))  # one question per set of landmarks, in any order
+        room = self.room(names)
         return f"the {room} with {things}" if room else things
 
-    def room(self, things: str) -> str:
-        """The room `things` suggest: the room word they make likeliest, if by at least `min_pmi` [nats]."""
-        if things not in self._rooms:
-            scores = TextRelevance(self._score, things).pmi(ROOM_PROMPT, list(ROOM_WORDS))
-            best = max(ROOM_WORDS, key=lambda word: scores[word])  # ties: the first
-            self._rooms[things] = best if scores[best] >= self.cfg.min_pmi else ""
-        return self._rooms[things]
+    def room(self, names: tuple[str, ...]) -> str:
+        """The room the landmarks `names` suggest together, if it is at least `min_pmi` [nats] likelier.
+
+        Each landmark is asked about once (ROOM_PROMPT, "In a building, the room with the bed is the", and
+        every room word, against "N/A"), and a set's PMI for a room word is the sum over its landmarks:
+        the log-likelihood ratio when landmarks are independent given the room (naive Bayes). A new set of
+        known landmarks asks nothing new, where one question per set cost 12 continuations each.
+        """
+        totals = dict.fromkeys(ROOM_WORDS, 0.0)
+        for name in dict.fromkeys(names):
+            for word, pmi in self._room_pmi(name).items():
+                totals[word] += pmi
+        best = max(ROOM_WORDS, key=lambda word: totals[word])  # ties: the first
+        return best if totals[best] >= self.cfg.min_pmi else ""
+
+    def _room_pmi(self, name: str) -> dict[str, float]:
+        """PMI [nats] of each room word for one landmark (asked once per episode; the backend may remember)."""
+        if name not in self._rooms:
+            self._rooms[name] = TextRelevance(self._score, _listed((name,))).pmi(ROOM_PROMPT, list(ROOM_WORDS))
+        return self._rooms[name]
 
     def frontier_pmi(self, texts: list[str], places: list[tuple[float, float]]) -> list[float]:
         """PMI [nats] of each frontier description with the task, against the content-free task.
