@@ -4,6 +4,8 @@ nothing reachable fits ends `not_found` instead of a Finish somewhere wrong."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 from llmnav.planners.base import drive_options
 from llmnav.runs.runlog import read_run
@@ -56,3 +58,36 @@ def test_at_an_explored_edge_the_robot_looks_around_so_a_mapped_room_is_also_see
     record = read_run(tmp_path / "run")
     # it found the fridge by exploring (from the start it is out of sight)
     assert any(str(a.get("option", "")).startswith("Explore") for a in record.of_type("action"))
+
+
+def test_a_frontier_with_no_path_returns_after_the_next_exploration(monkeypatch: Any) -> None:
+    """A frontier that had no path leaves the menu only until a frontier is explored (the map grows, and a
+    doorway whose floor was unknown may then have one); one reached before stays off for good."""
+    from llmnav.core.geometry import Pose2D
+    from llmnav.planners.hybrid import menu, planner
+    from llmnav.planners.hybrid.config import HybridConfig
+    from llmnav.planners.hybrid.memory import Memory
+
+    pose = Pose2D(0.0, 0.0, 0.0)
+    events: list[dict[str, Any]] = []
+    ctx = SimpleNamespace(
+        information="oracle",
+        world=SimpleNamespace(robot=SimpleNamespace(pose=lambda: pose), sim_time=0.0),
+        log=SimpleNamespace(sim_time=0.0, event=lambda _type, **fields: events.append(fields)),
+        scenario=SimpleNamespace(corridors=[]),
+        options=SimpleNamespace(explore="utility"),
+    )
+    memory = Memory()
+    doorway, hall = (4.0, 0.0), (0.0, 5.0)
+    monkeypatch.setattr(menu, "frontier_points", lambda inputs: [(doorway, 2.0), (hall, 2.0)])
+    inputs = SimpleNamespace(ctx=ctx, cfg=HybridConfig(), memory=memory, pose=pose)
+
+    def offered() -> set[tuple[float, float]]:
+        return {o.goal for o in menu.frontier_options(inputs)}  # type: ignore[arg-type,misc]
+
+    assert offered() == {doorway, hall}
+    option = menu.Option(0, "frontier", "Explore, 4 m ahead", goal=doorway)
+    planner._drop_if_stuck(ctx, memory, option, pose, "no collision-free path (the explored edge)", 3)  # type: ignore[arg-type]
+    assert offered() == {hall} and events and events[0]["kind"] == "option_dropped"
+    memory.reached_frontier(hall)
+    assert offered() == {doorway}

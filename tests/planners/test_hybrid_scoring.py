@@ -220,7 +220,7 @@ def test_the_page_shows_each_decisions_scores_as_bars(tmp_path: Path) -> None:
 
 
 def test_a_leg_the_motion_layer_refuses_is_a_veto_and_near_the_target_counts_as_arrival(tmp_path: Path) -> None:
-    """Factory T8 from pose 1: the boxes' goal point hugs them and the guarded layer refuses a last leg.
+    """Factory T8 from pose 4: the boxes' goal point hugs them and the guarded layer refuses a last leg.
 
     (Run on odometry alone: the localizer's corrected legs are no longer refused here. Which start pose
     meets a refusal moves with the planner's exploration.)
@@ -232,7 +232,7 @@ def test_a_leg_the_motion_layer_refuses_is_a_veto_and_near_the_target_counts_as_
     spec = EpisodeSpec(
         scenario="factory",
         task_id="T8",
-        start_pose=1,
+        start_pose=4,
         options=drive_options(max_iterations=30, localize=False),
         backend="policy:keyword",
         out_dir=tmp_path / "t8",

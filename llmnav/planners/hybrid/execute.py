@@ -39,6 +39,7 @@ class Executed:
     result: str  # the result line the model reads next
     vetoes: int = 0  # legs the motion layer refused
     collided: bool = False
+    saw_new: bool = False  # new objects came into view: the menu changed, even if the robot did not move
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,7 @@ class Executor:
             wanted = self.memory.wanted
             if option.kind == "frontier" and (came & wanted or (came and not wanted)):
                 self._log(step, option, before, result)
-                return Executed("stopped exploring: new objects in view")
+                return Executed("stopped exploring: new objects in view", saw_new=True)
         return self._arrive(option, before, step)
 
     def sense(self, scan: LidarScan) -> Pose2D:
@@ -161,10 +162,7 @@ class Executor:
             memory.visited.add(option.landmark_id)
         new = False
         if option.kind == "frontier" and option.goal is not None:
-            memory.explored.append(option.goal)
-            # The map grew: a landmark that had no path before may have one now (seen through a doorway
-            # whose floor was still unknown).
-            memory.unreachable.clear()
+            memory.reached_frontier(option.goal)
             new = self._turn_looking()[0]
         after = self._believed()
         self._log(step, option, before, None)

@@ -37,9 +37,21 @@ class Memory:
     refused: dict[str, Point] = field(default_factory=dict)  # id -> [m] where a trip was refused
     # refused twice from the same spot, far from it, or no path on the map: until the next frontier is explored
     unreachable: set[str] = field(default_factory=set)
+    # [m] frontier goals with no path on the map: left off the menu until the next frontier is explored
+    no_path: list[Point] = field(default_factory=list)
     last_result: str = "nothing yet"
     # sensed: corrects odometry by matching scans to the LiDAR map (None: odometry is believed as it is)
     localizer: Localizer | None = None
+
+    def reached_frontier(self, goal: Point) -> None:
+        """Note an explored frontier.
+
+        The map grew: a landmark or frontier that had no path may have one now (seen through a doorway
+        whose floor was still unknown), so both are offered again.
+        """
+        self.explored.append(goal)
+        self.unreachable.clear()
+        self.no_path.clear()
 
     def label(self, object_id: str) -> str:
         """The landmark's name (its id when none is known)."""

@@ -183,7 +183,8 @@ def frontier_options(inputs: MenuInputs, *, scored: bool = False) -> list[Option
     no prompt: it gets up to `max_frontiers_scored` and weighs their descriptions itself). With a published
     map every landmark is listed already: exploring would only distract the model. A frontier the robot
     stands at, or one it has reached before, shows nothing new from there (its unknown side cannot be seen
-    from the free cells): offering it again only wastes decisions.
+    from the free cells): offering it again only wastes decisions. Nor is one that had no path on the map,
+    until the next frontier is explored.
     """
     if inputs.ctx.scenario.corridors:
         return []
@@ -192,7 +193,7 @@ def frontier_options(inputs: MenuInputs, *, scored: bool = False) -> list[Option
         (centre, length)
         for centre, length in frontier_points(inputs)
         if pose.distance_to(*centre) >= cfg.min_hop_m
-        and all(math.dist(centre, seen) > cfg.rescan_m for seen in memory.explored)
+        and all(math.dist(centre, seen) > cfg.rescan_m for seen in (*memory.explored, *memory.no_path))
     ]
     worth = [(frontier_utility(length, pose.distance_to(*c), cfg.frontier_decay_per_m), c) for c, length in found]
     explore = inputs.ctx.options.explore

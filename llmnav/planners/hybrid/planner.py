@@ -224,7 +224,9 @@ class HybridPlanner(Planner):
                 return EpisodeOutcome("completed", "the model chose to finish", step, dict(done))
             before = believed_pose(ctx, memory)
             executed = executor.run(grids, option, step)
-            if not executed.vetoes:  # a refused leg put what blocked it on the map: the same choice detours
+            # A refused leg put what blocked it on the map (the same choice detours); new objects in view
+            # changed the menu: neither is a choice repeated without progress.
+            if not executed.vetoes and not executed.saw_new:
                 _drop_if_stuck(ctx, memory, option, before, executed.result, step)
             vetoes += executed.vetoes
             done.update(vetoes=vetoes)
@@ -242,7 +244,9 @@ class HybridPlanner(Planner):
 def _drop_if_stuck(ctx: EpisodeContext, memory: Memory, option: Option, before: Pose2D, result: str, step: int) -> None:
     """An option that moved the robot nowhere leaves the menu, so the same choice never repeats without motion.
 
-    (No path on the map, a leg refused at once.) A landmark becomes unreachable; a frontier counts as explored.
+    (No path on the map, a leg refused at once.) A landmark becomes unreachable and a frontier is left off
+    the menu, both until the next frontier is explored: the map grows, and a doorway whose floor was still
+    unknown may then have a path (a frontier marked explored for good had hidden the rest of a building).
     """
     if option.kind not in ("landmark", "frontier") or option.goal is None:
         return
@@ -252,7 +256,7 @@ def _drop_if_stuck(ctx: EpisodeContext, memory: Memory, option: Option, before: 
     if option.landmark_id is not None or option.place is not None:
         memory.unreachable.add(option.key)
     else:
-        memory.explored.append(option.goal)
+        memory.no_path.append(option.goal)
     ctx.log.sim_time = ctx.world.sim_time
     ctx.log.event("planner", kind="option_dropped", step=step, option=option.text, reason=result)
 
