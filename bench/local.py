@@ -88,6 +88,15 @@ class Calls:
     step_s: list[float] = field(default_factory=list)  # model time of each decision after an episode's first
     option_ms: list[float] = field(default_factory=list)  # [ms] a scoring call's latency per continuation
     first_step_s: list[float] = field(default_factory=list)  # model time of each episode's first decision
+    # model time of each decision after an episode's first spent on questions only scored frontiers ask
+    frontier_step_s: list[float] = field(default_factory=list)
+
+
+def _frontier_question(text: str) -> bool:
+    """Whether a scoring prompt is one only `-o explore=scored` asks: a frontier's value or a landmark's room."""
+    from llmnav.planners.hybrid.scoring import FRONTIER_PROMPT, ROOM_PROMPT
+
+    return text.endswith(FRONTIER_PROMPT.split("{task}", 1)[1]) or text.startswith(ROOM_PROMPT.split("{task}", 1)[0])
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -120,12 +129,16 @@ def run_case(scenario: str, task: str, options: DriveOptions, episodes: int, roo
                 calls.rejected[reason] = calls.rejected.get(reason, 0) + int(count)
         record = read_run(out)
         per_step: dict[int, float] = {int(e["step"]): 0.0 for e in record.of_type("observation") if "step" in e}
+        frontier_step = dict.fromkeys(per_step, 0.0)
         for event in record.of_type("llm_call"):
             reply = event.get("reply")
             if reply is None:
                 continue
             if isinstance(event.get("step"), int) and event["step"] in per_step:
                 per_step[event["step"]] += float(reply["latency_s"])
+                messages = (event.get("request") or {}).get("messages") or [{}]
+                if _frontier_question(str(messages[0].get("text") or "")):
+                    frontier_step[event["step"]] += float(reply["latency_s"])
             continuations = (event.get("request") or {}).get("continuations")
             if continuations:
                 calls.option_ms.append(1000.0 * float(reply["latency_s"]) / len(continuations))
@@ -138,6 +151,7 @@ def run_case(scenario: str, task: str, options: DriveOptions, episodes: int, roo
             first = False
         calls.step_s += [seconds for step, seconds in sorted(per_step.items()) if step > 1]
         calls.first_step_s.append(per_step.get(1, 0.0))
+        calls.frontier_step_s += [seconds for step, seconds in sorted(frontier_step.items()) if step > 1]
     return calls
 
 
@@ -167,6 +181,7 @@ def measure_frontiers(root: Path, quick: bool) -> dict[str, Calls]:
             for task in tasks:
                 calls = run_case(str(file), task, options, 1, root / explore / f"{file.stem}-{task}")
                 merged.step_s += calls.step_s
+                merged.frontier_step_s += calls.frontier_step_s
                 merged.decisions += calls.decisions
                 merged.outcomes += calls.outcomes
         out[explore] = merged
@@ -300,7 +315,14 @@ def main(quick: bool = False) -> None:  # noqa: C901 - one table, row by row
 
 
 def print_frontiers(frontiers: dict[str, Calls], row: functools.partial[str]) -> None:
-    """Model time per decision with utility and with scored frontiers, and what scoring them adds (p50)."""
+    """Model time per decision with utility and with scored frontiers, and what scoring them adds (p50).
+
+    What they add is judged on the scored runs' own decisions: the model time of the questions only scored
+    frontiers ask (frontier values, landmarks' rooms), p50 over the decisions that asked any. The difference
+    of the two modes' medians is printed beside it, not judged: the modes drive different routes and see
+    different landmarks, so on a few episodes it swings by more than the target (measured +0.36 to +1.06 s
+    on the same code).
+    """
     medians: dict[str, float] = {}
     for explore, calls in frontiers.items():
         if not calls.step_s:
@@ -313,8 +335,18 @@ def print_frontiers(frontiers: dict[str, Calls], row: functools.partial[str]) ->
         )
     if len(medians) == len(FRONTIER_EXPLORE):
         extra = medians["scored"] - medians["utility"]
-        ok = extra <= TARGET_FRONTIER_EXTRA_S
-        print(row("  scored frontiers add, p50 [s]", f"{extra:+.2f}", f"<= {TARGET_FRONTIER_EXTRA_S}", ok))
+        print(row("  difference of the two p50s [s] (routes differ)", f"{extra:+.2f}", "", None))
+    asked = [seconds for seconds in frontiers.get("scored", Calls()).frontier_step_s if seconds > 0.0]
+    if asked:
+        p50 = statistics.median(asked)
+        share = len(asked) / max(1, len(frontiers["scored"].frontier_step_s))
+        ok = p50 <= TARGET_FRONTIER_EXTRA_S
+        print(
+            row("  scoring frontiers, p50 [s] a decision that does", f"{p50:.2f}", f"<= {TARGET_FRONTIER_EXTRA_S}", ok)
+            + f"  ({len(asked)} decisions, {share:.0%} of them; mean {statistics.mean(asked):.2f} s)"
+        )
+    else:
+        print("  scoring frontiers: no decision after the first scored any")
 
 
 if __name__ == "__main__":

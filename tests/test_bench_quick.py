@@ -49,7 +49,8 @@ ROWS: dict[str, list[str]] = {
         rf"\s+200 factory episodes of \d+ decisions \[min\]\s+{NUMBER}",
         rf"\s+hybrid on flats, explore=utility: decision p50 \[s\]\s+{NUMBER}",
         rf"\s+hybrid on flats, explore=scored: decision p50 \[s\]\s+{NUMBER}",
-        rf"\s+scored frontiers add, p50 \[s\]\s+\+?{NUMBER}",
+        rf"\s+difference of the two p50s \[s\] \(routes differ\)\s+[+-]?{NUMBER}",
+        rf"\s+scoring frontiers(, p50 \[s\] a decision that does\s+{NUMBER}|: no decision after the first scored any)",
     ],
     "decision": [
         rf"lidar\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}",
