@@ -28,6 +28,7 @@ from pathlib import Path
 
 from bench import NOT_MEASURED, quick_from_env
 from llmnav.planners.base import DriveOptions, drive_options
+from llmnav.planners.hybrid.scoring import FRONTIER_PROMPT, ROOM_PROMPT
 
 PROTOCOL_EPISODES = 200  # factory protocol: 10 tasks x 5 start poses x 4 trials
 
@@ -92,11 +93,14 @@ class Calls:
     frontier_step_s: list[float] = field(default_factory=list)
 
 
-def _frontier_question(text: str) -> bool:
-    """Whether a scoring prompt is one only `-o explore=scored` asks: a frontier's value or a landmark's room."""
-    from llmnav.planners.hybrid.scoring import FRONTIER_PROMPT, ROOM_PROMPT
+# What only `-o explore=scored` asks: a frontier's value (the prompt's end) or a landmark's room (its start).
+_FRONTIER_END = FRONTIER_PROMPT.split("{task}", 1)[1]
+_ROOM_START = ROOM_PROMPT.split("{task}", 1)[0]
 
-    return text.endswith(FRONTIER_PROMPT.split("{task}", 1)[1]) or text.startswith(ROOM_PROMPT.split("{task}", 1)[0])
+
+def _frontier_question(text: str) -> bool:
+    """Whether a scoring prompt is one only `-o explore=scored` asks."""
+    return text.endswith(_FRONTIER_END) or text.startswith(_ROOM_START)
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -320,8 +324,8 @@ def print_frontiers(frontiers: dict[str, Calls], row: functools.partial[str]) ->
     What they add is judged on the scored runs' own decisions: the model time of the questions only scored
     frontiers ask (frontier values, landmarks' rooms), p50 over the decisions that asked any. The difference
     of the two modes' medians is printed beside it, not judged: the modes drive different routes and see
-    different landmarks, so on a few episodes it swings by more than the target (measured +0.36 to +1.06 s
-    on the same code).
+    different landmarks, so on a few episodes it swings by more than the target (+0.44 and +1.06 s in two
+    runs of the same code).
     """
     medians: dict[str, float] = {}
     for explore, calls in frontiers.items():

@@ -1,8 +1,8 @@
 """A bounded memo of continuation scores, so a deterministic model scores each (prefix, text) pair once.
 
 A scored decision asks many questions whose answers it has already had: the content-free half of every
-PMI ("Task: N/A") is the same for every task, the room a set of landmarks suggests is asked against the
-same twelve room words each time, and the same landmark names, relational places and frontier
+PMI ("Task: N/A") is the same for every task, each landmark's room is asked against the same twelve
+room words in every episode, and the same landmark names, relational places and frontier
 descriptions return decision after decision. A model at temperature 0 gives the same log-probability
 for the same token sequence, so those answers are looked up instead of computed again.
 

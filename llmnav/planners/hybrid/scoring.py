@@ -64,7 +64,8 @@ if TYPE_CHECKING:
 INTENT_PROMPT = "A mobile robot carries out the user's task.\nTask: {task}\nTo do this, the robot will"
 # A frontier's description after the task, against the content-free task (`frontier_value`).
 FRONTIER_PROMPT = "A mobile robot carries out the user's task.\nTask: {task}\nTo do this, the robot explores toward"
-# The room a set of landmarks suggests: the room word the landmarks make likeliest (PMI against "N/A").
+# The room a landmark suggests: each room word's PMI after this prompt (against "N/A"); a set of landmarks
+# suggests the room word of the highest summed PMI (`ScoredChooser.room`).
 ROOM_PROMPT = "In a building, the room with {task} is the"
 # Common rooms of homes, offices and industrial buildings: a fixed, general list, not read from any scenario.
 ROOM_WORDS = (
