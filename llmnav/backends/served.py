@@ -95,5 +95,5 @@ class ServedEngine(LlamaCppEngine):
     def _completions(self, body: dict[str, Any]) -> dict[str, Any]:
         return self._post("/v1/completions", body)
 
-    def _tokenize_url(self) -> str:
-        return f"{self._served.url}/tokenize"
+    def _tokenizer(self) -> Any:
+        return self._client  # base URL the server's root, where llama.cpp keeps /tokenize
