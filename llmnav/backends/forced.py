@@ -6,6 +6,10 @@ scores as `café`), take the tokens after the prefix's own, force exactly those 
 grammar, and sum the log-probabilities llama.cpp reports for them (taken from the logits before grammar
 and sampler). The ids that come back must be the ids sent.
 
+A request's continuations share work: their tails form a token tree, and a position several of them
+pass through is evaluated once (`score_continuations`). Where many part, one request reads every next
+token from the position's reported alternatives, which are the numbers a forced token reports.
+
 Byte-fallback tokens: a character outside the vocabulary (most of Chinese, Japanese, Arabic, emoji) is
 spelt as several tokens of raw bytes. llama.cpp holds back a token whose text ends inside a character
 and never reports its log-probability, only that of the token completing the character. Such a
@@ -28,6 +32,11 @@ from llmnav.errors import ModelError, one_line
 # server caps the count at its vocabulary size; 2**20 exceeds every vocabulary in use).
 FEW_ALTERNATIVES = 256
 ALL_ALTERNATIVES = 1 << 20
+# Where at least BRANCH_MIN continuations part, their next tokens are read from one request of
+# BRANCH_ALTERNATIVES alternatives (as cheap as 256, and about as dear as two forced tokens, so two
+# branches are forced instead); a next token not among them is forced.
+BRANCH_ALTERNATIVES = 4096
+BRANCH_MIN = 3
 
 Complete = Callable[[dict[str, Any]], Any]  # a /completions request body → the reply's JSON
 Tokenize = Callable[[str], list[int]]  # text → the model's token ids as a prompt
@@ -106,21 +115,106 @@ def forced_logprob(reply: Any, tail: list[int], text: str) -> float:
     return total
 
 
-def score_continuation(prefix_text: str, text: str, tokenize: Tokenize, complete: Complete) -> ContinuationScore:
-    """The log-probability [nats] of `text` after `prefix_text`, over its canonical tokens.
+def score_continuations(
+    prefix_text: str, texts: tuple[str, ...], tokenize: Tokenize, complete: Complete
+) -> list[ContinuationScore]:
+    """The log-probability [nats] of each of `texts` after `prefix_text`, over its canonical tokens.
 
-    One forced request when every token comes back; token by token when the server held some back
-    (byte-fallback tokens, see the module docstring).
+    The tails form a token tree, and each position is evaluated once for all the tails that share it
+    (`_walk`): a menu of " the bed", " the sofa", " the oil barrel" forces " the" once, reads the next
+    token of all three from one distribution, and forces " barrel" alone.
     """
     prefix = tokenize(normalised(prefix_text))
-    tail = continuation_tokens(prefix, tokenize(normalised(prefix_text + text)), text)
-    ids, total = _summed(_reported(complete(forced_request(prefix, tail)), text), text)
-    if ids == tail:
-        return ContinuationScore(total, len(tail))
-    if not ids or ids[-1] != tail[-1] or not set(ids) <= set(tail):  # not merely some held back
-        raise ModelError(f"scoring {text!r}: the model returned tokens {ids}, not the forced {tail}")
-    total = sum(_one_token(prefix + tail[:i], token, text, tokenize, complete) for i, token in enumerate(tail))
-    return ContinuationScore(total, len(tail))
+    tails = [continuation_tokens(prefix, tokenize(normalised(prefix_text + text)), text) for text in texts]
+    totals = [0.0] * len(texts)
+    _walk(prefix, tails, list(range(len(texts))), 0, texts, totals, tokenize, complete)
+    return [ContinuationScore(total, len(tail)) for total, tail in zip(totals, tails, strict=True)]
+
+
+def _walk(
+    prefix: list[int],
+    tails: list[list[int]],
+    members: list[int],
+    depth: int,
+    texts: tuple[str, ...],
+    totals: list[float],
+    tokenize: Tokenize,
+    complete: Complete,
+) -> None:
+    """Add to `totals` the log-probabilities of `members`' tails from position `depth` on.
+
+    The members share their first `depth` tokens. Where at least `BRANCH_MIN` next tokens part, one
+    request reads all of them from the position's distribution (its alternatives, the same numbers a
+    forced token reports); elsewhere each branch forces its members' common run of tokens in one request.
+    """
+    before = prefix + tails[members[0]][:depth]
+    groups: dict[int, list[int]] = {}
+    for index in members:
+        groups.setdefault(tails[index][depth], []).append(index)
+    read = _alternatives(before, texts[members[0]], tokenize, complete) if len(groups) >= BRANCH_MIN else {}
+    for token, group in groups.items():
+        if token in read:
+            run = [token]
+            value = read[token]
+        else:
+            run = _common_run([tails[index][depth:] for index in group])
+            value = _forced_run(before, run, texts[group[0]], tokenize, complete)
+        for index in group:
+            totals[index] += value
+        rest = [index for index in group if len(tails[index]) > depth + len(run)]
+        if rest:
+            _walk(prefix, tails, rest, depth + len(run), texts, totals, tokenize, complete)
+
+
+def _common_run(tails: list[list[int]]) -> list[int]:
+    """The longest run of tokens every tail begins with (at least the first, which they share)."""
+    run = tails[0]
+    for tail in tails[1:]:
+        length = 0
+        while length < min(len(run), len(tail)) and run[length] == tail[length]:
+            length += 1
+        run = run[:length]
+    return run
+
+
+def _forced_run(before: list[int], run: list[int], text: str, tokenize: Tokenize, complete: Complete) -> float:
+    """The summed log-probability of `run` after `before`: forced in one request, else token by token.
+
+    Token by token only when the server held some tokens back (byte-fallback tokens, see the module
+    docstring); any other difference between the ids sent and those returned is a `ModelError`.
+    """
+    ids, total = _summed(_reported(complete(forced_request(before, run)), text), text)
+    if ids == run:
+        return total
+    if not ids or ids[-1] != run[-1] or not set(ids) <= set(run):  # not merely some held back
+        raise ModelError(f"scoring {text!r}: the model returned tokens {ids}, not the forced {run}")
+    return sum(_one_token(before + run[:i], token, text, tokenize, complete) for i, token in enumerate(run))
+
+
+def _alternatives(before: list[int], text: str, tokenize: Tokenize, complete: Complete) -> dict[int, float]:
+    """The log-probabilities of the `BRANCH_ALTERNATIVES` likeliest tokens after `before`, by token id.
+
+    Read while a newline is forced (a token ending a character, so its position is always reported).
+    """
+    where = f"scoring {text!r}: top_logprobs"
+    entries = _top(before, BRANCH_ALTERNATIVES, text, tokenize, complete)
+    if not entries:  # a server that reports none: every branch is forced
+        return {}
+    ids = token_ids([entry.get("id") for entry in entries], f"{where}[].id")
+    return {
+        token: logprob(entry.get("logprob"), f"{where}[{i}].logprob")
+        for i, (token, entry) in enumerate(zip(ids, entries, strict=True))
+    }
+
+
+def _top(before: list[int], count: int, text: str, tokenize: Tokenize, complete: Complete) -> list[dict[str, Any]]:
+    """The `count` likeliest next tokens after `before` as the server reports them (id, logprob)."""
+    newline = tokenize("\n")[-1]
+    items = _reported(complete(forced_request(before, [newline], count)), text)
+    if len(items) != 1:
+        raise ModelError(f"scoring {text!r}: {len(items)} entries for one forced newline")
+    where = f"scoring {text!r}: choices[0].logprobs.content[0].top_logprobs"
+    return [obj(other, f"{where}[{i}]") for i, other in enumerate(seq(items[0].get("top_logprobs"), where))]
 
 
 def _one_token(before: list[int], token: int, text: str, tokenize: Tokenize, complete: Complete) -> float:
@@ -130,14 +224,9 @@ def _one_token(before: list[int], token: int, text: str, tokenize: Tokenize, com
         return total
     if ids:
         raise ModelError(f"scoring {text!r}: the model returned tokens {ids}, not the forced [{token}]")
-    newline = tokenize("\n")[-1]  # a token ending a character: its position is always reported
+    where = f"scoring {text!r}: top_logprobs"
     for count in (FEW_ALTERNATIVES, ALL_ALTERNATIVES):
-        items = _reported(complete(forced_request(before, [newline], count)), text)
-        if len(items) != 1:
-            raise ModelError(f"scoring {text!r}: {len(items)} entries for one forced newline")
-        where = f"scoring {text!r}: choices[0].logprobs.content[0].top_logprobs"
-        for i, other in enumerate(seq(items[0].get("top_logprobs"), where)):
-            entry = obj(other, f"{where}[{i}]")
+        for i, entry in enumerate(_top(before, count, text, tokenize, complete)):
             if entry.get("id") == token:
                 return logprob(entry.get("logprob"), f"{where}[{i}].logprob")
     raise ModelError(f"scoring {text!r}: the model reported no log-probability for token {token}")

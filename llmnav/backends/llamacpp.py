@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from llmnav.backends.base import ChatRequest, ChatResult, Message, ScoreRequest, ScoreResult
-from llmnav.backends.forced import normalised, score_continuation
+from llmnav.backends.forced import normalised, score_continuations
 from llmnav.backends.reply import duration, obj, seq, text_or_none, token_count, token_ids, usage_counts
 from llmnav.errors import ModelError, ModelUnavailableError, one_line
 
@@ -177,12 +177,11 @@ class LlamaCppEngine:
         The continuation is forced as its canonical tokens (those of prefix + continuation after the
         prefix's own, see `continuation_tokens`) by an llguidance grammar; llama.cpp reports each forced
         token's log-probability from the logits before grammar and sampler, so the sum is exact. The
-        prefix stays in the prompt cache: a continuation costs its own few decoding steps.
+        prefix stays in the prompt cache, and a position several continuations share is evaluated once
+        for all of them (`llmnav.backends.forced.score_continuations`).
         """
         started = time.perf_counter()
-        scores = tuple(
-            score_continuation(request.prefix, text, self.tokenize, self._forced) for text in request.continuations
-        )
+        scores = tuple(score_continuations(request.prefix, request.continuations, self.tokenize, self._forced))
         latency = time.perf_counter() - started
         meta = {"engine": "xllamacpp", "mode": "score", "prefix_tokens": len(self.tokenize(normalised(request.prefix)))}
         return ScoreResult(scores, latency, self.model_name, meta)

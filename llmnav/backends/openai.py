@@ -26,7 +26,7 @@ from llmnav.backends.base import (
     ScoreRequest,
     ScoreResult,
 )
-from llmnav.backends.forced import normalised, score_continuation
+from llmnav.backends.forced import normalised, score_continuations
 from llmnav.backends.http import (
     HttpBackend,
     HttpOptions,
@@ -165,9 +165,7 @@ class OpenAIBackend(HttpBackend):
             states.add(reply.cache)
             return reply.data
 
-        scores = tuple(
-            score_continuation(request.prefix, text, self._tokenize, complete) for text in request.continuations
-        )
+        scores = tuple(score_continuations(request.prefix, request.continuations, self._tokenize, complete))
         # the call is a hit only when every continuation's reply came from the cache
         cache = "off" if not self.caching else ("hit" if states == {"hit"} else "miss")
         prefix_tokens = len(self._tokenize(normalised(request.prefix)))

@@ -90,6 +90,65 @@ def test_scores_follow_the_chain_rule(backend: LocalBackend) -> None:
     assert both.logprob < 0
 
 
+class _TinyServer:
+    """A /completions stand-in over a made-up model: log P(token | context) is a fixed function of both.
+
+    It answers forced requests (the grammar's ids, each with its log-probability) and reports the top
+    `logprobs` alternatives of the first position over a 20-token vocabulary, as llama.cpp does.
+    """
+
+    VOCAB = range(1, 21)
+
+    def __init__(self) -> None:
+        self.requests: list[dict[str, Any]] = []
+
+    @staticmethod
+    def logprob(context: list[int], token: int) -> float:
+        return -0.1 - ((sum(context) * 7 + token * 13) % 97) / 10
+
+    def __call__(self, body: dict[str, Any]) -> dict[str, Any]:
+        self.requests.append(body)
+        forced = [int(part[2:-2]) for part in body["grammar"].split("start: ", 1)[1].split()]
+        context, items = list(body["prompt"]), []
+        for token in forced:
+            ranked = sorted(self.VOCAB, key=lambda t: -self.logprob(context, t))[: body["logprobs"]]
+            top = [{"id": t, "logprob": self.logprob(context, t)} for t in ranked]
+            items.append({"id": token, "logprob": self.logprob(context, token), "top_logprobs": top})
+            context.append(token)
+        return {"choices": [{"logprobs": {"content": items}}]}
+
+
+def test_continuations_share_the_positions_they_pass_through() -> None:
+    """Each position is evaluated once for every continuation through it, and every sum is still exact."""
+    from llmnav.backends import forced
+
+    words = {" a": [2, 3], " b": [2, 4], " c": [2, 5], " d": [2, 6, 7], " e": [8, 9]}  # each text's tail
+    known = {"p": [1], "\n": [19]} | {"p" + text: [1, *tail] for text, tail in words.items()}
+    tokenize = known.__getitem__
+    server = _TinyServer()
+    texts = (" a", " b", " c", " d", " e")
+    scores = forced.score_continuations("p", texts, tokenize, server)
+    for text, score in zip(texts, scores, strict=True):
+        tail = words[text]
+        exact = sum(server.logprob([1, *tail[:i]], token) for i, token in enumerate(tail))
+        assert score.tokens == len(tail) and score.logprob == pytest.approx(exact, abs=1e-9)
+    # " e" and the shared 2 are forced (two branches at the root: under BRANCH_MIN); after 2, four
+    # branches are read from one request's alternatives, and only " d"'s last token is forced alone.
+    prompts = [body["prompt"] for body in server.requests]
+    assert sorted(prompts) == sorted([[1], [1], [1, 2], [1, 2, 6]])
+    assert [body["logprobs"] for body in server.requests if body["prompt"] == [1, 2]] == [forced.BRANCH_ALTERNATIVES]
+    # A next token missing from the alternatives is forced on its own.
+    server = _TinyServer()
+    few = forced.BRANCH_ALTERNATIVES
+    try:
+        forced.BRANCH_ALTERNATIVES = 1
+        again = forced.score_continuations("p", texts, tokenize, server)
+    finally:
+        forced.BRANCH_ALTERNATIVES = few
+    assert [s.logprob for s in again] == pytest.approx([s.logprob for s in scores], abs=1e-9)
+    assert len(server.requests) > 4
+
+
 def test_a_repeated_pair_comes_from_the_memo_with_the_same_score(backend: LocalBackend) -> None:
     """Only the continuations not scored before reach the engine; remembered ones return their first score."""
     prefix = "Task: Find the mop\nThe robot drives to the"

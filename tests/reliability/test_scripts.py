@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from llmnav.backends.forced import continuation_tokens, forced_request, score_continuation
+from llmnav.backends.forced import continuation_tokens, forced_request, score_continuations
 from llmnav.backends.local import LocalBackend
 from llmnav.cli import app
 from llmnav.core.chat import ScoreRequest
@@ -73,7 +73,7 @@ def test_a_server_that_reports_other_tokens_is_still_a_model_error(tally: Any) -
 
     for complete in (liar, silent):
         with pytest.raises(ModelError, match="returned tokens|no log-probability|no token"):
-            score_continuation("p", " x", lambda text: tokens.get(text, [3]), complete)
+            score_continuations("p", (" x",), lambda text: tokens.get(text, [3]), complete)
     assert forced_request([1], [2], 5)["logprobs"] == 5
 
 
