@@ -340,16 +340,18 @@ class ScoredChooser:
 
     # --- frontier descriptions ----------------------------------------------------------------------
     def describe(self, names: tuple[str, ...]) -> str:
-        """A frontier's description: the room its nearby landmarks suggest and the landmarks themselves.
+        """A frontier's description: the room its nearby landmarks suggest, else the landmarks themselves.
 
-        "the living room with the sofa and the armchair"; without a room that the landmarks make at least
-        `min_pmi` likelier, just "the sofa and the armchair"; with no landmark near, UNDESCRIBED.
+        "the living room" when the sofa and the armchair make it at least `min_pmi` likelier; without such
+        a room, "the sofa and the armchair"; with no landmark near, UNDESCRIBED. The room alone, not the
+        room with its landmarks: the room carries what the landmarks say about where the target is, and a
+        short text that recurs decision after decision is scored once (`llmnav.backends.memo`), where "the
+        living room with the sofa and the armchair" cost 10 tokens with each new set of landmarks.
         """
         if not names:
             return UNDESCRIBED
-        things = _listed(names)
         room = self.room(names)
-        return f"the {room} with {things}" if room else things
+        return f"the {room}" if room else _listed(names)
 
     def room(self, names: tuple[str, ...]) -> str:
         """The room the landmarks `names` suggest together, if it is at least `min_pmi` [nats] likelier.
