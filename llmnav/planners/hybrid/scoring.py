@@ -23,8 +23,8 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
    see: explore a frontier first, at most max(`explore_budget`, the world's area / `explore_area_m2`)
    times in an episode. Which frontier (`-o explore`): the nearest; the most useful (its length
    discounted by the drive to it); or, `scored`, the one of highest `frontier_value`: the utility times
-   the likelihood ratio of its description ("the bedroom with the bed and the wardrobe": the landmarks
-   seen within `describe_radius_m` of it and the room they suggest) with the task, the PMI after
+   the likelihood ratio of its description ("the bedroom": the room the landmarks seen within
+   `describe_radius_m` of it suggest, else those landmarks) with the task, the PMI after
    FRONTIER_PROMPT against the content-free task (docs/frontier-values.md). Exploring ends early when
    something new comes into view, and the decision is made again (such an exploration is not
    counted against the budget).
