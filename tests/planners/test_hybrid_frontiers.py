@@ -246,6 +246,24 @@ def test_a_relation_counts_only_where_it_is_more_relevant_than_its_landmarks() -
     assert decision.number == 2 and decision.scores[f"{boxes} (1.0, 1.0)"] == pytest.approx(3.0)
 
 
+def test_relational_places_are_offered_only_to_a_task_that_asks_for_a_relation() -> None:
+    from llmnav.planners.hybrid.menu import asks_for_relation
+
+    for task in ("Go between the stairs and the oil barrels", "Wait next to the door", "Stop BY the window",
+                 "Park beside the red box", "Go halfway to the exit", "Find a chair near the desk"):  # fmt: skip
+        assert asks_for_relation(task), task
+    for task in ("Go to the coffee table", "Find somewhere I can lie down", "Go to the nearest exit",
+                 "Go to the bypass valve", "Look around the room you are in"):  # fmt: skip
+        assert not asks_for_relation(task), task
+
+
+def test_a_flat_task_gets_no_relational_place_on_its_menus(tmp_path: Path) -> None:
+    """Flat 0's T1 names a thing, no relation: its scored menus hold landmarks, frontiers, no "spot"."""
+    _drive(tmp_path, "live", "policy:oracle")
+    scored = [d for d in read_run(tmp_path / "live").of_type("decision") if d.get("pmi")]
+    assert scored and not any(name.startswith("spot ") for d in scored for name in d["pmi"])
+
+
 def test_oracle_answers_choose_the_place_between_the_stairs_and_the_oil_barrels(tmp_path: Path) -> None:
     """Factory T4 names no landmark ("Go between the stairs and the oil barrels"): a relational place."""
     summary = run_episode(
