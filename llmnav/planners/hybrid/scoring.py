@@ -37,10 +37,10 @@ landmarks the robot stands at, frontiers, the full turn when offered, Finish):
    view), then Finish. Otherwise go to the target.
 
 Relational places ("spot between the stairs and the oil barrel", "spot beside the stairs"; built from the
-landmarks seen, `menu.relational_options`) join the landmarks in step 3, scored like names after
-TARGET_PROMPT (with their spot in the request, for oracle answers); one counts only where its PMI exceeds
-that of each landmark it names, so a relation is taken when the task asks for it, not as a nearer stand-in
-for its landmark.
+landmarks seen, `menu.relational_options`, for a task that words a relation) join the landmarks in step
+3, scored like names after TARGET_PROMPT (with their spot in the request, for oracle answers); one counts
+only where its PMI exceeds that of each landmark it names, so a relation is taken when the task asks for
+it, not as a nearer stand-in for its landmark.
 
 `sure_pmi` and `min_pmi` were set on task wordings that are not part of this repository (targets scored
 6-12 nats, unrelated landmarks up to 5), never on the bundled tasks.
