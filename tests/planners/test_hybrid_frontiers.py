@@ -18,7 +18,6 @@ from llmnav.planners.hybrid.oracle import HybridAnswerKey
 from llmnav.planners.hybrid.scoring import (
     FRONTIER_PROMPT,
     ROOM_PROMPT,
-    ROOM_WORDS,
     UNDESCRIBED,
     Candidate,
     ScoredChooser,
@@ -87,9 +86,7 @@ def test_keyword_scores_the_frontier_whose_landmarks_share_the_tasks_words() -> 
     assert decision.number == 1
     assert rows[2]["value"] == pytest.approx(math.log(1.0) + 1.0)
     asked = [r for r in ctx.requests if r.prefix.startswith("A mobile robot") and "explores toward" in r.prefix]
-    # the frontier into unexplored space is asked as each room no landmark suggests, all at its place
-    assert len(asked) == 2 and asked[0].places == ((2.0, 0.0), (-6.0, 0.0), *((0.0, 4.0),) * len(ROOM_WORDS))
-    assert asked[0].continuations[2:] == tuple(f" the {word}" for word in ROOM_WORDS)
+    assert len(asked) == 2 and asked[0].places == ((2.0, 0.0), (-6.0, 0.0), (0.0, 4.0))
 
 
 def test_first_scores_by_position_and_random_by_a_seeded_draw() -> None:
@@ -141,53 +138,6 @@ def test_a_room_is_named_only_when_the_landmarks_make_it_likelier() -> None:
     assert ROOM_PROMPT.format(task="the bed") == "In a building, the room with the bed is the"
 
 
-def test_unexplored_space_is_the_mean_likelihood_ratio_of_the_rooms_not_seen() -> None:
-    """A frontier with nothing known near it may lead to any room no landmark suggests: their mean ratio."""
-    from llmnav.core.chat import ContinuationScore
-
-    asked: list[ScoreRequest] = []
-
-    class Scores:
-        """Log-probability -5 for everything, except: the stove suggests the kitchen, the task the bathroom."""
-
-        def score(self, request: ScoreRequest, step: int | None) -> ScoreResult:
-            asked.append(request)
-            values = []
-            for text in request.continuations:
-                value = -5.0
-                if request.prefix == ROOM_PROMPT.format(task="the stove") and text == " kitchen":
-                    value = -1.0  # 4 nats: the stove suggests the kitchen
-                if request.prefix == FRONTIER_PROMPT.format(task="Find the soap") and text == " the bathroom":
-                    value = -5.0 + math.log(12.0)  # the task makes the bathroom 12 times likelier
-                values.append(ContinuationScore(value, 1))
-            return ScoreResult(tuple(values), 0.0, "fake")
-
-    chooser = ScoredChooser(Scores(), "Find the soap", mapped=False, explore="scored")  # type: ignore[arg-type]
-    chooser.intent = "go"
-    menu = [
-        Candidate(1, "frontier", ("stove",), 2.0, utility=1.0, place=(2.0, 0.0)),
-        Candidate(2, "frontier", (), 2.0, utility=1.0, place=(0.0, 2.0)),
-        Candidate(3, "landmark", ("kitchen",), 3.0),  # a labelled room names itself
-        Candidate(4, "complete"),
-    ]
-    decision = chooser.choose(menu, turned=True, step=1)
-    rows = {row["option"]: row for row in decision.frontiers}
-    assert rows[1]["description"] == "the kitchen" and rows[1]["pmi"] == pytest.approx(0.0)
-    # the kitchen is seen (the stove, and the labelled room): eleven rooms remain, one 12 times likelier
-    unseen = [word for word in ROOM_WORDS if word != "kitchen"]
-    assert len(unseen) == 11
-    assert rows[2]["description"] == UNDESCRIBED
-    assert rows[2]["pmi"] == pytest.approx(math.log((12.0 + 10 * 1.0) / 11), abs=1e-3)
-    assert decision.number == 2
-    frontier = [r for r in asked if "explores toward" in r.prefix]
-    assert frontier[0].continuations == (" the kitchen", *(f" the {word}" for word in unseen))
-    assert frontier[0].places == ((2.0, 0.0), *((0.0, 2.0),) * 11)
-    # every room seen: the frontier is asked as the words themselves
-    assert chooser.unseen_rooms(list(ROOM_WORDS)) == ()
-    assert chooser.frontier_pmi([UNDESCRIBED], [(0.0, 2.0)], ()) == [pytest.approx(0.0)]
-    assert asked[-1].continuations == (" " + UNDESCRIBED,)
-
-
 def test_landmarks_near_a_frontier_nearest_first_each_name_once() -> None:
     memory = Memory(
         landmarks={"b": (1.0, 0.0), "w": (2.0, 0.0), "b2": (0.5, 0.0), "far": (9.0, 0.0)},
@@ -208,10 +158,6 @@ def test_oracle_answers_score_the_frontier_nearest_the_target_by_path() -> None:
     # The words do not matter to the oracle, only where the frontier lies.
     moved = ((8.0, -5.0), (-8.0, 6.0), (0.0, 0.0))
     assert key.scores(ScoreRequest(FRONTIER_PROMPT.format(task=task.text), texts, moved)) == (0.0, -10.0, -10.0)
-    # a frontier into unexplored space asked as several rooms: each of its texts leads toward the target
-    rooms = (" the kitchen", " the office", " the oil barrel")
-    twice = ((8.0, -5.0), (8.0, -5.0), (-8.0, 6.0))
-    assert key.scores(ScoreRequest(FRONTIER_PROMPT.format(task=task.text), rooms, twice)) == (0.0, 0.0, -10.0)
 
 
 # --- end to end ---------------------------------------------------------------------------------

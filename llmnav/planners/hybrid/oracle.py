@@ -109,14 +109,12 @@ class HybridAnswerKey:
         points = self.truth.scenario.target_points(self.truth.task)
         if len(request.places) != n or not points:
             return (NEUTRAL,) * n
-        # a frontier into unexplored space is asked as several texts with its place: each one leads there
-        frontiers = list(dict.fromkeys(request.places))
-        lengths = [goal_distance(self.truth.scenario, points, place, TOWARD_RADIUS_M) for place in frontiers]
+        lengths = [goal_distance(self.truth.scenario, points, place, TOWARD_RADIUS_M) for place in request.places]
         reachable = [(length, index) for index, length in enumerate(lengths) if length is not None]
         if not reachable:
             return (NEUTRAL,) * n
-        best = frontiers[min(reachable)[1]]
-        return tuple(MATCH if place == best else NEUTRAL for place in request.places)
+        best = min(reachable)[1]
+        return tuple(MATCH if index == best else NEUTRAL for index in range(n))
 
     def answer(self, request: ChatRequest) -> str:
         """The option number a perfect model would choose from the menu of the latest user turn."""

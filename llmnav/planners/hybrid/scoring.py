@@ -229,7 +229,9 @@ class ScoredChooser:
             decision.frontiers = [_row(c) for c in candidates if c.kind == "frontier"]
         return decision
 
-    def _choose(self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None) -> Decision:
+    def _choose(
+        self, candidates: list[Candidate], *, turned: bool, step: int | None, explored: int | None
+    ) -> Decision:
         by_kind: dict[str, list[Candidate]] = {}
         for candidate in candidates:
             by_kind.setdefault(candidate.kind, []).append(candidate)
@@ -307,8 +309,7 @@ class ScoredChooser:
             best = max(frontiers, key=lambda c: (c.utility, -c.distance_m))
         else:
             texts = [self.describe(c.names) for c in frontiers]
-            unseen = self.unseen_rooms(_known_names(by_kind))
-            pmi = self.frontier_pmi(texts, [c.place or (0.0, 0.0) for c in frontiers], unseen)
+            pmi = self.frontier_pmi(texts, [c.place or (0.0, 0.0) for c in frontiers])
             values = [frontier_value(c.utility, p) for c, p in zip(frontiers, pmi, strict=True)]
             best = max(zip(values, frontiers, strict=True), key=lambda item: (item[0], -item[1].distance_m))[1]
             rows = [
@@ -373,55 +374,17 @@ class ScoredChooser:
             self._rooms[name] = TextRelevance(self._score, _listed((name,))).pmi(ROOM_PROMPT, list(ROOM_WORDS))
         return self._rooms[name]
 
-    def unseen_rooms(self, names: list[str]) -> tuple[str, ...]:
-        """The room words that no known landmark suggests: where a frontier into unexplored space may lead.
-
-        A landmark suggests the room it names ("kitchen", a labelled room) or, failing that, the room it
-        alone makes at least `min_pmi` likelier (`room`).
-        """
-        seen = {name if name in ROOM_WORDS else self.room((name,)) for name in dict.fromkeys(names)}
-        return tuple(word for word in ROOM_WORDS if word not in seen)
-
-    def frontier_pmi(
-        self, texts: list[str], places: list[tuple[float, float]], unseen: tuple[str, ...] = ()
-    ) -> list[float]:
+    def frontier_pmi(self, texts: list[str], places: list[tuple[float, float]]) -> list[float]:
         """PMI [nats] of each frontier description with the task, against the content-free task.
-
-        A frontier into UNDESCRIBED space may lead to any room not seen yet (`unseen`): its PMI is the log
-        of the mean likelihood ratio of those rooms, each scored as the text "the <room>" with the
-        frontier's place, so every answerer takes the same road (oracle answers judge each text by the
-        place). The 135M model scores the words "unexplored space" below nearly every room, right or
-        wrong, which drew the search toward any room already seen (docs/frontier-values.md).
 
         One request pair for the menu's frontiers, never cached: oracle answers judge each by where it
         lies (`ScoreRequest.places`), and the same words may describe two frontiers.
         """
-        groups = [
-            tuple(f"the {word}" for word in unseen) if text == UNDESCRIBED and unseen else (text,) for text in texts
-        ]
-        continuations = tuple(" " + text for group in groups for text in group)
-        where = tuple((round(x, 3), round(y, 3)) for group, (x, y) in zip(groups, places, strict=True) for _ in group)
+        continuations = tuple(" " + text for text in texts)
+        where = tuple((round(x, 3), round(y, 3)) for x, y in places)
         with_task = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=self.task), continuations, where))
         free = self._score(ScoreRequest(FRONTIER_PROMPT.format(task=CONTENT_FREE_TASK), continuations, where))
-        pmi = [a.logprob - b.logprob for a, b in zip(with_task.scores, free.scores, strict=True)]
-        values: list[float] = []
-        for group in groups:
-            values.append(_log_mean_exp(pmi[: len(group)]))
-            pmi = pmi[len(group) :]
-        return values
-
-
-def _log_mean_exp(values: list[float]) -> float:
-    """log(mean(e^v)): the log of the mean likelihood ratio, computed without overflow."""
-    top = max(values)
-    return top + math.log(sum(math.exp(v - top) for v in values) / len(values))
-
-
-def _known_names(by_kind: dict[str, list[Candidate]]) -> list[str]:
-    """The names of every landmark the menu knows: where the robot stands, the places, near the frontiers."""
-    names = [name for c in by_kind.get("complete", []) for name in c.names]
-    names += [c.names[0] for c in by_kind.get("landmark", []) if c.names and c.place is None]
-    return names + [name for c in by_kind.get("frontier", []) for name in c.names]
+        return [a.logprob - b.logprob for a, b in zip(with_task.scores, free.scores, strict=True)]
 
 
 def _row(frontier: Candidate) -> dict[str, Any]:
